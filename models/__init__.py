@@ -1,0 +1,1 @@
+"""Pure numerics of near-field acoustic levitation: no FMI, no ports, no result files."""

@@ -1,0 +1,54 @@
+"""Reading the small numeric CSV tables users bring: shape scans, equilibrium measurements."""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DataFormatError
+
+
+def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
+    """Read a CSV of numbers with an optional header line and ``#`` comment lines.
+
+    Returns
+    -------
+    names : list of str
+        Column names from the header (``col0``, ``col1``, ... when there is none), lower-cased.
+    rows : ndarray, shape (n_rows, n_columns)
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DataFormatError(f"cannot read {path}: {exc.strerror or exc}") from None
+    lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
+    records = [[cell.strip() for cell in row] for row in csv.reader(lines)]
+    if not records:
+        raise DataFormatError(f"{path}: no data rows")
+    names = None
+    if not _is_numeric(records[0]):
+        names, records = [cell.lower() for cell in records[0]], records[1:]
+    width = len(names) if names else len(records[0])
+    rows = []
+    for number, record in enumerate(records, start=2 if names else 1):
+        if len(record) != width or not _is_numeric(record):
+            raise DataFormatError(f"{path}: data row {number} is not {width} numbers: {','.join(record)!r}")
+        rows.append([float(cell) for cell in record])
+    if not rows:
+        raise DataFormatError(f"{path}: a header but no data rows")
+    table = np.array(rows, dtype=float)
+    if not np.all(np.isfinite(table)):
+        raise DataFormatError(f"{path}: contains NaN or infinite values")
+    return names or [f"col{i}" for i in range(width)], table
+
+
+def _is_numeric(record: list[str]) -> bool:
+    try:
+        [float(cell) for cell in record]
+    except ValueError:
+        return False
+    return True

@@ -1,0 +1,34 @@
+"""The project's error types: every bad input raises one of these, naming the value and the range."""
+
+from __future__ import annotations
+
+
+class NfalError(Exception):
+    """Base of every error nfal raises on purpose."""
+
+
+class InvalidParameterError(NfalError, ValueError):
+    """A parameter or input is out of its allowed range (the message names both)."""
+
+    def __init__(self, name: str, value: object, allowed: str) -> None:
+        self.name, self.value, self.allowed = name, value, allowed
+        super().__init__(f"{name} = {value!r} is invalid: must be {allowed}")
+
+
+class DataFormatError(NfalError, ValueError):
+    """A data file (shape scan, equilibrium measurements, calibration) cannot be read as such."""
+
+
+class ConvergenceError(NfalError, RuntimeError):
+    """An iterative solver did not reach its tolerance."""
+
+
+def require_positive(name: str, value: float) -> float:
+    """Return ``value`` as float if it is finite and > 0, else raise :class:`InvalidParameterError`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, value, "a finite number > 0") from None
+    if not (number > 0.0 and number < float("inf")):
+        raise InvalidParameterError(name, value, "a finite number > 0")
+    return number

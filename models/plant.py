@@ -1,0 +1,199 @@
+"""The simplified slow model of eqs. (13)-(14), in SI, with touchdown and lift-off.
+
+    m h'' = pi r0^2 p_a (|a| / h)^2 K(sigma(h)) - 3 pi mu r0^4 / (2 h^3) h' - m g
+
+is eq. (13) multiplied by m omega^2 h0 (``rhs_nondimensional`` is eq. 13 itself). The object cannot
+come closer to the driving surface than ``rest_gap``: it lands there (inelastically), rests while the
+levitation force is below its weight, and lifts off when the force returns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import numpy as np
+from scipy import integrate, optimize
+
+from .calibration import CalibrationFunction
+from .errors import ConvergenceError, InvalidParameterError, require_positive
+from .rig import RigParameters
+
+Excitation = float | Callable[[float], float]
+
+#: Default closest approach [m]: surface flatness and roughness of a lapped pair. Not in the paper.
+DEFAULT_REST_GAP = 5e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantState:
+    """Slow state: clearance hbar [m], its rate [m/s], and whether the object rests on the surface."""
+
+    height: float
+    velocity: float = 0.0
+    resting: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """A simulated response sampled at ``time`` [s]: clearance [m], velocity [m/s], resting flags."""
+
+    time: np.ndarray
+    height: np.ndarray
+    velocity: np.ndarray
+    resting: np.ndarray
+
+
+class SimplifiedPlant:
+    """Eq. (13) for one rig and one calibration function K(sigma).
+
+    Parameters
+    ----------
+    rig : RigParameters
+    calibration : CalibrationFunction
+        Any K source: eq. (17), a table, or the perturbation route.
+    rest_gap : float
+        Closest approach to the driving surface [m].
+    """
+
+    def __init__(self, rig: RigParameters, calibration: CalibrationFunction, rest_gap: float = DEFAULT_REST_GAP) -> None:
+        self.rig, self.calibration = rig, calibration
+        self.rest_gap = require_positive("rest_gap", rest_gap)
+        self.weight = rig.mass * rig.gravity
+
+    # --- forces -------------------------------------------------------------------------------
+    def levitation_force(self, height, excitation):
+        """Time-averaged film force pi r0^2 p_a delta^2 K(sigma) [N], eq. (12); ``excitation`` is |a| [m]."""
+        height = np.asarray(height, dtype=float)
+        delta = np.asarray(excitation, dtype=float) / height
+        return self.rig.film_force_scale * delta**2 * self.calibration(self.rig.squeeze_number(height))
+
+    def damping_force(self, height, velocity):
+        """Squeeze-film damping force [N] of eq. (6)."""
+        return -self.rig.squeeze_film_damping(height) * np.asarray(velocity, dtype=float)
+
+    def acceleration(self, height, velocity, excitation):
+        """h'' [m/s^2] in free flight."""
+        net = self.levitation_force(height, excitation) + self.damping_force(height, velocity) - self.weight
+        return net / self.rig.mass
+
+    def rhs_nondimensional(self, T: float, state, u: float):
+        """Eq. (13) in the paper's variables: state (Hbar, dHbar/dT), excitation u = |a| / h0."""
+        rig = self.rig
+        H, dH = state
+        K = self.calibration(rig.squeeze_number(H * rig.reference_clearance))
+        return np.array([dH, rig.stiffness_coefficient * u**2 * K / H**2 - rig.damping_coefficient / H**3 * dH - rig.gravity_term])
+
+    # --- equilibria (eq. 16) ---------------------------------------------------------------------
+    def equilibrium_excitation(self, height):
+        """|a| [m] that holds the object at ``height`` [m]: eq. (16) solved for u."""
+        height = np.asarray(height, dtype=float)
+        if np.any(~np.isfinite(height)) or np.any(height <= 0):
+            raise InvalidParameterError("height", height, "finite clearances > 0 m")
+        K = self.calibration(self.rig.squeeze_number(height))
+        if np.any(K <= 0):
+            raise InvalidParameterError("height", height, "heights where K(sigma) > 0 (the film pushes)")
+        return height * np.sqrt(self.weight / (self.rig.film_force_scale * K))
+
+    def equilibrium_height(self, excitation: float) -> float:
+        """The stable equilibrium clearance [m] for a constant |a| = ``excitation`` [m].
+
+        Searched over the clearances of the calibration's sigma range; the stable root is the lowest
+        one where the net force falls through zero with height.
+        """
+        excitation = require_positive("excitation", excitation)
+        sigma_low, sigma_high = self.calibration.sigma_range
+        heights = np.geomspace(max(self.rig.clearance_at(sigma_high), self.rest_gap), self.rig.clearance_at(sigma_low), 2000)
+        net = self.levitation_force(heights, excitation) - self.weight
+        falling = np.flatnonzero((net[:-1] > 0) & (net[1:] <= 0))
+        if falling.size == 0:
+            raise InvalidParameterError(
+                "excitation", excitation,
+                f"one whose equilibrium lies in the calibrated range {heights[0] * 1e6:.1f}-{heights[-1] * 1e6:.1f} um")
+        i = falling[0]
+        return float(optimize.brentq(lambda h: self.levitation_force(h, excitation) - self.weight, heights[i], heights[i + 1], xtol=1e-15, rtol=1e-13))
+
+    # --- time response ----------------------------------------------------------------------------
+    def simulate(self, duration: float, excitation: Excitation, initial: PlantState | float,
+                 samples: int = 2001, rtol: float = 1e-9) -> Trajectory:
+        """Response over [0, ``duration``] s to ``excitation`` (|a| [m], constant or a function of t).
+
+        ``initial`` is a :class:`PlantState` or a clearance to release from rest.
+        """
+        duration = require_positive("duration", duration)
+        state = initial if isinstance(initial, PlantState) else PlantState(require_positive("initial height", initial))
+        self._check_state(state)
+        times = np.linspace(0.0, duration, int(samples))
+        return self._integrate(state, _as_function(excitation), times, rtol)
+
+    def advance(self, state: PlantState, excitation: float, step: float, rtol: float = 1e-8) -> PlantState:
+        """The state ``step`` seconds later under a constant |a| = ``excitation`` [m] (zero-order hold)."""
+        step = require_positive("step", step)
+        if not (np.isfinite(excitation) and excitation >= 0):
+            raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m")
+        self._check_state(state)
+        path = self._integrate(state, lambda t: excitation, np.array([0.0, step]), rtol)
+        return PlantState(float(path.height[-1]), float(path.velocity[-1]), bool(path.resting[-1]))
+
+    def _check_state(self, state: PlantState) -> None:
+        if not (np.isfinite(state.height) and state.height >= self.rest_gap):
+            raise InvalidParameterError("height", state.height, f"finite and >= the rest gap {self.rest_gap:g} m")
+        if not np.isfinite(state.velocity):
+            raise InvalidParameterError("velocity", state.velocity, "a finite number (m/s)")
+
+    def _integrate(self, state: PlantState, excitation: Callable[[float], float], times: np.ndarray, rtol: float) -> Trajectory:
+        """Piecewise integration: free flight until touchdown, rest until lift-off, and so on."""
+        scale = self.rig.reference_clearance  # integrate h / h0 and v / h0 (order-one numbers)
+        t0, t_end = float(times[0]), float(times[-1])
+        y = np.array([state.height / scale, state.velocity / scale])
+        resting = state.resting or (state.height <= self.rest_gap and self._net_resting_force(t0, excitation) <= 0)
+        out_h, out_v, out_rest = np.empty_like(times), np.empty_like(times), np.zeros(times.shape, dtype=bool)
+        filled = 0
+        while t0 < t_end:
+            pending = times[filled:]
+            if resting:
+                y = np.array([self.rest_gap / scale, 0.0])
+                event = lambda t, _y: self._net_resting_force(t, excitation)  # noqa: E731
+                event.direction, event.terminal = 1.0, True
+                solution = integrate.solve_ivp(lambda t, _y: np.zeros(2), (t0, t_end), y, events=event, t_eval=pending, rtol=rtol)
+            else:
+                event = lambda t, y_: y_[0] - self.rest_gap / scale  # noqa: E731
+                event.direction, event.terminal = -1.0, True
+                solution = integrate.solve_ivp(lambda t, y_: self._free_rhs(t, y_, excitation), (t0, t_end), y,
+                                               method="LSODA", events=event, t_eval=pending, rtol=rtol,
+                                               atol=(1e-9, 1e-9))
+            if solution.status < 0:
+                raise ConvergenceError(f"plant integration failed at t = {t0:.6g} s: {solution.message}")
+            count = solution.t.size
+            out_h[filled:filled + count] = np.maximum(solution.y[0] * scale, self.rest_gap)
+            out_v[filled:filled + count] = solution.y[1] * scale
+            out_rest[filled:filled + count] = resting
+            filled += count
+            if solution.status == 0:
+                break
+            t0 = float(solution.t_events[0][0])
+            y = solution.y_events[0][0].copy()
+            # Touchdown ends in rest unless the film already pushes harder than gravity; lift-off ends rest.
+            resting = (not resting) and self._net_resting_force(t0, excitation) <= 0
+            if not resting:
+                y = np.array([max(y[0], self.rest_gap / scale), max(y[1], 0.0)])
+        if filled < times.size:  # the last event fell on the final time
+            out_h[filled:], out_v[filled:], out_rest[filled:] = y[0] * scale, y[1] * scale, resting
+        return Trajectory(times.copy(), out_h, out_v, out_rest)
+
+    def _free_rhs(self, t, y, excitation):
+        scale = self.rig.reference_clearance
+        height = max(y[0], 1e-3) * scale  # guards the step size control's trial points only
+        return np.array([y[1], self.acceleration(height, y[1] * scale, excitation(t)) / scale])
+
+    def _net_resting_force(self, t, excitation) -> float:
+        return float(self.levitation_force(self.rest_gap, excitation(t)) - self.weight)
+
+
+def _as_function(excitation: Excitation) -> Callable[[float], float]:
+    if callable(excitation):
+        return excitation
+    value = float(excitation)
+    if not (np.isfinite(value) and value >= 0):
+        raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time")
+    return lambda t: value

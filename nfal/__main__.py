@@ -1,0 +1,5 @@
+import sys
+
+from nfal.cli import main
+
+sys.exit(main())

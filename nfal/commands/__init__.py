@@ -1,0 +1,1 @@
+"""Command groups of the ``nfal`` command line; each module has ``register(subparsers)``."""
