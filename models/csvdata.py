@@ -25,8 +25,13 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise DataFormatError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise DataFormatError(f"{path}: not a UTF-8 text file") from None
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-    records = [[cell.strip() for cell in row] for row in csv.reader(lines)]
+    try:
+        records = [[cell.strip() for cell in row] for row in csv.reader(lines)]
+    except csv.Error as exc:
+        raise DataFormatError(f"{path}: not CSV: {exc}") from None
     if not records:
         raise DataFormatError(f"{path}: no data rows")
     names = None

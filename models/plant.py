@@ -23,6 +23,8 @@ Excitation = float | Callable[[float], float]
 
 #: Default closest approach [m]: surface flatness and roughness of a lapped pair. Not in the paper.
 DEFAULT_REST_GAP = 5e-6
+#: Touchdowns plus lift-offs allowed in one integration before it is called chattering.
+MAX_EVENTS = 10_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,8 +150,11 @@ class SimplifiedPlant:
         y = np.array([state.height / scale, state.velocity / scale])
         resting = state.resting or (state.height <= self.rest_gap and self._net_resting_force(t0, excitation) <= 0)
         out_h, out_v, out_rest = np.empty_like(times), np.empty_like(times), np.zeros(times.shape, dtype=bool)
-        filled = 0
+        filled, events = 0, 0
         while t0 < t_end:
+            passed = filled + int(np.searchsorted(times[filled:], t0, side="left"))
+            out_h[filled:passed], out_v[filled:passed], out_rest[filled:passed] = y[0] * scale, y[1] * scale, resting
+            filled = passed
             pending = times[filled:]
             if resting:
                 y = np.array([self.rest_gap / scale, 0.0])
@@ -164,19 +169,27 @@ class SimplifiedPlant:
                                                atol=(1e-9, 1e-9))
             if solution.status < 0:
                 raise ConvergenceError(f"plant integration failed at t = {t0:.6g} s: {solution.message}")
-            count = solution.t.size
-            out_h[filled:filled + count] = np.maximum(solution.y[0] * scale, self.rest_gap)
-            out_v[filled:filled + count] = solution.y[1] * scale
+            sampled = np.asarray(solution.y).reshape(2, -1)
+            count = sampled.shape[1]
+            out_h[filled:filled + count] = np.maximum(sampled[0] * scale, self.rest_gap)
+            out_v[filled:filled + count] = sampled[1] * scale
             out_rest[filled:filled + count] = resting
             filled += count
             if solution.status == 0:
                 break
             t0 = float(solution.t_events[0][0])
             y = solution.y_events[0][0].copy()
-            # Touchdown ends in rest unless the film already pushes harder than gravity; lift-off ends rest.
-            resting = (not resting) and self._net_resting_force(t0, excitation) <= 0
-            if not resting:
-                y = np.array([max(y[0], self.rest_gap / scale), max(y[1], 0.0)])
+            events += 1
+            if events > MAX_EVENTS:
+                raise ConvergenceError(f"more than {MAX_EVENTS} touchdowns and lift-offs by t = {t0:.6g} s (chattering)")
+            if resting:  # lift-off: from the first instant the film pushes harder than gravity
+                nudge = 1e-12 * max(1.0, t_end)
+                while t0 < t_end and self._net_resting_force(t0, excitation) <= 0:
+                    t0, nudge = t0 + nudge, 2.0 * nudge
+                resting = False
+            else:  # touchdown: inelastic; rest unless the film already pushes harder than gravity
+                resting = self._net_resting_force(t0, excitation) <= 0
+            y = np.array([self.rest_gap / scale, 0.0])
         if filled < times.size:  # the last event fell on the final time
             out_h[filled:], out_v[filled:], out_rest[filled:] = y[0] * scale, y[1] * scale, resting
         return Trajectory(times.copy(), out_h, out_v, out_rest)

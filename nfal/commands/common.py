@@ -48,3 +48,31 @@ def progress_bar(total: int, description: str) -> tqdm:
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON on stdout")
     parser.add_argument("--plot", metavar="FILE", help="write a PNG figure to FILE")
+
+
+RIG_OPTIONS = (
+    ("mass", "kg", "mass of the levitated object"),
+    ("radius", "m", "radius r0 of object and driving surface"),
+    ("frequency", "Hz", "excitation frequency"),
+    ("viscosity", "Pa s", "dynamic viscosity of the gas"),
+    ("ambient_pressure", "Pa", "ambient pressure"),
+    ("reference_clearance", "m", "reference clearance h0 of eq. (2)"),
+)
+
+
+def add_rig_options(parser: argparse.ArgumentParser) -> None:
+    """--mass, --radius, ... overriding the paper's rig (defaults shown by --help)."""
+    from nfal.models.rig import RigParameters
+
+    defaults = RigParameters()
+    group = parser.add_argument_group("rig (SI; defaults: the paper's rig)")
+    for name, unit, text in RIG_OPTIONS:
+        group.add_argument(f"--{name.replace('_', '-')}", dest=f"rig_{name}", type=float, metavar=unit,
+                           help=f"{text} [{unit}] (default {getattr(defaults, name):g})")
+
+
+def rig_from_args(args: argparse.Namespace):
+    from nfal.models.rig import RigParameters
+
+    changes = {name: getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS if getattr(args, f"rig_{name}") is not None}
+    return RigParameters(**changes)

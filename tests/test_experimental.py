@@ -1,0 +1,121 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from nfal.models.calibration import PAPER_COEFFICIENTS, paper_calibration
+from nfal.models.csvdata import read_numeric_csv
+from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.models.experimental import EquilibriumData, VoltageAmplitudeMap, fit_calibration, measured_K
+from nfal.models.plant import SimplifiedPlant
+from nfal.models.rig import RigParameters
+
+RIG = RigParameters()
+HEIGHTS = np.linspace(50e-6, 200e-6, 20)
+
+
+def synthetic_equilibria(magnetic_force=None):
+    """Equilibria that eq. (17) predicts, as the third experiment set would measure them."""
+    plant = SimplifiedPlant(RIG, paper_calibration())
+    force = np.zeros_like(HEIGHTS) if magnetic_force is None else magnetic_force
+    # with a magnetic force the film must carry m g + F_mag: scale |a| by sqrt(1 + F / m g)
+    excitation = plant.equilibrium_excitation(HEIGHTS) * np.sqrt(1 + force / plant.weight)
+    return EquilibriumData(HEIGHTS, excitation, force)
+
+
+def test_fit_recovers_eq17_coefficients():
+    result = fit_calibration(RIG, synthetic_equilibria(), degree=4)
+    np.testing.assert_allclose(result.fit.coefficients, PAPER_COEFFICIENTS, rtol=1e-6)
+    assert result.report()["residual_max"] < 1e-10
+
+
+def test_eq18_magnetic_force_is_accounted_for():
+    force = 0.05 * np.sin(np.linspace(0, 3, HEIGHTS.size))  # N, downward
+    result = fit_calibration(RIG, synthetic_equilibria(force), degree=4)
+    np.testing.assert_allclose(result.fit.coefficients, PAPER_COEFFICIENTS, rtol=1e-6)
+
+
+def test_noisy_measurements_give_small_residuals_and_close_fit():
+    data = synthetic_equilibria()
+    rng = np.random.default_rng(7)
+    noisy = EquilibriumData(data.height * (1 + 1e-3 * rng.standard_normal(data.height.size)), data.excitation, data.magnetic_force)
+    result = fit_calibration(RIG, noisy, degree=4)
+    sigma = np.linspace(*result.fit.sigma_range, 50)
+    np.testing.assert_allclose(result.fit(sigma), paper_calibration()(sigma), rtol=1e-2)
+    assert 0 < result.report()["residual_rms"] < 1e-2
+
+
+def test_voltage_column_through_a_linear_map(tmp_path):
+    data = synthetic_equilibria()
+    gain = 0.05e-6  # m/V
+    path = tmp_path / "eq.csv"
+    path.write_text("height_m,voltage_v\n" + "\n".join(f"{float(h)!r},{float(a) / gain!r}" for h, a in zip(data.height, data.excitation)))
+    read = EquilibriumData.from_csv(path, VoltageAmplitudeMap.linear(gain))
+    np.testing.assert_allclose(read.excitation, data.excitation, rtol=1e-12)
+
+
+def test_voltage_map_table_interpolates_and_extrapolates():
+    table = VoltageAmplitudeMap(np.array([10.0, 20.0, 40.0]), np.array([1e-6, 2e-6, 3e-6]))
+    np.testing.assert_allclose(table([10.0, 15.0, 30.0, 60.0, 0.0]), [1e-6, 1.5e-6, 2.5e-6, 4e-6, 0.0])
+
+
+def test_measured_K_is_eq16():
+    data = synthetic_equilibria()
+    sigma, K = measured_K(RIG, data)
+    u, H = data.excitation / RIG.reference_clearance, data.height / RIG.reference_clearance
+    np.testing.assert_allclose(RIG.stiffness_coefficient * u**2 * K, RIG.gravity_term * H**2, rtol=1e-12)
+
+
+@pytest.mark.parametrize("content, message", [
+    ("height_m\n1e-4\n2e-4\n", "excitation_m or voltage_v"),
+    ("excitation_m,x\n1e-6,1\n2e-6,1\n", "height_m"),
+    ("height_m,voltage_v\n1e-4,10\n2e-4,20\n", "voltage-to-amplitude map"),
+    ("height_m,excitation_m\n1e-4,1e-6\n", ">= 2 rows"),
+    ("height_m,excitation_m\n1e-4,1e-6\n-2e-4,1e-6\n", "> 0"),
+])
+def test_bad_measurement_files(tmp_path, content, message):
+    path = tmp_path / "eq.csv"
+    path.write_text(content)
+    with pytest.raises(DataFormatError, match=message):
+        EquilibriumData.from_csv(path)
+
+
+def test_degree_too_high_for_the_data():
+    data = EquilibriumData(HEIGHTS[:3], np.full(3, 2e-6), np.zeros(3))
+    with pytest.raises(InvalidParameterError, match="degree"):
+        fit_calibration(RIG, data, degree=4)
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@settings(max_examples=60, deadline=None)
+@given(rows=st.lists(st.lists(finite, min_size=3, max_size=3), min_size=1, max_size=20), header=st.booleans(),
+       comments=st.lists(st.text(alphabet=st.characters(blacklist_categories=("Cs", "Cc")), max_size=20), max_size=3))
+def test_csv_reader_round_trips(tmp_path_factory, rows, header, comments):
+    path = tmp_path_factory.mktemp("csv") / "t.csv"
+    lines = [f"# {c}" for c in comments] + (["a,B,c"] if header else []) + [",".join(repr(v) for v in row) for row in rows]
+    path.write_text("\n".join(lines) + "\n")
+    names, table = read_numeric_csv(path)
+    np.testing.assert_array_equal(table, np.array(rows))
+    assert names == (["a", "b", "c"] if header else ["col0", "col1", "col2"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(text=st.text(max_size=200))
+def test_csv_reader_never_crashes_on_garbage(tmp_path_factory, text):
+    path = tmp_path_factory.mktemp("csv") / "g.csv"
+    path.write_text(text, encoding="utf-8")
+    try:
+        _, table = read_numeric_csv(path)
+    except DataFormatError:
+        return
+    assert np.all(np.isfinite(table))
+
+
+@pytest.mark.parametrize("content", [b"a,b\n1,\x002\n", b"\xff\xfe1,2\n"])
+def test_csv_reader_rejects_binary(tmp_path, content):
+    path = tmp_path / "b.csv"
+    path.write_bytes(content)
+    with pytest.raises(DataFormatError):
+        read_numeric_csv(path)
