@@ -7,10 +7,10 @@ import logging
 import sys
 
 from nfal import __version__
-from nfal.commands import physics
+from nfal.commands import control, physics
 from nfal.models.errors import NfalError
 
-COMMAND_GROUPS = (physics,)
+COMMAND_GROUPS = (physics, control)
 
 
 def build_parser() -> argparse.ArgumentParser:

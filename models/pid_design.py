@@ -1,0 +1,374 @@
+"""PID design by double-pair pole placement, eqs. (21)-(24), its gain schedule and a fixed design.
+
+The local closed loop of eqs. (20)-(22) is eq. (23),
+
+    dHbar / dr = beta0 (omega_L + s)(k_p s + k_i) / (s^4 + C3 s^3 + C2 s^2 + C1 s + C0),
+
+with C0..C3 of eq. (24). Critical damping in pairs means the denominator is (s + p1)^2 (s + p2)^2:
+
+    C3 = 2 (p1 + p2)            C2 = (p1 + p2)^2 + 2 p1 p2
+    C1 = 2 p1 p2 (p1 + p2)      C0 = (p1 p2)^2.
+
+C3 = alpha1 + omega_L holds no gain, so the pole sum p1 + p2 = (alpha1 + omega_L) / 2 is set by the
+plant's squeeze-film damping and the derivative filter alone. The other three equations are linear in
+(k_p, k_i, k_d) once the product q = p1 p2 is chosen: one degree of freedom is left, and the closed
+loop's cut-off fixes it. Here the cut-off is the -3 dB bandwidth of eq. (23) (|T(j w)| = 1/sqrt(2),
+T(0) = 1), solved for the slow pole p1 on the branch k_p >= 0 (docs/controller.md has the derivation
+and why that branch).
+
+All design arithmetic is in the paper's non-dimensional time T = omega t; :class:`PIDDesign` and the
+schedules also give the gains in SI: k_p [m/m], k_i [1/s], k_d [s].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+
+import control
+import numpy as np
+from scipy import interpolate, optimize
+
+from .calibration import CalibrationFunction, paper_calibration
+from .errors import ConvergenceError, InvalidParameterError, require_positive
+from .lpv import LPVCoefficients, lpv_coefficients
+from .rig import RigParameters
+
+logger = logging.getLogger(__name__)
+
+#: Table 2 of the paper.
+CLOSED_LOOP_CUTOFF_HZ = 10.0
+FILTER_CUTOFF_HZ = 300.0
+ANALOG_FILTER_CUTOFF_HZ = 2000.0
+SAMPLING_RATE_HZ = 2000.0
+#: The work range of Sec. 4 used for the default schedule and maps [m].
+WORK_RANGE_M = (50e-6, 200e-6)
+_HALF_POWER = 1.0 / math.sqrt(2.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignSpec:
+    """The two design choices left by double-pair placement (Table 2).
+
+    Parameters
+    ----------
+    closed_loop_cutoff_hz : float
+        -3 dB bandwidth of the local closed loop, eq. (23) [Hz].
+    filter_cutoff_hz : float
+        Cut-off omega_LPF / 2 pi of the differentiator's low-pass filter, eq. (22) [Hz].
+    """
+
+    closed_loop_cutoff_hz: float = CLOSED_LOOP_CUTOFF_HZ
+    filter_cutoff_hz: float = FILTER_CUTOFF_HZ
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            object.__setattr__(self, field.name, require_positive(field.name, getattr(self, field.name)))
+
+    def omega_lpf(self, rig: RigParameters) -> float:
+        """omega_LPF in the paper's time unit 1 / omega (non-dimensional)."""
+        return 2.0 * math.pi * self.filter_cutoff_hz / rig.omega
+
+    def omega_cutoff(self, rig: RigParameters) -> float:
+        """The closed-loop cut-off in the paper's time unit (non-dimensional)."""
+        return 2.0 * math.pi * self.closed_loop_cutoff_hz / rig.omega
+
+
+@dataclasses.dataclass(frozen=True)
+class PIDDesign:
+    """The gains of eqs. (21)-(22) designed at one equilibrium.
+
+    Non-dimensional attributes are the paper's (time unit 1 / omega); the ``*_si`` properties convert.
+
+    Attributes
+    ----------
+    lpv : LPVCoefficients
+        Eq. (20) at the design height.
+    omega_lpf : float
+        Filter cut-off (non-dimensional).
+    kp, ki, kd : float
+        The paper's gains k_p, k_i, k_d (non-dimensional).
+    slow_pole, fast_pole : float
+        p1 <= p2: the closed loop's poles are -p1 and -p2, each double (non-dimensional).
+    bandwidth : float
+        -3 dB bandwidth of eq. (23) reached (non-dimensional).
+    """
+
+    lpv: LPVCoefficients
+    omega_lpf: float
+    kp: float
+    ki: float
+    kd: float
+    slow_pole: float
+    fast_pole: float
+    bandwidth: float
+
+    @property
+    def height_m(self) -> float:
+        return float(self.lpv.height_m)
+
+    @property
+    def kp_si(self) -> float:
+        """k_p [m of excitation per m of height error] (same number as the paper's)."""
+        return self.kp
+
+    @property
+    def ki_si(self) -> float:
+        """k_i omega [1/s]."""
+        return self.ki * self.lpv.omega
+
+    @property
+    def kd_si(self) -> float:
+        """k_d / omega [s]."""
+        return self.kd / self.lpv.omega
+
+    @property
+    def slow_pole_hz(self) -> float:
+        return self.slow_pole * self.lpv.omega / (2.0 * math.pi)
+
+    @property
+    def fast_pole_hz(self) -> float:
+        return self.fast_pole * self.lpv.omega / (2.0 * math.pi)
+
+    @property
+    def bandwidth_hz(self) -> float:
+        return self.bandwidth * self.lpv.omega / (2.0 * math.pi)
+
+    def denominator(self) -> np.ndarray:
+        """[1, C3, C2, C1, C0] of eq. (24), non-dimensional."""
+        return characteristic_polynomial(self.lpv, self.kp, self.ki, self.kd, self.omega_lpf)
+
+    def intended_poles(self, units: str = "si") -> np.ndarray:
+        """The placed poles [-p1, -p1, -p2, -p2] in rad/s (``"si"``) or per unit T."""
+        poles = -np.array([self.slow_pole, self.slow_pole, self.fast_pole, self.fast_pole])
+        return poles * _time_scale(self.lpv, units)
+
+    def closed_loop(self, units: str = "si") -> control.TransferFunction:
+        """Eq. (23) as a transfer function (s in rad/s for ``"si"``)."""
+        return _rescale(closed_loop_transfer_function(self.lpv, self.kp, self.ki, self.kd, self.omega_lpf),
+                        _time_scale(self.lpv, units))
+
+    def loop_poles(self, units: str = "si") -> np.ndarray:
+        """Poles of the loop assembled block by block with python-control: plant of eq. (20) in series
+        with k_p + k_i / s + k_d omega_L s / (s + omega_L), unity feedback. The derivative acting on the
+        height rather than the error changes the zeros of eq. (23), not its poles; this check is
+        independent of eq. (24)'s algebra."""
+        scale = _time_scale(self.lpv, units)
+        plant = _rescale(self.lpv.transfer_function("nondimensional"), scale)
+        s = control.tf("s")
+        wl, ki, kd = self.omega_lpf * scale, self.ki * scale, self.kd / scale
+        controller = self.kp + ki / s + control.tf([kd * wl, 0.0], [1.0, wl])  # PI + filtered D
+        loop = control.feedback(control.ss(plant) * control.ss(controller), 1)  # 4 states, no cancellation
+        return np.sort_complex(control.poles(loop))
+
+
+def characteristic_polynomial(lpv: LPVCoefficients, kp, ki, kd, omega_lpf: float) -> np.ndarray:
+    """[1, C3, C2, C1, C0] of eq. (24) (non-dimensional; ``lpv`` at one equilibrium)."""
+    a0, a1, b0, wl = float(lpv.alpha0), float(lpv.alpha1), float(lpv.beta0), omega_lpf
+    return np.array([1.0, a1 + wl, a1 * wl + a0 + b0 * kp + b0 * wl * kd, a0 * wl + b0 * wl * kp + b0 * ki, b0 * wl * ki])
+
+
+def closed_loop_transfer_function(lpv: LPVCoefficients, kp, ki, kd, omega_lpf: float) -> control.TransferFunction:
+    """Eq. (23), non-dimensional."""
+    b0 = float(lpv.beta0)
+    numerator = b0 * np.array([kp, omega_lpf * kp + ki, omega_lpf * ki])
+    return control.tf(numerator, characteristic_polynomial(lpv, kp, ki, kd, omega_lpf))
+
+
+def gains_for_pole_product(lpv: LPVCoefficients, pole_product: float, omega_lpf: float) -> tuple[float, float, float]:
+    """(k_p, k_i, k_d) that make eq. (24) equal (s + p1)^2 (s + p2)^2 with p1 p2 = ``pole_product``.
+
+    With S = p1 + p2 = (alpha1 + omega_L) / 2 (the C3 equation) and q = p1 p2:
+    k_i = q^2 / (beta0 omega_L);  k_p = (2 q S - alpha0 omega_L - beta0 k_i) / (beta0 omega_L);
+    k_d = (S^2 + 2 q - alpha1 omega_L - alpha0 - beta0 k_p) / (beta0 omega_L).
+    """
+    a0, a1, b0, wl, q = float(lpv.alpha0), float(lpv.alpha1), float(lpv.beta0), omega_lpf, pole_product
+    total = 0.5 * (a1 + wl)
+    ki = q**2 / (b0 * wl)
+    kp = (2.0 * q * total - a0 * wl - b0 * ki) / (b0 * wl)
+    kd = (total**2 + 2.0 * q - a1 * wl - a0 - b0 * kp) / (b0 * wl)
+    return kp, ki, kd
+
+
+def _closed_loop_gain(lpv: LPVCoefficients, slow: float, omega_lpf: float, frequency) -> np.ndarray:
+    """|T(j w)| of eq. (23) with the double pairs at -slow and -(S - slow)."""
+    total = 0.5 * (float(lpv.alpha1) + omega_lpf)
+    kp, ki, _ = gains_for_pole_product(lpv, slow * (total - slow), omega_lpf)
+    s = 1j * np.asarray(frequency, dtype=float)
+    return np.abs(float(lpv.beta0) * (s + omega_lpf) * (kp * s + ki) / ((s + slow) ** 2 * (s + total - slow) ** 2))
+
+
+def closed_loop_bandwidth(lpv: LPVCoefficients, slow_pole: float, omega_lpf: float) -> float:
+    """Lowest frequency (non-dimensional) where |T(j w)| of eq. (23) falls through 1/sqrt(2)."""
+    total = 0.5 * (float(lpv.alpha1) + omega_lpf)
+    grid = np.geomspace(1e-4 * slow_pole, 10.0 * total, 2000)
+    gain = _closed_loop_gain(lpv, slow_pole, omega_lpf, grid)
+    below = np.flatnonzero(gain < _HALF_POWER)
+    if below.size == 0 or below[0] == 0:
+        raise ConvergenceError(f"no -3 dB crossing of eq. (23) found for p1 = {slow_pole:.4g}")
+    i = below[0]
+    return float(optimize.brentq(lambda w: _closed_loop_gain(lpv, slow_pole, omega_lpf, w) - _HALF_POWER,
+                                 grid[i - 1], grid[i], xtol=1e-14, rtol=1e-12))
+
+
+def design_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> PIDDesign:
+    """Double-pair design of eqs. (23)-(24) at one equilibrium (see the module docstring)."""
+    wl, wc = spec.omega_lpf(rig), spec.omega_cutoff(rig)
+    total = 0.5 * (float(lpv.alpha1) + wl)
+    kp_of = lambda slow: gains_for_pole_product(lpv, slow * (total - slow), wl)[0]  # noqa: E731
+    grid = np.geomspace(1e-7 * total, 0.5 * total, 400)
+    kp = np.array([kp_of(p) for p in grid])
+    rising = np.flatnonzero((kp[:-1] < 0) & (kp[1:] >= 0))
+    if rising.size == 0:
+        raise ConvergenceError(f"no slow pole gives k_p >= 0 at {float(lpv.height_m) * 1e6:.1f} um")
+    i = rising[0]
+    slow_min = optimize.brentq(kp_of, grid[i], grid[i + 1], xtol=1e-16, rtol=1e-13)
+    candidates = np.concatenate([[slow_min * (1 + 1e-9)], grid[i + 1:]])
+    for lower, upper in zip(candidates[:-1], candidates[1:]):
+        if closed_loop_bandwidth(lpv, upper, wl) >= wc:
+            break
+    else:
+        raise InvalidParameterError("closed_loop_cutoff_hz", spec.closed_loop_cutoff_hz,
+                                    f"reachable with double pole pairs at {float(lpv.height_m) * 1e6:.1f} um")
+    if closed_loop_bandwidth(lpv, lower, wl) > wc:
+        reachable = closed_loop_bandwidth(lpv, lower, wl) * rig.omega / (2 * math.pi)
+        raise InvalidParameterError("closed_loop_cutoff_hz", spec.closed_loop_cutoff_hz,
+                                    f">= {reachable:.3g} Hz at {float(lpv.height_m) * 1e6:.1f} um (the k_p = 0 design)")
+    slow = optimize.brentq(lambda p: closed_loop_bandwidth(lpv, p, wl) - wc, lower, upper, xtol=1e-16, rtol=1e-12)
+    kp, ki, kd = gains_for_pole_product(lpv, slow * (total - slow), wl)
+    return PIDDesign(lpv, wl, kp, ki, kd, slow, total - slow, closed_loop_bandwidth(lpv, slow, wl))
+
+
+def design_pid(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
+               spec: DesignSpec | None = None, *, derivative: str = "exact") -> PIDDesign:
+    """The local PID of eqs. (21)-(24) designed at the equilibrium of clearance ``height_m`` [m].
+
+    Parameters
+    ----------
+    height_m : float
+        Design clearance [m].
+    rig, calibration : optional
+        Design model; default the paper's rig and eq. (17).
+    spec : DesignSpec, optional
+        Cut-offs; default Table 2 (10 Hz closed loop, 300 Hz filter).
+    derivative : {"exact", "central"}
+        How dK/dsigma enters alpha0 (:func:`nfal.models.lpv.calibration_slope`).
+    """
+    rig = rig or RigParameters()
+    if np.ndim(height_m) != 0:
+        raise InvalidParameterError("height_m", height_m, "one clearance [m] (use design_schedule for many)")
+    lpv = lpv_coefficients(float(height_m), rig, calibration or paper_calibration(), derivative=derivative)
+    return design_at(lpv, spec or DesignSpec(), rig)
+
+
+class GainSchedule:
+    """k_p, k_i, k_d over a table of design heights, interpolated by a C2 cubic spline in Hbar.
+
+    The paper's stability argument (Sec. 4.1) needs gains continuously differentiable in the
+    scheduling variable Hbar; a not-a-knot cubic spline through the designed points is C2. Outside
+    the table the scheduling variable is clamped to the nearer end (gains held).
+
+    Parameters
+    ----------
+    designs : sequence of PIDDesign
+        Designs at strictly increasing heights (at least 4).
+    """
+
+    def __init__(self, designs) -> None:
+        designs = tuple(designs)
+        if len(designs) < 4:
+            raise InvalidParameterError("designs", len(designs), "at least 4 design heights")
+        heights = np.array([d.height_m for d in designs])
+        if np.any(np.diff(heights) <= 0):
+            raise InvalidParameterError("designs", heights, "strictly increasing design heights")
+        self.designs = designs
+        self.heights_m = heights
+        self.omega = designs[0].lpv.omega
+        self.reference_clearance = designs[0].lpv.reference_clearance
+        self.omega_lpf = designs[0].omega_lpf
+        H = heights / self.reference_clearance
+        table = np.array([[d.kp, d.ki, d.kd] for d in designs])
+        self._spline = interpolate.CubicSpline(H, table, axis=0)
+        self._slope = self._spline.derivative()
+        self.name = "gain-scheduled"
+
+    @property
+    def height_range_m(self) -> tuple[float, float]:
+        return float(self.heights_m[0]), float(self.heights_m[-1])
+
+    def _H(self, height_m) -> np.ndarray:
+        return np.clip(np.asarray(height_m, dtype=float), *self.height_range_m) / self.reference_clearance
+
+    def gains_nondimensional(self, height_m) -> np.ndarray:
+        """The paper's (k_p, k_i, k_d) at clearance ``height_m`` [m]; shape (..., 3)."""
+        return self._spline(self._H(height_m))
+
+    def gains_si(self, height_m) -> np.ndarray:
+        """(k_p [m/m], k_i [1/s], k_d [s]) at clearance ``height_m`` [m]; shape (..., 3)."""
+        return self.gains_nondimensional(height_m) * np.array([1.0, self.omega, 1.0 / self.omega])
+
+    def slope_nondimensional(self, height_m) -> np.ndarray:
+        """d(k_p, k_i, k_d)/dHbar (zero outside the table, where the gains are held)."""
+        inside = (np.asarray(height_m) >= self.heights_m[0]) & (np.asarray(height_m) <= self.heights_m[-1])
+        return np.where(np.asarray(inside)[..., None], self._slope(self._H(height_m)), 0.0)
+
+
+class FixedGains:
+    """A linear (unscheduled) controller: the gains of one :class:`PIDDesign` at every height."""
+
+    def __init__(self, design: PIDDesign) -> None:
+        self.design = design
+        self.omega = design.lpv.omega
+        self.reference_clearance = design.lpv.reference_clearance
+        self.omega_lpf = design.omega_lpf
+        self._gains = np.array([design.kp, design.ki, design.kd])
+        self.name = f"linear at {design.height_m * 1e6:.0f} um"
+
+    @property
+    def height_range_m(self) -> tuple[float, float]:
+        return self.design.height_m, self.design.height_m
+
+    def gains_nondimensional(self, height_m) -> np.ndarray:
+        """The paper's (k_p, k_i, k_d), the same at every clearance; shape (..., 3)."""
+        return np.broadcast_to(self._gains, np.shape(height_m) + (3,)).copy()
+
+    def gains_si(self, height_m) -> np.ndarray:
+        """(k_p [m/m], k_i [1/s], k_d [s]); shape (..., 3)."""
+        return self.gains_nondimensional(height_m) * np.array([1.0, self.omega, 1.0 / self.omega])
+
+
+def design_schedule(heights_m=None, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
+                    spec: DesignSpec | None = None, *, derivative: str = "exact") -> GainSchedule:
+    """Designs at every height of ``heights_m`` [m] (default 50-200 um every 5 um) as a :class:`GainSchedule`."""
+    if heights_m is None:
+        heights_m = np.linspace(*WORK_RANGE_M, 31)
+    rig, calibration, spec = rig or RigParameters(), calibration or paper_calibration(), spec or DesignSpec()
+    heights = np.sort(np.asarray(heights_m, dtype=float).ravel())
+    lpv = lpv_coefficients(heights, rig, calibration, derivative=derivative)
+    designs = [design_at(lpv.at(i), spec, rig) for i in range(heights.size)]
+    logger.info("designed %d PIDs over %.1f-%.1f um", heights.size, heights[0] * 1e6, heights[-1] * 1e6)
+    return GainSchedule(designs)
+
+
+def fixed_design(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
+                 spec: DesignSpec | None = None, *, derivative: str = "exact") -> FixedGains:
+    """The linear controller of Sec. 4.1's comparison: the design at ``height_m`` [m] used everywhere."""
+    return FixedGains(design_pid(height_m, rig, calibration, spec, derivative=derivative))
+
+
+def _time_scale(lpv: LPVCoefficients, units: str) -> float:
+    if units == "si":
+        return lpv.omega
+    if units == "nondimensional":
+        return 1.0
+    raise InvalidParameterError("units", units, "'si' or 'nondimensional'")
+
+
+def _rescale(system: control.TransferFunction, scale: float) -> control.TransferFunction:
+    """G(s / scale): the same system with time measured in units 1 / scale shorter."""
+    num, den = (np.atleast_1d(np.squeeze(p)) for p in control.tfdata(system))
+    n, d = len(num) - 1, len(den) - 1
+    num = num * scale ** (d - n + np.arange(n + 1))
+    den = den * scale ** np.arange(d + 1)
+    return control.tf(num / den[0], den / den[0])

@@ -1,0 +1,93 @@
+"""Step-response metrics of a closed-loop run, per step of a staircase reference (Figs. 9-10).
+
+For the step at t_s from level r0 to r1 (size D = r1 - r0), over its hold [t_s, t_s + hold) and on the
+*true* clearance h (the sensor noise is not part of the response):
+
+* rise time: first time h passes r0 + 0.9 D minus first time it passes r0 + 0.1 D [s];
+* overshoot: max(0, max over the hold of (h - r1) sign(D)) / |D| x 100 [%];
+* settling time: time after t_s from which |h - r1| stays within ``band`` |D| (2 %) [s];
+* noise RMS: sqrt(mean((h - r1)^2)) over the last ``steady_fraction`` of the hold [m];
+* IAE: integral of |r - h| dt over the hold [m s] (rectangle rule at the sampling instants).
+
+A metric that is not reached within the hold (no 90 % crossing, never settling) is None.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .closed_loop import ClosedLoopRun, Staircase
+from .errors import InvalidParameterError
+
+SETTLING_BAND = 0.02
+STEADY_FRACTION = 0.25
+
+
+@dataclasses.dataclass(frozen=True)
+class StepMetrics:
+    """Metrics of one step (SI; None where not reached)."""
+
+    from_m: float
+    to_m: float
+    rise_time_s: float | None
+    overshoot_percent: float
+    settling_time_s: float | None
+    noise_rms_m: float
+    iae: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def _first_crossing(time: np.ndarray, progress: np.ndarray, level: float) -> float | None:
+    """First time the (increasing-is-forward) ``progress`` reaches ``level``, linearly interpolated."""
+    reached = np.flatnonzero(progress >= level)
+    if reached.size == 0:
+        return None
+    i = reached[0]
+    if i == 0:
+        return float(time[0])
+    fraction = (level - progress[i - 1]) / (progress[i] - progress[i - 1])
+    return float(time[i - 1] + fraction * (time[i] - time[i - 1]))
+
+
+def step_metrics(run: ClosedLoopRun, reference: Staircase, *, band: float = SETTLING_BAND,
+                 steady_fraction: float = STEADY_FRACTION) -> list[StepMetrics]:
+    """The metrics of every step of ``reference`` in ``run`` (see the module docstring)."""
+    if not (0 < band < 1):
+        raise InvalidParameterError("band", band, "a fraction in (0, 1)")
+    if not (0 < steady_fraction <= 1):
+        raise InvalidParameterError("steady_fraction", steady_fraction, "a fraction in (0, 1]")
+    period = float(run.time_s[1] - run.time_s[0])
+    results = []
+    levels = reference.levels_m
+    for n, start in enumerate(reference.step_times_s):
+        r0, r1 = levels[n], levels[n + 1]
+        window = (run.time_s >= start - 1e-12) & (run.time_s < start + reference.hold_s - 1e-12)
+        t, h = run.time_s[window] - start, run.height_m[window]
+        size = r1 - r0
+        if size == 0:
+            raise InvalidParameterError("levels_m", levels, "consecutive levels that differ")
+        progress = (h - r0) / size  # 0 at the old level, 1 at the new one
+        t10, t90 = _first_crossing(t, progress, 0.1), _first_crossing(t, progress, 0.9)
+        rise = None if t10 is None or t90 is None else t90 - t10
+        overshoot = max(0.0, float(np.max(progress)) - 1.0) * 100.0
+        outside = np.flatnonzero(np.abs(progress - 1.0) > band)
+        if outside.size == 0:
+            settling = 0.0
+        elif outside[-1] == t.size - 1:
+            settling = None
+        else:
+            settling = float(t[outside[-1] + 1])
+        steady = h[int(np.floor((1.0 - steady_fraction) * h.size)):]
+        noise = float(np.sqrt(np.mean((steady - r1) ** 2)))
+        iae = float(np.sum(np.abs(run.reference_m[window] - h)) * period)
+        results.append(StepMetrics(float(r0), float(r1), rise, overshoot, settling, noise, iae))
+    return results
+
+
+def total_iae(run: ClosedLoopRun) -> float:
+    """Integral of |r - h| dt over the whole run [m s]."""
+    return float(np.sum(np.abs(run.reference_m - run.height_m)) * (run.time_s[1] - run.time_s[0]))
