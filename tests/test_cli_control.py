@@ -1,0 +1,50 @@
+"""``nfal design`` and ``nfal compare`` through nfal.cli.main."""
+
+import json
+
+import pytest
+
+from nfal.cli import main
+
+STEP_KEYS = {"from_m", "to_m", "rise_time_s", "overshoot_percent", "settling_time_s", "noise_rms_m", "iae"}
+
+
+def test_design_json_and_plot(capsys, tmp_path):
+    png = tmp_path / "map.png"
+    assert main(["design", "--heights", "60e-6:200e-6:8", "--json", "--plot", str(png)]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert len(data["height_m"]) == len(data["kp"]) == len(data["ki"]) == len(data["kd"]) == 8
+    grid = data["stability_map"]
+    assert len(grid["design_height_m"]) == len(grid["operating_height_m"]) == 8
+    assert len(grid["max_pole_modulus"]) == 8 and len(grid["max_pole_modulus"][0]) == 8
+    assert data["units"]["ki"] == "1/s" and data["realizable_from_m"] == pytest.approx(100e-6)
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_design_text_output(capsys):
+    assert main(["design", "--heights", "100e-6,150e-6,200e-6,250e-6", "--discretisation", "zoh"]) == 0
+    out = capsys.readouterr().out
+    assert "kp [m/m]" in out and "zoh" in out
+
+
+def test_compare_json_and_plot(capsys, tmp_path):
+    png = tmp_path / "compare.png"
+    argv = ["compare", "--controllers", "gs,160", "--levels", "100e-6,140e-6,100e-6", "--hold", "0.3", "--seed", "3",
+            "--json", "--plot", str(png)]
+    assert main(argv) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert set(data["controllers"]) == {"gs", "160"}
+    for result in data["controllers"].values():
+        assert result["iae"] > 0 and len(result["steps"]) == 2
+        assert all(set(step) >= STEP_KEYS for step in result["steps"])
+    assert data["noise"]["seed"] == 3
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(argv[:-2]) == 0  # same seed, same numbers
+    again = json.loads(capsys.readouterr().out)
+    assert again["controllers"]["gs"]["steps"] == data["controllers"]["gs"]["steps"]
+
+
+@pytest.mark.parametrize("controllers", ["gs,fast", "80,80", "30"])
+def test_compare_rejects_bad_controllers(capsys, controllers):
+    assert main(["compare", "--controllers", controllers, "--levels", "100e-6,120e-6", "--hold", "0.1"]) == 2
+    assert "error" in capsys.readouterr().err

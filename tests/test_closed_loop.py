@@ -1,0 +1,155 @@
+"""Closed loop of Figs. 9-10: noise, fast plant stepping vs. SimplifiedPlant.advance, metrics, comparison."""
+
+import numpy as np
+import pytest
+
+from nfal.models.calibration import paper_calibration
+from nfal.models.closed_loop import ClosedLoopRun, Staircase, simulate_closed_loop
+from nfal.models.control_law import DiscreteControlLaw
+from nfal.models.errors import InvalidParameterError
+from nfal.models.fixed_step_plant import FixedStepPlant
+from nfal.models.measurement_noise import coloured_noise
+from nfal.models.pid_design import design_schedule, fixed_design
+from nfal.models.plant import PlantState, SimplifiedPlant
+from nfal.models.rig import RigParameters
+from nfal.models.stability import realizable_schedule
+from nfal.models.step_metrics import step_metrics, total_iae
+
+PLANT = SimplifiedPlant(RigParameters(), paper_calibration())
+REFERENCE = Staircase()
+CONTROLLERS = {"gs": realizable_schedule(design_schedule()), "80": fixed_design(80e-6),
+               "120": fixed_design(120e-6), "160": fixed_design(160e-6)}
+NOISE = coloured_noise(REFERENCE.samples(2000.0), seed=0)
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {noisy: {key: simulate_closed_loop(DiscreteControlLaw(g), PLANT, REFERENCE, NOISE if noisy else None)
+                    for key, g in CONTROLLERS.items()} for noisy in (False, True)}
+
+
+# --- noise ----------------------------------------------------------------------------------------
+def test_noise_is_reproducible_and_peaks_at_2um():
+    a, b = coloured_noise(4000, seed=7), coloured_noise(4000, seed=7)
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, coloured_noise(4000, seed=8))
+    assert np.max(np.abs(a)) == pytest.approx(2e-6, rel=1e-12)
+    assert abs(np.mean(a)) < 0.1 * np.std(a)
+
+
+def test_noise_is_coloured_at_300hz():
+    """Welch spectrum: power at 800-1000 Hz is > 10x below that at 0-200 Hz (2nd-order roll-off above 300 Hz)."""
+    from scipy import signal
+    f, p = signal.welch(coloured_noise(200_000, seed=1), fs=2000.0, nperseg=1024)
+    assert np.mean(p[f < 200]) > 10 * np.mean(p[f > 800])
+
+
+@pytest.mark.parametrize("kwargs", [{"samples": 0}, {"samples": 10, "cutoff_hz": 1500}, {"samples": 10, "peak_m": -1.0}])
+def test_bad_noise_settings_raise(kwargs):
+    samples = kwargs.pop("samples")
+    with pytest.raises(InvalidParameterError):
+        coloured_noise(samples, **kwargs)
+
+
+# --- plant stepping ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("height, velocity, excitation", [(60e-6, 0.0, 1.6e-6), (100e-6, -2e-3, 0.0),
+                                                          (150e-6, 1e-3, 8e-6), (190e-6, 0.0, 5e-6)])
+def test_fixed_step_advance_matches_adaptive_advance(height, velocity, excitation):
+    state = PlantState(height, velocity)
+    fast, exact = FixedStepPlant(PLANT).advance(state, excitation, 5e-4), PLANT.advance(state, excitation, 5e-4)
+    assert fast.height == pytest.approx(exact.height, abs=2e-11)
+    assert fast.velocity == pytest.approx(exact.velocity, abs=1e-7)
+
+
+def test_fixed_step_run_matches_adaptive_run():
+    """A 0.25 s two-level run: the two integrators agree within 1e-10 m all along."""
+    reference = Staircase((100e-6, 130e-6), hold_s=0.15, lead_s=0.1)
+    law = DiscreteControlLaw(CONTROLLERS["gs"])
+    fast = simulate_closed_loop(law, PLANT, reference)
+    exact = simulate_closed_loop(law, PLANT, reference, integrator="adaptive")
+    assert np.max(np.abs(fast.height_m - exact.height_m)) < 1e-10
+
+
+def test_fixed_step_hands_over_near_the_surface():
+    state = PlantState(10e-6, -1e-3)
+    np.testing.assert_equal(FixedStepPlant(PLANT).advance(state, 0.0, 5e-4), PLANT.advance(state, 0.0, 5e-4))
+
+
+# --- metrics -------------------------------------------------------------------------------------
+def test_metrics_of_a_known_first_order_response():
+    """h = r0 + D (1 - exp(-t / tau)): rise 2.197 tau, no overshoot, 2 % settling 3.912 tau, IAE D tau."""
+    tau, reference = 0.02, Staircase((100e-6, 140e-6), hold_s=0.5, lead_s=0.1)
+    t = np.arange(reference.samples(20000.0)) / 20000.0
+    after = np.clip(t - 0.1, 0, None)
+    h = np.where(t < 0.1, 100e-6, 100e-6 + 40e-6 * (1 - np.exp(-after / tau)))
+    run = ClosedLoopRun("test", t, reference(t), h, h, np.zeros_like(t))
+    (m,) = step_metrics(run, reference)
+    assert m.rise_time_s == pytest.approx(np.log(9) * tau, rel=1e-3)
+    assert m.overshoot_percent == 0.0
+    assert m.settling_time_s == pytest.approx(np.log(50) * tau, abs=1e-4)
+    assert m.iae == pytest.approx(40e-6 * tau, rel=1e-2)
+    assert m.noise_rms_m < 1e-11
+
+
+# --- the comparison of Figs. 9-10 ------------------------------------------------------------------
+def test_gain_scheduled_loop_has_zero_steady_state_error(runs):
+    run = runs[False]["gs"]
+    for start in REFERENCE.step_times_s + REFERENCE.hold_s:
+        k = int(round(start * 2000)) - 1
+        assert abs(run.height_m[k] - run.reference_m[k]) < 1e-9
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["clean", "noisy"])
+def test_gain_scheduled_loop_has_the_smallest_iae(runs, noisy):
+    iae = {key: total_iae(run) for key, run in runs[noisy].items()}
+    assert min(iae, key=iae.get) == "gs", iae
+
+
+def test_low_versus_high_design_trade_off(runs):
+    """Paper: low-height designs transient-good but noisy; high-height designs quiet but oscillatory low down."""
+    low = step_metrics(runs[True]["80"], REFERENCE)
+    high = step_metrics(runs[True]["160"], REFERENCE)
+    assert np.mean([m.noise_rms_m for m in low]) > 1.5 * np.mean([m.noise_rms_m for m in high])
+    assert high[0].overshoot_percent > 3 * low[0].overshoot_percent  # 60 -> 100 um
+    assert high[-1].overshoot_percent > 3 * low[-1].overshoot_percent  # 100 -> 60 um
+
+
+def _saturated_run(tracking_time_s):
+    """100 -> 200 -> 100 um with |a|max = 6 um: 200 um needs 6.2 um, so the loop sits in saturation for 1 s."""
+    reference = Staircase((100e-6, 200e-6, 100e-6), hold_s=1.0, lead_s=0.05)
+    law = DiscreteControlLaw(CONTROLLERS["120"], max_excitation_m=6e-6, tracking_time_s=tracking_time_s)
+    return reference, simulate_closed_loop(law, PLANT, reference)
+
+
+def test_saturating_step_recovers_without_windup():
+    """Back-calculation: the command leaves the limit within 2 samples of the step back down, the loop settles
+    (2 %) within 80 ms and ends on the reference; without it (T_t = 1e6 s) the wound-up integrator holds the
+    command at the limit for > 20 samples and settling takes longer."""
+    reference, run = _saturated_run(None)
+    _, wound = _saturated_run(1e6)
+    assert np.mean(run.excitation_m == 6e-6) > 0.4
+    k = int(round(reference.step_times_s[1] * 2000))
+    held = lambda r: int(np.argmax(r.excitation_m[k:] < 6e-6))  # noqa: E731
+    assert held(run) <= 2 and held(wound) > 20
+    down, down_wound = step_metrics(run, reference)[1], step_metrics(wound, reference)[1]
+    assert down.settling_time_s < 0.08 and down_wound.settling_time_s > down.settling_time_s + 0.02
+    assert abs(run.height_m[-1] - 100e-6) < 1e-9
+
+
+def test_bad_noise_record_and_integrator_raise():
+    law = DiscreteControlLaw(CONTROLLERS["120"])
+    with pytest.raises(InvalidParameterError):
+        simulate_closed_loop(law, PLANT, REFERENCE, np.zeros(10))
+    with pytest.raises(InvalidParameterError):
+        simulate_closed_loop(law, PLANT, REFERENCE, integrator="euler")
+
+
+def test_fixed_step_advance_matches_adaptive_advance_over_random_states():
+    """300 random free-flight states, 40-200 um, |v| <= 5 mm/s, |a| <= 10 um: within 1e-10 m per 0.5 ms step."""
+    rng = np.random.default_rng(7)
+    fast = FixedStepPlant(PLANT)
+    errors = []
+    for h, v, a in zip(rng.uniform(40e-6, 200e-6, 300), rng.uniform(-5e-3, 5e-3, 300), rng.uniform(0, 10e-6, 300)):
+        state = PlantState(h, v)
+        errors.append(abs(fast.advance(state, a, 5e-4).height - PLANT.advance(state, a, 5e-4).height))
+    assert max(errors) < 1e-10

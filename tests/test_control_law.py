@@ -1,0 +1,110 @@
+"""The discrete law of eqs. (21)-(22): equilibrium, linearisation (no hidden coupling), saturation, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+
+from nfal.models.control_law import ControllerState, DiscreteControlLaw
+from nfal.models.errors import InvalidParameterError
+from nfal.models.pid_design import design_schedule, fixed_design
+
+SCHEDULE = design_schedule()
+LAW = DiscreteControlLaw(SCHEDULE)
+
+
+def _flat(state: ControllerState) -> np.ndarray:
+    return np.array([state.integrator_m, state.derivative_m_per_s, state.previous_measurement_m])
+
+
+def _jacobian(law, x, r, h):
+    """d(command, next state) / d(integrator, rate, previous h, reference, measured h) by central differences."""
+    def f(z):
+        command, nxt = law.step(ControllerState(z[0], z[1], z[2]), z[3], z[4])
+        return np.concatenate([[command], _flat(nxt)])
+    z0 = np.array([*x, r, h])
+    steps = np.array([1e-9, 1e-6, 1e-9, 1e-9, 1e-9])
+    return np.column_stack([(f(z0 + e) - f(z0 - e)) / (2 * e[i]) for i, e in enumerate(np.diag(steps))])
+
+
+@pytest.mark.parametrize("height", [70e-6, 110e-6, 170e-6])
+def test_equilibrium_is_held(height):
+    excitation = 3e-6
+    state = LAW.initial_state(height, excitation)
+    for _ in range(5):
+        command, state = LAW.step(state, height, height)
+        assert command == pytest.approx(excitation, rel=1e-12)
+
+
+@pytest.mark.parametrize("height", [70e-6, 110e-6, 170e-6])
+def test_linearisation_equals_the_linear_controller_designed_there(height):
+    """No hidden coupling: about an equilibrium the scheduled law's Jacobian equals the fixed-gain law's (1e-6)."""
+    fixed = DiscreteControlLaw(fixed_design(height))
+    x = (3e-6, 0.0, height)
+    np.testing.assert_allclose(_jacobian(LAW, x, height, height), _jacobian(fixed, x, height, height), rtol=1e-6, atol=1e-9)
+
+
+def test_one_step_is_forward_euler_of_eqs_21_22():
+    kp, ki, kd = SCHEDULE.gains_si(100e-6)
+    ts, wl = LAW.period_s, LAW.filter_rad_s
+    state = ControllerState(2.5e-6, 1e-4, 100.2e-6)
+    command, nxt = LAW.step(state, 101e-6, 100e-6)
+    rate = (1 - ts * wl) * 1e-4 + wl * (100e-6 - 100.2e-6)
+    assert nxt.derivative_m_per_s == pytest.approx(rate, rel=1e-12)
+    assert command == pytest.approx(kp * 1e-6 + 2.5e-6 - kd * rate, rel=1e-12)
+    assert nxt.integrator_m == pytest.approx(2.5e-6 + ts * ki * 1e-6, rel=1e-12)
+
+
+@pytest.mark.parametrize("error", [+40e-6, -40e-6], ids=["up", "down"])
+def test_saturated_step_does_not_wind_up(error):
+    """Held in saturation for 1 s (2000 samples), the integrator stays at the limit, not beyond; the first
+    sample after the error reverses leaves saturation."""
+    law = DiscreteControlLaw(fixed_design(100e-6), max_excitation_m=4e-6)
+    state = law.initial_state(100e-6, 2.6e-6)
+    for _ in range(2000):
+        command, state = law.step(state, 100e-6 + error, 100e-6)
+    limit = 4e-6 if error > 0 else 0.0
+    assert command == limit
+    kp, ki, _ = law.gains.gains_si(100e-6)
+    # back-calculation (T_t = T_s) keeps the unsaturated output k_p e + eta one integral step from the limit
+    assert kp * error + state.integrator_m - limit == pytest.approx(law.period_s * ki * error, rel=1e-6)
+    command, state = law.step(state, 100e-6 - 0.1 * error, 100e-6)
+    assert 0.0 < command < 4e-6
+
+
+def test_without_anti_windup_the_integrator_would_run_away():
+    """Contrast: a very slow tracking time lets eta grow far beyond the limit (what anti-windup prevents)."""
+    law = DiscreteControlLaw(fixed_design(100e-6), max_excitation_m=4e-6, tracking_time_s=1e6)
+    state = law.initial_state(100e-6, 2.6e-6)
+    for _ in range(2000):
+        _, state = law.step(state, 140e-6, 100e-6)
+    assert state.integrator_m > 5e-6
+
+
+def test_first_sample_without_previous_measurement_has_zero_derivative():
+    command, state = LAW.step(ControllerState(3e-6), 100e-6, 100e-6)
+    assert state.derivative_m_per_s == 0.0 and command == pytest.approx(3e-6)
+
+
+@pytest.mark.parametrize("reference, measured", [(math.nan, 1e-4), (1e-4, math.inf), (1e-4, -1e-6), (1e-4, 2e-3),
+                                                 (10e-6, 1e-4), (500e-6, 1e-4), ("high", 1e-4), (None, 1e-4)])
+def test_bad_inputs_raise(reference, measured):
+    state = LAW.initial_state(100e-6, 2.6e-6)
+    with pytest.raises(InvalidParameterError):
+        LAW.step(state, reference, measured)
+
+
+@pytest.mark.parametrize("kwargs", [{"sample_rate_hz": 0}, {"max_excitation_m": -1e-6}, {"sample_rate_hz": 250.0},
+                                    {"reference_range_m": (2e-4, 1e-4)}, {"tracking_time_s": math.nan}])
+def test_bad_settings_raise(kwargs):
+    with pytest.raises(InvalidParameterError):
+        DiscreteControlLaw(SCHEDULE, **kwargs)
+
+
+def test_bad_state_and_unknown_keyword_raise():
+    with pytest.raises(InvalidParameterError):
+        LAW.step((1e-6, 0.0, 1e-4), 1e-4, 1e-4)
+    with pytest.raises(TypeError):
+        DiscreteControlLaw(SCHEDULE, rate=2000)
+    with pytest.raises(InvalidParameterError):
+        LAW.initial_state(100e-6, 20e-6)  # above the actuator limit
