@@ -60,6 +60,11 @@ def _projective_limit(mu: float, burst: int) -> float:
 
 Excitation = float | Callable[[float], float]
 
+
+class GapClosedError(ConvergenceError):
+    """The film gap closed (H <= 0 at some radius): the surface hit the object; the full model has no contact."""
+
+
 STATUS_OK, STATUS_NEWTON, STATUS_GAP = 0, 1, 2
 
 
@@ -244,6 +249,47 @@ class CoupledTrajectory:
     marched_periods: int
 
 
+@dataclasses.dataclass(frozen=True)
+class CoupledState:
+    """Film and object between calls of :meth:`CoupledModel.advance` (the stepping API).
+
+    The film and object are held at the end of the last excitation period marched; excitation periods
+    start at ``epoch_s + k / f`` (k = 0, 1, ...), and the one starting at ``epoch_s + period_index / f``
+    is the next to march.
+
+    Attributes
+    ----------
+    vector : ndarray
+        [P - 1 at the nodes at T_k and T_{k-1}, Z_k, Z_{k-1}, W_k, W_{k-1}] (non-dimensional, eq. 2;
+        W = dZ/dT): the march's own state at the end of the last period. Not to be modified.
+    time_s : float
+        Time reached [s] (the end of the last communication step).
+    epoch_s : float
+        Start [s] of period 0 at the current excitation frequency.
+    period_index : int
+        Periods marched since ``epoch_s``.
+    height : float
+        Mean z over the last period marched [m] (the initial height before any).
+    velocity : float
+        Mean dz/dt over the last period marched [m/s] (the initial velocity before any).
+    oscillation : float
+        Fast oscillation amplitude of the last period marched [m] (0 before any), as in
+        :class:`CoupledTrajectory`.
+    """
+
+    vector: np.ndarray
+    time_s: float
+    epoch_s: float
+    period_index: int
+    height: float
+    velocity: float
+    oscillation: float
+
+    def next_period_start(self, frequency: float) -> float:
+        """Start time [s] of the next period to march at ``frequency`` [Hz]."""
+        return self.epoch_s + self.period_index / frequency
+
+
 class CoupledModel:
     """The object on its squeeze film: eqs. (3)-(5) with the equation of motion (4).
 
@@ -362,6 +408,89 @@ class CoupledModel:
         oscillation = 2.0 / steps * np.hypot(cos_sum, sin_sum) * h0  # |first harmonic of Z'| / 1 (omega = 1 in T)
         return CoupledTrajectory(time, height * h0, velocity * h0 * omega, oscillation, excitation_values, marched)
 
+    # --- stepping API (co-simulation): the same march, one communication step at a time -------------
+    def initial_state(self, height: float, velocity: float = 0.0, amplitude: float = 0.0,
+                      time_s: float = 0.0) -> CoupledState:
+        """The state :meth:`simulate` starts from: object at ``height`` [m] moving at ``velocity`` [m/s],
+        quasi-steady film of the excitation |a| = ``amplitude`` [m], at time ``time_s`` [s] (period 0 starts there)."""
+        height0 = require_positive("height", height)
+        velocity0 = _finite("velocity", velocity, "a finite number (m/s)")
+        amplitude0 = _finite("amplitude", amplitude, "a finite amplitude >= 0 m")
+        if amplitude0 < 0:
+            raise InvalidParameterError("amplitude", amplitude, "a finite amplitude >= 0 m")
+        time0 = _finite("time_s", time_s, "a finite time (s)")
+        h0, omega = self.rig.reference_clearance, self.rig.omega
+        vector = self._initial_state(height0 / h0, velocity0 / (h0 * omega), amplitude0 / h0)
+        return CoupledState(vector, time0, time0, 0, height0, velocity0, 0.0)
+
+    def advance(self, state: CoupledState, amplitude: float, step_s: float, envelope: bool | None = None) -> CoupledState:
+        """March from ``state.time_s`` to ``state.time_s + step_s`` with |a| = ``amplitude`` [m] held.
+
+        Every excitation period whose start lies in the step is marched in full with ``amplitude``
+        (as :meth:`simulate` samples |a| at period starts); a step shorter than what is left of a
+        period marches none and only moves the time on. So stepping through [0, T] with the
+        excitation held over each step gives :meth:`simulate`'s trajectory for that piecewise-constant
+        excitation (the same arithmetic: tests/test_fmu_plants.py). ``envelope`` (default: the model's)
+        applies envelope following within the step (it can only jump when a step spans many bursts).
+
+        Raises
+        ------
+        InvalidParameterError
+            On bad input.
+        ConvergenceError
+            When the gap closes or Newton fails (as :meth:`simulate`).
+        """
+        if not isinstance(state, CoupledState):
+            raise InvalidParameterError("state", type(state).__name__, "a CoupledState (from initial_state or advance)")
+        if state.vector.shape != (2 * self.nodes + 4,):
+            raise InvalidParameterError("state", f"{state.vector.size} values", f"a state of a model with {self.nodes} nodes")
+        step = require_positive("step_s", step_s)
+        amplitude = _finite("amplitude", amplitude, "a finite amplitude >= 0 m")
+        if amplitude < 0:
+            raise InvalidParameterError("amplitude", amplitude, "a finite amplitude >= 0 m")
+        envelope = self.envelope if envelope is None else envelope
+        rig = self.rig
+        end = state.time_s + step
+        last = max(state.period_index, math.ceil((end - state.epoch_s) * rig.frequency - 1e-9))
+        count = last - state.period_index
+        if count == 0:
+            return dataclasses.replace(state, time_s=end)
+        vector = state.vector.copy()
+        amplitudes = np.full(count, amplitude / rig.reference_clearance)
+        outputs = tuple(np.empty(count) for _ in range(4))
+        if envelope:
+            self._run_envelope(vector, amplitudes, outputs, None)
+        else:
+            self._march(vector, amplitudes, 0, count, outputs)
+        height, velocity, cos_sum, sin_sum = (float(column[-1]) for column in outputs)
+        h0, steps = rig.reference_clearance, self.steps_per_period
+        return CoupledState(vector, end, state.epoch_s, last, height * h0, velocity * h0 * rig.omega,
+                            2.0 / steps * math.hypot(cos_sum, sin_sum) * h0)
+
+    def adopt(self, state: CoupledState, previous: "CoupledModel") -> CoupledState:
+        """``state`` of ``previous`` as a state of this model when only the excitation frequency differs.
+
+        For a drive frequency that changes between steps: the film and object are kept as they are
+        at the end of the last period (Z and P unchanged); W = dZ/dT and the BDF2 histories at T - dT
+        are rescaled to the new time unit 1 / omega (first order in the step), and the next period
+        starts where the previous model's next period would have started.
+        """
+        if not isinstance(previous, CoupledModel) or (previous.nodes, previous.steps_per_period) != (self.nodes, self.steps_per_period) \
+                or not np.array_equal(previous._eps_nodes, self._eps_nodes):
+            raise InvalidParameterError("previous", previous, "a CoupledModel with the same nodes, steps and shape")
+        if previous.rig.replace(frequency=self.rig.frequency) != self.rig:
+            raise InvalidParameterError("previous", previous.rig, "a rig that differs from this one in frequency only")
+        ratio = self.rig.frequency / previous.rig.frequency  # new time unit / old one: d/dT_new = d/dT_old / ratio
+        nodes, vector = self.nodes, state.vector.copy()
+        u_now, u_prev = vector[:nodes], vector[nodes:2 * nodes]
+        z_now, z_prev, w_now, w_prev = vector[2 * nodes:]
+        vector[nodes:2 * nodes] = u_now - (u_now - u_prev) / ratio
+        vector[2 * nodes + 1] = z_now - (z_now - z_prev) / ratio
+        vector[2 * nodes + 2] = w_now / ratio
+        vector[2 * nodes + 3] = (w_now - (w_now - w_prev) / ratio) / ratio
+        start = state.next_period_start(previous.rig.frequency)
+        return dataclasses.replace(state, vector=vector, epoch_s=start, period_index=0)
+
     def _march(self, state: np.ndarray, amplitudes: np.ndarray, start: int, stop: int, outputs) -> None:
         """March periods [start, stop) in full, writing their outputs; raise on a closed gap or Newton failure."""
         rig, nodes, steps = self.rig, self.nodes, self.steps_per_period
@@ -372,7 +501,7 @@ class CoupledModel:
         if status != STATUS_OK:
             t_fail = (start + marched + (step + 1) / steps) / rig.frequency
             if status == STATUS_GAP:
-                raise ConvergenceError(
+                raise GapClosedError(
                     f"the gap closed at t = {t_fail:.6g} s (object at z = {state[2 * nodes] * rig.reference_clearance * 1e6:.4g} um, "
                     f"|a| = {amplitudes[start + marched] * rig.reference_clearance * 1e6:.4g} um, max eps_hat = "
                     f"{np.max(self._eps_nodes):.3g}): the full model has no contact model; use the simplified plant for touchdown")
@@ -473,3 +602,14 @@ def _sample_excitation(excitation: Excitation, times: np.ndarray) -> np.ndarray:
     if not (math.isfinite(value) and value >= 0):
         raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time")
     return np.full(times.size, value)
+
+
+def _finite(name: str, value, allowed: str) -> float:
+    """``value`` as a finite float, else :class:`InvalidParameterError`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, value, allowed) from None
+    if not math.isfinite(number):
+        raise InvalidParameterError(name, value, allowed)
+    return number

@@ -1,48 +1,173 @@
-"""Coloured measurement noise of Sec. 4.1 (Figs. 9-10): "maximal magnitude 2 um, cut-off 300 Hz".
+"""Coloured measurement noise of Sec. 4.1 (Figs. 9-10): "maximal magnitude 2 um, cut-off 300 Hz", streamed.
 
-White Gaussian samples at the loop's sampling rate pass through a second-order Butterworth low-pass
-at the cut-off (zero initial state, after a burn-in of ``BURN_IN`` samples that is discarded), and the
-record is scaled so that its largest magnitude is exactly ``peak_m``. The same seed gives the same record.
+White Gaussian numbers from ``np.random.default_rng(seed)`` (PCG64) pass through the second-order
+Butterworth low-pass at the cut-off, H(z) of ``scipy.signal.butter(2, cutoff, fs=rate)``. The paper's
+"maximal magnitude" is read as a three-sigma bound:
+
+    n_k = clip(s * (h * w)_k, -peak, +peak),     s = (peak / 3) / sqrt(sum_j h_j^2)
+
+where h is the filter's impulse response, so sum_j h_j^2 is the exact variance of the filtered unit white
+noise: the standard deviation is peak / 3 before clipping (0.997 peak / 3 after: 0.27 % of the samples
+are clipped). Unlike a record normalised to its own maximum, this needs no look-ahead, so a streaming
+source (the SensorChain FMU) and a whole record give the same numbers.
+
+The generator works in fixed blocks of ``BLOCK`` white numbers, filtered by ``sosfilt`` with the filter
+state carried from block to block, after a burn-in (filtered from zero state and discarded) long enough
+for the start-up transient to decay below 1e-12 of the impulse response's peak (at least ``BURN_IN``
+samples). Because the blocks do not depend on how the samples are consumed, ``next_sample()`` one at a
+time, ``take(n)`` in any chunks, and :func:`coloured_noise` give bit-identical sequences for one seed.
 """
 
 from __future__ import annotations
+
+import copy
+import math
 
 import numpy as np
 from scipy import signal
 
 from .errors import InvalidParameterError, require_positive
 
-#: Samples filtered and discarded before the record so it starts in the filter's steady state.
+#: Least number of samples filtered and discarded so that the stream starts in the filter's steady state.
 BURN_IN = 200
+#: White numbers drawn and filtered at a time (part of the definition of the sequence: do not change).
+BLOCK = 256
+#: The noise's peak is this many standard deviations (the clip level).
+PEAK_SIGMAS = 3.0
 
 
-def coloured_noise(samples: int, *, sample_rate_hz: float = 2000.0, cutoff_hz: float = 300.0,
-                   peak_m: float = 2e-6, seed: int | None = 0) -> np.ndarray:
-    """``samples`` values [m] of low-pass filtered Gaussian noise whose peak magnitude is ``peak_m``.
-
-    Parameters
-    ----------
-    samples : int
-        Record length (one value per controller sample).
-    sample_rate_hz : float
-        Sampling rate [Hz].
-    cutoff_hz : float
-        -3 dB cut-off of the second-order Butterworth colouring filter [Hz]; below Nyquist.
-    peak_m : float
-        max |noise| [m] of the record; 0 gives zeros.
-    seed : int or None
-        Seed of the numpy Generator (PCG64).
-    """
-    if not isinstance(samples, (int, np.integer)) or samples < 1:
-        raise InvalidParameterError("samples", samples, "a whole number >= 1")
+def _check_settings(sample_rate_hz, cutoff_hz, peak_m) -> tuple[float, float, float]:
     rate = require_positive("sample_rate_hz", sample_rate_hz)
     cutoff = require_positive("cutoff_hz", cutoff_hz)
     if cutoff >= rate / 2:
         raise InvalidParameterError("cutoff_hz", cutoff_hz, f"below the Nyquist frequency {rate / 2:g} Hz")
-    if not (np.isfinite(peak_m) and peak_m >= 0):
+    try:
+        peak = float(peak_m)
+    except (TypeError, ValueError):
+        raise InvalidParameterError("peak_m", peak_m, "a finite amplitude >= 0 m") from None
+    if not (math.isfinite(peak) and peak >= 0):
         raise InvalidParameterError("peak_m", peak_m, "a finite amplitude >= 0 m")
-    if peak_m == 0:
-        return np.zeros(int(samples))
-    white = np.random.default_rng(seed).standard_normal(int(samples) + BURN_IN)
-    coloured = signal.sosfilt(signal.butter(2, cutoff, fs=rate, output="sos"), white)[BURN_IN:]
-    return coloured * (peak_m / np.max(np.abs(coloured)))
+    return rate, cutoff, peak
+
+
+class ColouredNoise:
+    """A reproducible stream of low-pass filtered Gaussian noise [m] with standard deviation ``peak_m``/3, clipped.
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+        Sampling rate [Hz] (one value per sample of the sensor or the loop; Table 2: 2000).
+    cutoff_hz : float
+        -3 dB cut-off of the second-order Butterworth colouring filter [Hz]; below Nyquist (Sec. 4.1: 300).
+    peak_m : float
+        Maximal magnitude [m] (Sec. 4.1: 2 um): three standard deviations and the clip level; 0 gives zeros.
+    seed : int or None
+        Seed of ``np.random.default_rng`` (PCG64). None draws fresh entropy (not reproducible).
+
+    Examples
+    --------
+    >>> a = ColouredNoise(seed=3).take(5)
+    >>> stream = ColouredNoise(seed=3)
+    >>> bool(np.all(a == [stream.next_sample() for _ in range(5)]))
+    True
+    """
+
+    def __init__(self, sample_rate_hz: float = 2000.0, cutoff_hz: float = 300.0, peak_m: float = 2e-6,
+                 seed: int | None = 0) -> None:
+        self.sample_rate_hz, self.cutoff_hz, self.peak_m = _check_settings(sample_rate_hz, cutoff_hz, peak_m)
+        if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0):
+            raise InvalidParameterError("seed", seed, "a whole number >= 0 or None")
+        self.seed = None if seed is None else int(seed)
+        self._sos = signal.butter(2, self.cutoff_hz, fs=self.sample_rate_hz, output="sos")
+        pole_radius = float(np.max(np.abs(signal.sos2zpk(self._sos)[1])))
+        #: Samples discarded at the start: the transient (pole radius ** n) falls below 1e-12.
+        self.burn_in = max(BURN_IN, int(math.ceil(math.log(1e-12) / math.log(pole_radius))))
+        impulse = np.zeros(max(4 * self.burn_in, 1000))
+        impulse[0] = 1.0
+        #: Standard deviation of the filtered unit white noise: sqrt(sum h_j^2), the impulse response h.
+        self.filter_gain = float(np.sqrt(np.sum(signal.sosfilt(self._sos, impulse) ** 2)))
+        self._scale = self.peak_m / PEAK_SIGMAS / self.filter_gain
+        self._rng = np.random.default_rng(self.seed)
+        self._zi = np.zeros((self._sos.shape[0], 2))
+        self._buffer = np.empty(0)
+        self._position = 0
+        if self.peak_m > 0:
+            _, self._zi = signal.sosfilt(self._sos, self._rng.standard_normal(self.burn_in), zi=self._zi)
+
+    @property
+    def std_m(self) -> float:
+        """The standard deviation [m] before clipping: ``peak_m`` / 3."""
+        return self.peak_m / PEAK_SIGMAS
+
+    def _refill(self) -> None:
+        white = self._rng.standard_normal(BLOCK)
+        filtered, self._zi = signal.sosfilt(self._sos, white, zi=self._zi)
+        self._buffer = np.clip(filtered * self._scale, -self.peak_m, self.peak_m)
+        self._position = 0
+
+    def peek(self) -> float:
+        """The next value [m] without consuming it."""
+        if self.peak_m == 0:
+            return 0.0
+        if self._position >= self._buffer.size:
+            self._refill()
+        return float(self._buffer[self._position])
+
+    def next_sample(self) -> float:
+        """The next value [m] of the stream."""
+        value = self.peek()
+        self._position += 1
+        return value
+
+    def take(self, n: int) -> np.ndarray:
+        """The next ``n`` values [m] of the stream (n >= 0), identical to ``n`` calls of :meth:`next_sample`."""
+        if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 0:
+            raise InvalidParameterError("n", n, "a whole number >= 0")
+        if self.peak_m == 0:
+            return np.zeros(int(n))
+        out = np.empty(int(n))
+        filled = 0
+        while filled < n:
+            if self._position >= self._buffer.size:
+                self._refill()
+            chunk = min(int(n) - filled, self._buffer.size - self._position)
+            out[filled:filled + chunk] = self._buffer[self._position:self._position + chunk]
+            filled += chunk
+            self._position += chunk
+        return out
+
+    def get_state(self) -> dict:
+        """The generator's state (plain Python types, picklable and JSON-serialisable), for FMU state save."""
+        return {"bit_generator": copy.deepcopy(self._rng.bit_generator.state), "zi": self._zi.tolist(),
+                "buffer": self._buffer.tolist(), "position": int(self._position)}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state` of a generator with the same settings."""
+        try:
+            zi = np.array(state["zi"], dtype=float).reshape(self._zi.shape)
+            buffer = np.array(state["buffer"], dtype=float).ravel()
+            position = int(state["position"])
+            bit_generator = copy.deepcopy(state["bit_generator"])
+            rng = np.random.default_rng()
+            rng.bit_generator.state = bit_generator
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidParameterError("state", type(state).__name__, f"a state from ColouredNoise.get_state ({exc})") from None
+        if not 0 <= position <= buffer.size:
+            raise InvalidParameterError("state['position']", position, f"within [0, {buffer.size}]")
+        self._rng, self._zi, self._buffer, self._position = rng, zi, buffer, position
+
+
+def coloured_noise(samples: int, *, sample_rate_hz: float = 2000.0, cutoff_hz: float = 300.0,
+                   peak_m: float = 2e-6, seed: int | None = 0) -> np.ndarray:
+    """The first ``samples`` values [m] of :class:`ColouredNoise` (std ``peak_m``/3, clipped at ``peak_m``).
+
+    Parameters
+    ----------
+    samples : int
+        Record length (one value per controller sample), >= 1.
+    sample_rate_hz, cutoff_hz, peak_m, seed
+        As :class:`ColouredNoise`.
+    """
+    if not isinstance(samples, (int, np.integer)) or isinstance(samples, bool) or samples < 1:
+        raise InvalidParameterError("samples", samples, "a whole number >= 1")
+    return ColouredNoise(sample_rate_hz, cutoff_hz, peak_m, seed).take(int(samples))

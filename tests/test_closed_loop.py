@@ -1,5 +1,7 @@
 """Closed loop of Figs. 9-10: noise, fast plant stepping vs. SimplifiedPlant.advance, metrics, comparison."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,7 @@ from nfal.models.closed_loop import ClosedLoopRun, Staircase, simulate_closed_lo
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.errors import InvalidParameterError
 from nfal.models.fixed_step_plant import FixedStepPlant
-from nfal.models.measurement_noise import coloured_noise
+from nfal.models.measurement_noise import ColouredNoise, coloured_noise
 from nfal.models.pid_design import design_schedule, fixed_design
 from nfal.models.plant import PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -29,22 +31,67 @@ def runs():
 
 
 # --- noise ----------------------------------------------------------------------------------------
-def test_noise_is_reproducible_and_peaks_at_2um():
-    a, b = coloured_noise(4000, seed=7), coloured_noise(4000, seed=7)
+def test_noise_is_reproducible_with_std_a_third_of_the_peak_and_clipped():
+    """Same seed, same record; std = peak / 3 (0.997 peak / 3 after clipping at 3 sigma), |n| <= peak, reached."""
+    a, b = coloured_noise(40_000, seed=7), coloured_noise(40_000, seed=7)
     np.testing.assert_array_equal(a, b)
-    assert not np.allclose(a, coloured_noise(4000, seed=8))
-    assert np.max(np.abs(a)) == pytest.approx(2e-6, rel=1e-12)
+    assert not np.allclose(a, coloured_noise(40_000, seed=8))
+    assert np.std(a) == pytest.approx(2e-6 / 3, rel=0.03)
+    assert np.max(np.abs(a)) == 2e-6 and 0.001 < np.mean(np.abs(a) == 2e-6) < 0.006
     assert abs(np.mean(a)) < 0.1 * np.std(a)
 
 
-def test_noise_is_coloured_at_300hz():
-    """Welch spectrum: power at 800-1000 Hz is > 10x below that at 0-200 Hz (2nd-order roll-off above 300 Hz)."""
+def test_noise_scale_uses_the_filters_exact_variance():
+    """sum h^2 of the 300 Hz / 2 kHz Butterworth equals the variance from the frequency response (Parseval)."""
     from scipy import signal
-    f, p = signal.welch(coloured_noise(200_000, seed=1), fs=2000.0, nperseg=1024)
+    noise = ColouredNoise()
+    _, response = signal.sosfreqz(noise._sos, worN=2 ** 16, whole=True)
+    assert noise.filter_gain ** 2 == pytest.approx(np.mean(np.abs(response) ** 2), rel=1e-9)
+    assert noise.std_m == 2e-6 / 3
+
+
+@pytest.mark.parametrize("chunks", [[1] * 700, [3, 250, 1, 446], [256, 256, 188], [699, 1], [0, 700]],
+                         ids=["one-by-one", "ragged", "blocks", "almost-all", "empty-first"])
+def test_noise_streaming_is_bit_identical_to_the_record(chunks):
+    stream = ColouredNoise(seed=11)
+    parts = [np.array([stream.next_sample()]) if n == 1 else stream.take(n) for n in chunks]
+    np.testing.assert_array_equal(np.concatenate(parts), coloured_noise(700, seed=11))
+
+
+def test_noise_peek_and_state_restore():
+    stream = ColouredNoise(seed=2)
+    stream.take(300)
+    saved = stream.get_state()
+    assert stream.peek() == stream.peek() == stream.next_sample()
+    rest = stream.take(500)
+    restored = ColouredNoise(seed=99)
+    restored.set_state(json.loads(json.dumps(saved)))  # the FMU serialises it as JSON
+    restored.next_sample()
+    np.testing.assert_array_equal(restored.take(500), rest)
+
+
+def test_noise_is_coloured_at_300hz():
+    """Welch spectrum: power at 800-1000 Hz is > 10x below that at 0-200 Hz (2nd-order roll-off above 300 Hz),
+    and in 100 Hz bands up to 800 Hz it is the designed (peak/3)^2 |H|^2 / sum h^2 within 6 % (-3 dB at 300 Hz)."""
+    from scipy import signal
+    noise = coloured_noise(200_000, seed=1)
+    f, p = signal.welch(noise, fs=2000.0, nperseg=1024)
     assert np.mean(p[f < 200]) > 10 * np.mean(p[f > 800])
+    _, response = signal.sosfreqz(signal.butter(2, 300.0, fs=2000.0, output="sos"), worN=f, fs=2000.0)
+    designed = 2.0 * (2e-6 / 3 / ColouredNoise().filter_gain) ** 2 * np.abs(response) ** 2 / 2000.0  # one-sided
+    for low in range(0, 800, 100):
+        band = (f >= low) & (f < low + 100)
+        assert np.mean(p[band]) == pytest.approx(np.mean(designed[band]), rel=0.06), low
+    assert abs(response[np.argmin(np.abs(f - 300.0))]) ** 2 == pytest.approx(0.5, rel=0.02)
 
 
-@pytest.mark.parametrize("kwargs", [{"samples": 0}, {"samples": 10, "cutoff_hz": 1500}, {"samples": 10, "peak_m": -1.0}])
+def test_noise_of_zero_peak_is_zero():
+    assert not np.any(coloured_noise(50, peak_m=0.0))
+    assert ColouredNoise(peak_m=0.0).next_sample() == 0.0
+
+
+@pytest.mark.parametrize("kwargs", [{"samples": 0}, {"samples": 10, "cutoff_hz": 1500}, {"samples": 10, "peak_m": -1.0},
+                                    {"samples": 2.5}, {"samples": 10, "seed": -1}, {"samples": 10, "sample_rate_hz": 0.0}])
 def test_bad_noise_settings_raise(kwargs):
     samples = kwargs.pop("samples")
     with pytest.raises(InvalidParameterError):
