@@ -1,0 +1,504 @@
+"""The base of every nfal FMU slave: :class:`NfalSlave`, a thin layer over pythonfmu's ``Fmi2Slave``.
+
+pythonfmu 0.7.0 leaves gaps that the contract (docs/cosimulation.md) needs filled. This module fills
+them in one place, so that each slave (``fmus/slow_plant.py``, ``fmus/controller.py``, ...) stays a
+thin adapter over :mod:`nfal.models`:
+
+* **Declarations with units.** :meth:`NfalSlave.add_parameter`, :meth:`~NfalSlave.add_input` and
+  :meth:`~NfalSlave.add_output` declare a variable with its unit, description, causality,
+  variability and start value; :meth:`~NfalSlave.to_xml` writes ``<UnitDefinitions>`` (SI base-unit
+  exponents, :data:`UNITS`), ``unit=`` on every Real, ``<ModelStructure><Outputs>`` with
+  ``dependencies``/``dependenciesKind`` and ``<InitialUnknowns>``, so that
+  ``fmpy.validation.validate_fmu`` finds no problem.
+* **Direct feedthrough.** An output declared with a ``getter`` and ``depends_on=("an_input", ...)``
+  is computed when it is read, from the current inputs and state; an output without a getter reads
+  the attribute of the same name, which the slave sets from its state (no dependencies).
+* **Errors.** Every entry point pythonfmu's C wrapper calls (setters, getters, initialisation,
+  ``do_step``, FMU state) is guarded: an exception is logged through ``self.log`` with status
+  ``Fmi2Status.error`` (category ``logStatusError``, message ``"<what>: <reason>"``) and re-raised.
+  pythonfmu 0.7.0 answers *every* Python exception with **fmi2Fatal** (there is no path to fmi2Error:
+  its ``handle_py_exception`` throws ``pythonfmu::fatal_error``); FMPy raises ``FMICallException``.
+  The wrapper also drops one reference to the class, the instance and its log queue per exception
+  and again when the instance is freed, which frees the instance under the wrapper's feet (a crash
+  at the next call or at ``fmi2FreeInstance``). The guard gives those references back when it runs
+  inside the wrapper (it was passed a ``logger``), so a failed FMU can still be freed, or even be
+  used again, without crashing the host process.
+* **Parameters checked at the end of initialisation.** Setters only store (with type coercion and,
+  for Real inputs, a finiteness check); :meth:`setup` (abstract) validates and builds the models in
+  ``exit_initialization_mode``. A ``fixed`` parameter set after initialisation is an error.
+* **FMU state.** ``_get_fmu_state``/``_set_fmu_state`` save every variable, the time and whatever
+  :meth:`get_internal_state` returns (plant state, controller state, RNG state: JSON-ready values);
+  states serialize to JSON bytes (``canGetAndSetFMUstate`` and ``canSerializeFMUstate`` are true).
+* **Shared helpers.** :meth:`add_rig_parameters`, :meth:`build_rig` and :meth:`build_calibration`
+  (the contract's rig parameter list and ``calibration``), and :class:`SampleClock` for sampled blocks.
+
+Writing a slave
+---------------
+Subclass :class:`NfalSlave` (the builder picks the concrete class), declare in ``__init__``,
+implement :meth:`setup` and :meth:`step`::
+
+    class Gain(NfalSlave):
+        description = "y = k u"
+
+        def __init__(self, **kwargs):
+            super().__init__(**kwargs)
+            self.add_parameter("k", 2.0, unit="1", description="gain")
+            self.add_input("u", 0.0, unit="m", description="input")
+            self.add_output("y", unit="m", description="k u", depends_on=("u",), getter=lambda: self.k * self.u)
+            self.add_output("y_last", unit="m", description="y at the last step")   # reads self.y_last
+            self.y_last = 0.0
+
+        def setup(self):                 # exit_initialization_mode: validate, build models
+            require_positive("k", self.k)
+
+        def step(self, current_time, step_size):   # commit state over [t, t + dt]
+            self.y_last = self.k * self.u
+
+        def get_internal_state(self):    # optional: JSON-ready internal state
+            return {}
+
+The values live in attributes of the same names (``self.k``, ``self.u``); a computed output's getter
+must not change state (it may be read any number of times).
+"""
+
+from __future__ import annotations
+
+import abc
+import ctypes
+import copy
+import json
+import logging
+import math
+from typing import Any, Callable, Iterable
+from xml.etree.ElementTree import Element, SubElement
+
+from pythonfmu import Fmi2Slave
+from pythonfmu.default_experiment import DefaultExperiment
+from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
+from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
+
+from nfal.models.calibration import CalibrationFunction, load_calibration, paper_calibration, perturbation_calibration
+from nfal.models.errors import InvalidParameterError, NfalError, require_positive
+from nfal.models.rig import RigParameters
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
+           "DefaultExperiment", "SAMPLE_TOLERANCE"]
+
+#: SI base-unit exponents of every unit an nfal FMU declares (FMI 2.0 ``<BaseUnit>`` attributes).
+#: "1" is a dimensionless number. Add to it (before building) for a new unit.
+UNITS: dict[str, dict[str, int]] = {
+    "1": {},
+    "m": {"m": 1},
+    "m/s": {"m": 1, "s": -1},
+    "m/s2": {"m": 1, "s": -2},
+    "s": {"s": 1},
+    "Hz": {"s": -1},
+    "rad": {"rad": 1},
+    "rad/s": {"rad": 1, "s": -1},
+    "kg": {"kg": 1},
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "Pa": {"kg": 1, "m": -1, "s": -2},
+    "Pa.s": {"kg": 1, "m": -1, "s": -1},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+    "m/V": {"kg": -1, "m": -1, "s": 3, "A": 1},
+}
+
+#: The contract's rig parameters: (name, start, unit, description). SlowPlant, ReynoldsPlant and
+#: Controller carry them; :meth:`NfalSlave.build_rig` turns them into a RigParameters.
+RIG_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
+    ("mass", 0.1347, "kg", "mass m of the levitated object"),
+    ("radius", 0.05, "m", "radius r0 of the object and of the driving surface"),
+    ("nominal_frequency", 28500.0, "Hz", "nominal excitation frequency f (sets sigma with the clearance, eq. 2)"),
+    ("viscosity", 1.81e-5, "Pa.s", "dynamic viscosity mu of the gas"),
+    ("ambient_pressure", 101325.0, "Pa", "ambient pressure p_a"),
+    ("gravity", 9.81, "m/s2", "gravitational acceleration g"),
+)
+#: ``calibration`` values besides a path to a calibration JSON written by ``nfal calibrate``.
+CALIBRATION_CHOICES = ("paper", "perturbation")
+#: Relative tolerance of "a whole number of sample periods from the start" (contract).
+SAMPLE_TOLERANCE = 1e-9
+
+_PY_TYPES = {float: Real, int: Integer, bool: Boolean, str: String}
+_COERCE = {Real: float, Integer: int, Boolean: bool, String: str}
+
+
+class FmuStateError(NfalError, ValueError):
+    """An FMU state that cannot be restored (not from this FMU, or damaged bytes)."""
+
+
+class SampleClock:
+    """Sample instants t0 + k T of a sampled block (Controller, SensorChain, PLL), per the contract.
+
+    A communication point is a sample instant when it lies a whole number of periods from the start
+    time, within ``SAMPLE_TOLERANCE`` relative (to the larger of T and t - t0); between instants the
+    block holds its outputs. A communication step longer than the period is an error.
+
+    Parameters
+    ----------
+    period_s : float
+        Sample period T [s].
+    start_time_s : float
+        t0 [s], the experiment's start time.
+    """
+
+    def __init__(self, period_s: float, start_time_s: float = 0.0) -> None:
+        self.period_s = require_positive("sample period", period_s)
+        self.start_time_s = float(start_time_s)
+
+    def index(self, time_s: float) -> int | None:
+        """k if ``time_s`` is the sample instant t0 + k T (k >= 0), else None."""
+        elapsed = float(time_s) - self.start_time_s
+        k = round(elapsed / self.period_s)
+        if k < 0 or abs(elapsed - k * self.period_s) > SAMPLE_TOLERANCE * max(self.period_s, abs(elapsed)):
+            return None
+        return int(k)
+
+    def is_sample(self, time_s: float) -> bool:
+        """Whether ``time_s`` [s] is a sample instant."""
+        return self.index(time_s) is not None
+
+    def check_step(self, step_size_s: float) -> None:
+        """Raise :class:`InvalidParameterError` if a communication step is longer than the period."""
+        if step_size_s > self.period_s * (1.0 + SAMPLE_TOLERANCE):
+            raise InvalidParameterError("communication step size", step_size_s,
+                                        f"at most the sample period {self.period_s:.6g} s")
+
+
+class _Declaration:
+    """What NfalSlave knows about a variable beyond pythonfmu's ScalarVariable."""
+
+    __slots__ = ("variable", "unit", "depends_on", "computed", "tunable")
+
+    def __init__(self, variable: ScalarVariable, unit: str | None, depends_on: tuple[str, ...], computed: bool,
+                 tunable: bool) -> None:
+        self.variable, self.unit, self.depends_on, self.computed, self.tunable = variable, unit, depends_on, computed, tunable
+
+
+class NfalSlave(Fmi2Slave):
+    """Abstract base of the nfal FMU slaves (see the module docstring for the whole contract).
+
+    Subclasses declare variables in ``__init__`` with :meth:`add_parameter`, :meth:`add_input` and
+    :meth:`add_output`, and implement :meth:`setup` (end of initialisation) and :meth:`step`
+    (one communication step); optionally :meth:`get_internal_state`/:meth:`set_internal_state`.
+
+    Attributes
+    ----------
+    time : float
+        The current communication point [s]: the start time, then t + dt after each step.
+    initialized : bool
+        True once :meth:`setup` has run (``exit_initialization_mode``).
+    """
+
+    author = "nfal"
+    license = "MIT"
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        from nfal import __version__
+
+        self.version = __version__
+        self.modelName = type(self).__name__
+        # pythonfmu's C wrapper passes the FMI logger; a slave made in Python (tests) gets none.
+        self._in_wrapper = "logger" in kwargs
+        self._declarations: dict[str, _Declaration] = {}
+        self.time = 0.0
+        self.start_time = 0.0
+        self.initialized = False
+        self._in_initialization = False
+        self._settings_changed = True
+
+    # --- declarations -------------------------------------------------------------------------------
+    def add_parameter(self, name: str, start: float | int | bool | str, *, unit: str | None = None,
+                      description: str = "", tunable: bool = False) -> ScalarVariable:
+        """Declare a parameter held in ``self.<name>`` (type from ``start``: write ``0.0`` for a Real).
+
+        ``fixed`` unless ``tunable``; its value is checked by :meth:`setup` when initialisation ends.
+        """
+        variability = Fmi2Variability.tunable if tunable else Fmi2Variability.fixed
+        return self._declare(name, start, Fmi2Causality.parameter, variability, unit, description, (), None, tunable)
+
+    def add_input(self, name: str, start: float | int | bool | str, *, unit: str | None = None,
+                  description: str = "") -> ScalarVariable:
+        """Declare an input held in ``self.<name>``; a Real input must be finite (checked when set)."""
+        kind = _kind_of(name, start)
+        variability = Fmi2Variability.continuous if kind is Real else Fmi2Variability.discrete
+        return self._declare(name, start, Fmi2Causality.input, variability, unit, description, (), None, False)
+
+    def add_output(self, name: str, *, kind: type = float, unit: str | None = None, description: str = "",
+                   depends_on: Iterable[str] = (), getter: Callable[[], Any] | None = None) -> ScalarVariable:
+        """Declare an output of Python type ``kind`` (float, bool, int, str).
+
+        Without ``getter`` it reads ``self.<name>``, which the slave keeps from its state: it then
+        depends on no input (``depends_on`` must be empty). With ``getter`` it is *computed on read*
+        (``getter()`` from the current inputs and state, without side effects) and ``depends_on``
+        names the inputs it feeds through from (ModelStructure ``dependencies``).
+        """
+        depends_on = tuple(depends_on)
+        if getter is None and depends_on:
+            raise InvalidParameterError("depends_on", depends_on, "empty for an output read from an attribute (give a getter)")
+        for source in depends_on:
+            declared = self._declarations.get(source)
+            if declared is None or declared.variable.causality != Fmi2Causality.input:
+                raise InvalidParameterError("depends_on", source, "the name of an input declared before the output")
+        if kind not in _PY_TYPES:
+            raise InvalidParameterError("kind", kind, "float, int, bool or str")
+        variability = Fmi2Variability.continuous if kind is float else Fmi2Variability.discrete
+        return self._declare(name, kind, Fmi2Causality.output, variability, unit, description, depends_on, getter, False)
+
+    def _declare(self, name, start, causality, variability, unit, description, depends_on, getter, tunable) -> ScalarVariable:
+        if name in self._declarations:
+            raise InvalidParameterError("name", name, "a variable name not declared before")
+        if unit is not None and unit not in UNITS:
+            raise InvalidParameterError("unit", unit, f"one of {sorted(UNITS)} (or add it to UNITS)")
+        if causality == Fmi2Causality.output:
+            cls = _PY_TYPES[start]
+            if getter is None and not hasattr(self, name):
+                setattr(self, name, _COERCE[cls]())
+            variable = cls(name, causality=causality, variability=variability, description=description or None,
+                           getter=getter)
+        else:
+            cls = _kind_of(name, start)
+            setattr(self, name, _COERCE[cls](start))
+            variable = cls(name, causality=causality, variability=variability, description=description or None,
+                           start=_COERCE[cls](start))
+        if unit is not None and cls is not Real:
+            raise InvalidParameterError("unit", unit, f"None for the non-Real variable {name}")
+        self.register_variable(variable, nested=False)
+        variable.setter = self._make_setter(name, cls, causality, tunable)
+        self._declarations[name] = _Declaration(variable, unit, depends_on, getter is not None, tunable)
+        return variable
+
+    def _make_setter(self, name: str, cls: type, causality, tunable: bool) -> Callable[[Any], None]:
+        if causality == Fmi2Causality.output:
+            def refuse(value) -> None:
+                raise InvalidParameterError(name, value, "not set: it is an output")
+            return refuse
+        coerce = _COERCE[cls]
+        check_finite = cls is Real and causality == Fmi2Causality.input
+        fixed = causality == Fmi2Causality.parameter and not tunable
+
+        def setter(value) -> None:
+            value = coerce(value)
+            if check_finite and not math.isfinite(value):
+                raise InvalidParameterError(name, value, "a finite number")
+            if fixed and self.initialized:
+                raise InvalidParameterError(name, value, f"unchanged after initialisation (a fixed parameter, now {getattr(self, name)!r})")
+            setattr(self, name, value)
+            self._settings_changed = True
+        return setter
+
+    def add_rig_parameters(self) -> None:
+        """Declare the contract's rig parameters (:data:`RIG_PARAMETERS`) and ``calibration``."""
+        for name, start, unit, description in RIG_PARAMETERS:
+            self.add_parameter(name, start, unit=unit, description=description)
+        self.add_parameter("calibration", "paper", description="K(sigma): 'paper' = eq. (17), 'perturbation' "
+                           "(eqs. 9-11 for the paper's excitation form), or the path of a calibration JSON")
+
+    # --- shared model builders ---------------------------------------------------------------------
+    def build_rig(self, frequency: float | None = None) -> RigParameters:
+        """RigParameters from the rig parameters (the excitation at ``frequency`` [Hz], default nominal)."""
+        values = {name: require_positive(name, getattr(self, name)) for name, *_ in RIG_PARAMETERS}
+        nominal = values.pop("nominal_frequency")
+        frequency = nominal if frequency is None else require_positive("frequency", frequency)
+        return RigParameters(frequency=frequency, **values)
+
+    def build_calibration(self) -> CalibrationFunction:
+        """K(sigma) named by ``calibration``: 'paper' (eq. 17), 'perturbation', or a calibration JSON path."""
+        spec = str(self.calibration).strip()
+        if spec == "paper":
+            return paper_calibration()
+        if spec == "perturbation":
+            from nfal.models.excitation import paper_shape
+
+            return perturbation_calibration(paper_shape())
+        if not spec:
+            raise InvalidParameterError("calibration", spec, f"one of {CALIBRATION_CHOICES} or a calibration JSON path")
+        return load_calibration(spec)
+
+    # --- the slave's part ----------------------------------------------------------------------------
+    @abc.abstractmethod
+    def setup(self) -> None:
+        """End of initialisation: validate the parameters (raise on bad ones) and build the models."""
+
+    @abc.abstractmethod
+    def step(self, current_time: float, step_size: float) -> None:
+        """Advance the state from ``current_time`` by ``step_size`` [s] with the inputs held (commit)."""
+
+    def get_internal_state(self) -> dict:
+        """State beyond the declared variables, as JSON-ready values (floats, lists, dicts, strings)."""
+        return {}
+
+    def set_internal_state(self, state: dict) -> None:
+        """Restore what :meth:`get_internal_state` returned."""
+
+    # --- FMI entry points (called by pythonfmu's C wrapper), guarded -----------------------------------
+    def _guard(self, what: str, function: Callable, *args):
+        try:
+            return function(*args)
+        except Exception as exc:  # noqa: BLE001 - every error must reach the master as a logged FMI status
+            self._fail(what, exc)
+            raise
+
+    def _fail(self, what: str, exc: BaseException) -> None:
+        """Log why a call fails and keep the wrapper's reference counting from freeing the instance."""
+        reason = str(exc) or type(exc).__name__
+        message = f"{self.instance_name}: {what} failed: {reason}"
+        logger.info(message)
+        self.log(message, Fmi2Status.error)
+        if self._in_wrapper:
+            # pythonfmu's handle_py_exception Py_XDECREFs pClass_, pInstance_ and pMessages_, which the
+            # destructor decrefs again (verified: without this the host dies at the next call or at free).
+            for obj in (type(self), self, self.log_queue):
+                ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+
+    def setup_experiment(self, start_time: float, stop_time=None, tolerance=None) -> None:
+        def run():
+            self.start_time = self.time = float(start_time)
+        self._guard("setup_experiment", run)
+
+    def enter_initialization_mode(self) -> None:
+        self._in_initialization = True
+
+    def _read(self, what: str, read, vrs):
+        """Outputs read in initialisation mode are those of a provisional :meth:`setup` with the values set
+        so far (the initial state: the plant at initial_height, the controller's bumpless command), so a
+        master that propagates outputs before the first step hands on consistent values, not zeros."""
+        def run():
+            if self._in_initialization and self._settings_changed:
+                self.setup()
+                self._settings_changed = False
+            return read(vrs)
+        return self._guard(what, run)
+
+    def exit_initialization_mode(self) -> None:
+        def run():
+            self.setup()
+            self.initialized = True
+            self._in_initialization = False
+        self._guard("exit_initialization_mode (checking the parameters)", run)
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        def run():
+            if not self.initialized:
+                raise InvalidParameterError("doStep", current_time, "called after initialisation ends")
+            if not (math.isfinite(step_size) and step_size > 0):
+                raise InvalidParameterError("communication step size", step_size, "a finite number > 0 s")
+            self.step(float(current_time), float(step_size))
+            self.time = float(current_time) + float(step_size)
+            return True
+        return self._guard(f"doStep at t = {current_time:.9g} s", run)
+
+    def terminate(self) -> None:
+        pass
+
+    def set_real(self, vrs, values) -> None:
+        self._guard("setReal", super().set_real, vrs, values)
+
+    def set_integer(self, vrs, values) -> None:
+        self._guard("setInteger", super().set_integer, vrs, values)
+
+    def set_boolean(self, vrs, values) -> None:
+        self._guard("setBoolean", super().set_boolean, vrs, values)
+
+    def set_string(self, vrs, values) -> None:
+        self._guard("setString", super().set_string, vrs, values)
+
+    def get_real(self, vrs):
+        return self._read("getReal", super().get_real, vrs)
+
+    def get_integer(self, vrs):
+        return self._read("getInteger", super().get_integer, vrs)
+
+    def get_boolean(self, vrs):
+        return self._read("getBoolean", super().get_boolean, vrs)
+
+    def get_string(self, vrs):
+        return self._read("getString", super().get_string, vrs)
+
+    # --- FMU state ---------------------------------------------------------------------------------
+    def _get_fmu_state(self) -> dict:
+        def run():
+            values = {name: getattr(self, name) for name, d in self._declarations.items() if not d.computed}
+            return {"model": self.modelName, "time": self.time, "start_time": self.start_time,
+                    "initialized": self.initialized, "variables": values,
+                    "internal": copy.deepcopy(self.get_internal_state())}
+        return self._guard("getFMUstate", run)
+
+    def _set_fmu_state(self, state: dict) -> None:
+        def run():
+            if not isinstance(state, dict) or "invalid" in state:
+                raise FmuStateError(state.get("invalid") if isinstance(state, dict) else "not an FMU state")
+            if state.get("model") != self.modelName:
+                raise FmuStateError(f"a state of {state.get('model')!r}, not of {self.modelName}")
+            for name, value in state["variables"].items():
+                if name in self._declarations:
+                    setattr(self, name, value)
+            self.time, self.start_time = float(state["time"]), float(state["start_time"])
+            self.initialized = bool(state["initialized"])
+            self.set_internal_state(copy.deepcopy(state["internal"]))
+        self._guard("setFMUstate", run)
+
+    @staticmethod
+    def _fmu_state_to_bytes(state: dict) -> bytes:
+        # Called on the class: never raise (a value JSON cannot hold becomes its repr, refused on restore).
+        return json.dumps(state, default=repr).encode("utf-8")
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> dict:
+        # Called on the class (no instance to log with): never raise; _set_fmu_state reports.
+        try:
+            data = json.loads(bytes(state).decode("utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            return {"invalid": f"serialized FMU state is not valid: {exc}"}
+        return data if isinstance(data, dict) else {"invalid": "serialized FMU state is not a JSON object"}
+
+    # --- modelDescription.xml -----------------------------------------------------------------------
+    def to_xml(self, model_options: dict | None = None) -> Element:
+        """pythonfmu's model description plus units, output dependencies and initial unknowns."""
+        options = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
+        options.update(model_options or {})
+        root = super().to_xml(options)
+        used = sorted({d.unit for d in self._declarations.values() if d.unit is not None})
+        if used:
+            definitions = Element("UnitDefinitions")
+            for unit in used:
+                node = SubElement(definitions, "Unit", name=unit)
+                SubElement(node, "BaseUnit", {k: str(v) for k, v in UNITS[unit].items()})
+            position = list(root).index(root.find("CoSimulation")) + 1
+            root.insert(position, definitions)
+        by_name = {d.variable.name: d for d in self._declarations.values()}
+        index = {}  # name -> 1-based index in ModelVariables
+        for i, node in enumerate(root.find("ModelVariables").findall("ScalarVariable")):
+            name = node.get("name")
+            index[name] = i + 1
+            declared = by_name.get(name)
+            if declared is not None and declared.unit is not None:
+                node.find("Real").set("unit", declared.unit)
+        structure = root.find("ModelStructure")
+        for child in list(structure):
+            structure.remove(child)
+        outputs = [d for d in by_name.values() if d.variable.causality == Fmi2Causality.output]
+        if outputs:
+            outputs.sort(key=lambda d: index[d.variable.name])
+            node = SubElement(structure, "Outputs")
+            for d in outputs:
+                attributes = {"index": str(index[d.variable.name]),
+                              "dependencies": " ".join(str(index[s]) for s in sorted(d.depends_on, key=index.get)),
+                              "dependenciesKind": " ".join("dependent" for _ in d.depends_on)}
+                SubElement(node, "Unknown", attributes)
+            # every output is initial="calculated": an initial unknown that may depend on every known
+            node = SubElement(structure, "InitialUnknowns")
+            for d in outputs:
+                SubElement(node, "Unknown", {"index": str(index[d.variable.name])})
+        return root
+
+
+def _kind_of(name: str, start) -> type:
+    if isinstance(start, bool):
+        return Boolean
+    for python_type in (int, float, str):
+        if isinstance(start, python_type):
+            return _PY_TYPES[python_type]
+    raise InvalidParameterError(name, start, "a float, int, bool or str start value")

@@ -1,0 +1,169 @@
+"""Build the nfal FMUs with pythonfmu, self-contained: :func:`build_fmus`.
+
+Each FMU of :data:`FMU_SCRIPTS` is one slave script of ``fmus/``. pythonfmu puts the FMU's
+``resources/`` folder first on ``sys.path`` and imports the script from there, so the build copies in
+everything the slave imports from nfal, under the same import names as in the installed package::
+
+    resources/
+        nfal_<script>.py        the slave script (prefixed: module names are process-wide in the host)
+        slavemodule.txt         "nfal_<script>" (pythonfmu's loader reads it)
+        pythonfmu/              pythonfmu's Python side (added by pythonfmu)
+        nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
+        nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
+        nfal/fmus/__init__.py   and nfal/fmus/base.py (the NfalSlave base class)
+    binaries/linux64/<Model>.so, binaries/win64/<Model>.dll   pythonfmu's FMI wrapper
+
+Third-party packages (numpy, scipy, numba, python-control) come from the Python environment that
+runs the FMU, as with every pythonfmu FMU. If the host process has already imported ``nfal`` (for
+instance a test run under an editable install), that copy serves: Python keeps one module per name.
+
+An FMU is rebuilt only when it is missing or older than one of its sources (the script, the copied
+files, this file); ``force=True`` rebuilds regardless. Builds go to a temporary file that replaces
+the FMU in one step, so a reader never sees half an archive.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Iterable
+
+from nfal.models.errors import InvalidParameterError
+
+logger = logging.getLogger(__name__)
+
+#: FMU (model identifier) -> slave script in fmus/. A user may add entries (script paths are
+#: resolved against fmus/ unless absolute).
+FMU_SCRIPTS: dict[str, str] = {
+    "SlowPlant": "slow_plant.py",
+    "ReynoldsPlant": "reynolds_plant.py",
+    "Controller": "controller.py",
+    "ResonanceTracker": "resonance_tracker.py",
+    "SensorChain": "sensor_chain.py",
+}
+#: What every FMU copies from fmus/ beside its script.
+FMUS_SUPPORT = ("__init__.py", "base.py")
+#: Prefix of the slave module inside the FMU.
+MODULE_PREFIX = "nfal_"
+#: Capabilities written into modelDescription.xml (NfalSlave saves its whole state as JSON).
+BUILD_OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
+
+FMUS_DIR = Path(__file__).resolve().parent
+
+
+def _models_dir() -> Path:
+    """The folder of nfal.models (models/ in a checkout or editable install, nfal/models in a wheel)."""
+    import nfal.models
+
+    return Path(nfal.models.__file__).resolve().parent
+
+
+def _model_files() -> list[Path]:
+    root = _models_dir()
+    files = sorted(root.glob("*.py")) + sorted(p for p in (root / "data").rglob("*") if p.is_file())
+    return [p for p in files if "__pycache__" not in p.parts]
+
+
+def script_path(name: str) -> Path:
+    """The slave script of the FMU ``name`` (one of :data:`FMU_SCRIPTS`)."""
+    if name not in FMU_SCRIPTS:
+        raise InvalidParameterError("FMU name", name, f"one of {sorted(FMU_SCRIPTS)}")
+    path = Path(FMU_SCRIPTS[name])
+    return path if path.is_absolute() else FMUS_DIR / path
+
+
+def sources(name: str) -> list[Path]:
+    """Every file the FMU ``name`` is built from (its staleness is judged against these)."""
+    return [script_path(name), Path(__file__).resolve(), *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files()]
+
+
+def is_up_to_date(fmu: Path, name: str) -> bool:
+    """Whether ``fmu`` exists and is newer than every source of ``name``."""
+    if not fmu.is_file():
+        return False
+    built = fmu.stat().st_mtime
+    return all(source.stat().st_mtime < built for source in sources(name))
+
+
+def _minimal_package_init() -> str:
+    from nfal import __version__
+
+    return ('"""nfal, as carried inside an FMU: nfal.models and nfal.fmus.base only (see fmus/build.py)."""\n\n'
+            f'__version__ = "{__version__}"\n')
+
+
+def _stage(name: str, stage: Path) -> Path:
+    """Lay out the script and the nfal package in ``stage``; return the staged script."""
+    script = script_path(name)
+    if not script.is_file():
+        raise InvalidParameterError(f"script of {name}", str(script), "an existing slave script")
+    package = stage / "nfal"
+    (package / "models" / "data").mkdir(parents=True)
+    (package / "fmus").mkdir()
+    (package / "__init__.py").write_text(_minimal_package_init(), encoding="utf-8")
+    models = _models_dir()
+    for source in _model_files():
+        target = package / "models" / source.relative_to(models)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(source, target)
+    for support in FMUS_SUPPORT:
+        shutil.copy2(FMUS_DIR / support, package / "fmus" / support)
+    staged = stage / f"{MODULE_PREFIX}{script.stem}.py"
+    shutil.copy2(script, staged)
+    return staged
+
+
+def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False) -> Path:
+    """Build the FMU ``name`` into ``out_dir``/``name``.fmu (kept if up to date unless ``force``)."""
+    from pythonfmu import FmuBuilder
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    target = out / f"{name}.fmu"
+    if not force and is_up_to_date(target, name):
+        logger.info("%s is up to date", target)
+        return target
+    with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:
+        stage = Path(temp) / "stage"
+        stage.mkdir()
+        staged = _stage(name, stage)
+        path_before = list(sys.path)
+        sys.modules.pop(staged.stem, None)  # a slave module of a loaded FMU must not stand in for the new script
+        try:
+            built = FmuBuilder.build_FMU(staged, dest=Path(temp) / f"{name}.fmu", project_files=[stage / "nfal"],
+                                         **BUILD_OPTIONS)
+        finally:
+            sys.path[:] = path_before  # the builder inserts the script's folder for good
+            sys.modules.pop(staged.stem, None)
+        partial = out / f".{name}.fmu.partial-{os.getpid()}"
+        shutil.copy2(built, partial)
+        os.replace(partial, target)
+    logger.info("built %s", target)
+    return target
+
+
+def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *, force: bool = False) -> dict[str, Path]:
+    """Build the FMUs ``names`` (default: all of :data:`FMU_SCRIPTS`) into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : path
+        Destination folder (created if missing).
+    names : iterable of str, optional
+        Model identifiers, e.g. ``["SlowPlant", "Controller"]``.
+    force : bool
+        Rebuild even the FMUs newer than their sources.
+
+    Returns
+    -------
+    dict
+        {name: path of the .fmu}.
+    """
+    names = list(FMU_SCRIPTS) if names is None else list(names)
+    for name in names:
+        script_path(name)  # unknown names fail before anything is built
+    return {name: build_fmu(name, out_dir, force=force) for name in names}

@@ -1,0 +1,139 @@
+"""Controller FMU: the discrete gain-scheduled (or fixed) PID of eqs. (20)-(24) (docs/cosimulation.md).
+
+A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
+
+* gains: ``design = gain-scheduled`` -> :func:`design_schedule` over the work range, cut by
+  :func:`realizable_schedule` when ``realizable_only``; ``design = fixed`` -> :func:`fixed_design`
+  at ``design_height``. Both from the rig parameters, the calibration and Table 2's cut-offs.
+* sampling: at every communication point that is a whole number of sample periods from the start
+  (:class:`~nfal.fmus.base.SampleClock`) the outputs are the law's output for (state, reference,
+  measured_height) *at that instant*, computed when read (direct feedthrough, the pure ``law.step``);
+  ``doStep`` from a sample instant commits the law's next state. Between sample instants the
+  outputs hold. A communication step longer than the sample period is an error.
+* bumpless start: at the end of initialisation the law starts at the equilibrium of the
+  ``reference`` input, ``law.initial_state(ref, SimplifiedPlant(rig, K).equilibrium_excitation(ref))``
+  as :mod:`nfal.models.closed_loop` does.
+* ``drive_voltage`` = ``excitation_command`` / ``metres_per_volt`` (the voltage -> |a| map at
+  resonance, an assumption of docs/cosimulation.md).
+"""
+
+from __future__ import annotations
+
+from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
+from nfal.models.control_law import ControllerState, DiscreteControlLaw
+from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
+from nfal.models.plant import SimplifiedPlant
+from nfal.models.stability import realizable_schedule
+
+DESIGNS = ("gain-scheduled", "fixed")
+
+
+class Controller(NfalSlave):
+    """Sampled PID of eqs. (21)-(22) with saturation and anti-windup; outputs feed through from both inputs."""
+
+    description = "Gain-scheduled (or fixed) discrete PID of the levitation height, eqs. (20)-(24)"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.1, step_size=5e-4)
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_input("reference", 60e-6, unit="m", description="reference clearance r")
+        self.add_input("measured_height", 60e-6, unit="m", description="measured clearance h")
+        self.add_output("drive_voltage", unit="V", description="excitation_command / metres_per_volt",
+                        depends_on=("reference", "measured_height"), getter=self._voltage)
+        self.add_output("excitation_command", unit="m", description="demanded excitation amplitude |a| = u",
+                        depends_on=("reference", "measured_height"), getter=self._command)
+        self.add_parameter("design", "gain-scheduled", description="'gain-scheduled' (eqs. 23-24 over the work "
+                           "range) or 'fixed' (the design at design_height everywhere)")
+        self.add_parameter("design_height", 120e-6, unit="m", description="design height of the fixed controller")
+        self.add_parameter("realizable_only", True, description="hold the gains below the lowest height the "
+                           "sampled loop realises (Fig. 8)")
+        self.add_parameter("sample_rate", 2000.0, unit="Hz", description="sampling rate (Table 2)")
+        self.add_parameter("closed_loop_cutoff", 10.0, unit="Hz", description="closed-loop -3 dB bandwidth, eq. (23) (Table 2)")
+        self.add_parameter("filter_cutoff", 300.0, unit="Hz", description="derivative filter cut-off, eq. (22) (Table 2)")
+        self.add_parameter("max_excitation", 10e-6, unit="m", description="actuator saturation |a|max")
+        self.add_parameter("metres_per_volt", 0.1e-6, unit="m/V", description="|a| per volt at resonance (assumption)")
+        self.add_parameter("reference_min", 50e-6, unit="m", description="smallest accepted reference")
+        self.add_parameter("reference_max", 200e-6, unit="m", description="largest accepted reference")
+        self.add_rig_parameters()
+        self.law: DiscreteControlLaw | None = None
+        self._clock: SampleClock | None = None
+        self._state: ControllerState | None = None
+        self._held = 0.0  # the command of the last sample instant
+        self._cache: tuple | None = None  # (state, reference, measured, command, next state)
+
+    # --- initialisation ---------------------------------------------------------------------------
+    def setup(self) -> None:
+        if self.design not in DESIGNS:
+            raise InvalidParameterError("design", self.design, f"one of {DESIGNS}")
+        rig = self.build_rig()
+        calibration = self.build_calibration()
+        spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
+                          require_positive("filter_cutoff", self.filter_cutoff))
+        sample_rate = require_positive("sample_rate", self.sample_rate)
+        if self.design == "fixed":
+            gains = fixed_design(require_positive("design_height", self.design_height), rig, calibration, spec)
+        else:
+            gains = design_schedule(None, rig, calibration, spec)
+            if self.realizable_only:
+                gains = realizable_schedule(gains, rig, sample_rate_hz=sample_rate)
+        low, high = require_positive("reference_min", self.reference_min), require_positive("reference_max", self.reference_max)
+        if low > high:
+            raise InvalidParameterError("reference_max", high, f">= reference_min = {low:g} m")
+        require_positive("metres_per_volt", self.metres_per_volt)
+        self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
+                                      max_excitation_m=require_positive("max_excitation", self.max_excitation),
+                                      reference_range_m=(low, high))
+        reference = self._checked_reference()
+        equilibrium = float(SimplifiedPlant(rig, calibration).equilibrium_excitation(reference))
+        self._state = self.law.initial_state(reference, equilibrium)
+        self._held = equilibrium
+        self._clock = SampleClock(self.law.period_s, self.start_time)
+        self._cache = None
+
+    def _checked_reference(self) -> float:
+        low, high = self.law.reference_range_m
+        if not (low <= self.reference <= high):
+            raise InvalidParameterError("reference", self.reference, f"within [reference_min, reference_max] = [{low:g}, {high:g}] m")
+        return float(self.reference)
+
+    # --- outputs (feedthrough at sample instants) -----------------------------------------------------
+    def _sample(self) -> tuple[float, ControllerState]:
+        """law.step(state, reference, measured_height), once per (state, inputs)."""
+        cache = self._cache
+        if cache is not None and cache[0] is self._state and cache[1] == self.reference and cache[2] == self.measured_height:
+            return cache[3], cache[4]
+        self._checked_reference()
+        command, state = self.law.step(self._state, self.reference, self.measured_height)
+        self._cache = (self._state, self.reference, self.measured_height, command, state)
+        return command, state
+
+    def _command(self) -> float:
+        if self.law is None:  # before initialisation ends: the start value
+            return 0.0
+        if self._clock.is_sample(self.time):
+            return self._sample()[0]
+        return self._held
+
+    def _voltage(self) -> float:
+        return self._command() / self.metres_per_volt
+
+    def step(self, current_time: float, step_size: float) -> None:
+        self._clock.check_step(step_size)
+        self._checked_reference()
+        if self._clock.is_sample(current_time):
+            self._held, self._state = self._sample()
+
+    # --- FMU state ----------------------------------------------------------------------------------
+    def get_internal_state(self) -> dict:
+        state = self._state
+        return {"held": self._held,
+                "law": None if state is None else [state.integrator_m, state.derivative_m_per_s, state.previous_measurement_m]}
+
+    def set_internal_state(self, state: dict) -> None:
+        self._held = float(state["held"])
+        law = state["law"]
+        self._state = None if law is None else ControllerState(float(law[0]), float(law[1]), None if law[2] is None else float(law[2]))
+        self._cache = None
+        if self.law is not None:
+            self._clock = SampleClock(self.law.period_s, self.start_time)

@@ -1,0 +1,147 @@
+"""ReynoldsPlant FMU: the full model, Reynolds' equation (3)-(5) coupled to the object (4), (15).
+
+A thin adapter over the stepping API of :class:`~nfal.models.coupled.CoupledModel`: per
+communication step every excitation period that starts in the step is marched in full with the held
+|a| = ``excitation_amplitude`` (BDF2 film + object, ``radial_nodes`` x ``steps_per_period``); the
+outputs are those of the last period marched (mean clearance, mean velocity, fast oscillation
+amplitude), so they depend on the state alone. The excitation form is ``shape``.
+
+``drive_frequency``: when it differs from the frequency the model was built for by more than a relative
+``FREQUENCY_TOLERANCE``, the model is rebuilt for it and the state carried over
+(:meth:`CoupledModel.adopt`).
+
+Contact (the full model has none; docs/cosimulation.md): when the film gap closes during a step (the
+vibrating surface reaches the object) the object lands: it rests at ``rest_gap`` with zero velocity.
+It lifts off at the start of the first step whose held |a| gives a time-averaged film force (eq. 12,
+with the ``calibration`` K) above its weight at ``rest_gap``; the full model then restarts from a
+quasi-steady film with the object at rest at the lowest clearance where the surface clears it,
+max(rest_gap, 1.05 |a| max eps_hat).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nfal.fmus.base import DefaultExperiment, NfalSlave
+from nfal.models.coupled import CoupledModel, CoupledState, GapClosedError
+from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.models.excitation import parse_shape
+from nfal.models.plant import SimplifiedPlant
+
+#: Relative change of drive_frequency that rebuilds the model.
+FREQUENCY_TOLERANCE = 1e-9
+#: Lift-off clearance margin over the surface's largest excursion |a| max eps_hat.
+LIFT_OFF_MARGIN = 1.05
+
+
+class ReynoldsPlant(NfalSlave):
+    """Eqs. (3)-(5) and (15): squeeze film by finite volumes and BDF2, coupled to the object's motion."""
+
+    description = "Full squeeze-film model (Reynolds eq. 3-5 coupled to the object, eq. 4/15); inputs held over a step"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.01, step_size=5e-4)
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
+        self.add_input("drive_frequency", 28500.0, unit="Hz", description="drive frequency f (excitation frequency)")
+        self.add_output("height", unit="m", description="clearance: mean object position z over the last excitation period")
+        self.add_output("velocity", unit="m/s", description="mean dz/dt over the last excitation period")
+        self.add_output("resting", kind=bool, description="true while the object rests on the surface (after the gap closed)")
+        self.add_output("oscillation_amplitude", unit="m", description="amplitude of the object's fast oscillation chi (eq. 1)")
+        self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
+        self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
+        self.add_parameter("rest_gap", 5e-6, unit="m", description="where a landed object rests")
+        self.add_parameter("radial_nodes", 41, description="radial finite-volume nodes of the film (>= 5)")
+        self.add_parameter("steps_per_period", 64, description="BDF2 steps per excitation period (>= 8)")
+        self.add_parameter("envelope_following", True, description="envelope following within a step (pays only "
+                           "for steps of many excitation periods)")
+        self.add_parameter("shape", "paper", description="excitation form: 'paper' (Fig. 3 stand-in), 'piston', "
+                           "'plate:N' or the path of a CSV of (R, eps)")
+        self.add_rig_parameters()
+        self._shape = None
+        self._model: CoupledModel | None = None
+        self._state: CoupledState | None = None
+        self._lift_off: SimplifiedPlant | None = None
+
+    # --- initialisation ---------------------------------------------------------------------------
+    def setup(self) -> None:
+        rest_gap = require_positive("rest_gap", self.rest_gap)
+        height = require_positive("initial_height", self.initial_height)
+        if height < rest_gap:
+            raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
+        if not math.isfinite(self.initial_velocity):
+            raise InvalidParameterError("initial_velocity", self.initial_velocity, "a finite number (m/s)")
+        for name, lowest in (("radial_nodes", 5), ("steps_per_period", 8)):
+            if getattr(self, name) < lowest:
+                raise InvalidParameterError(name, getattr(self, name), f"a whole number >= {lowest}")
+        self._shape = parse_shape(str(self.shape))
+        self._largest_excursion = float(np.max(np.abs(self._shape(np.linspace(0.0, 1.0, 401)))))
+        self._lift_off = SimplifiedPlant(self.build_rig(), self.build_calibration(), rest_gap=rest_gap)
+        self._model = self._build_model(self._checked_frequency())
+        excitation = self._checked_excitation()
+        self._state = self._model.initial_state(height, float(self.initial_velocity), excitation, self.start_time)
+        self._publish(self._state)
+        self.resting = False
+
+    def _build_model(self, frequency: float) -> CoupledModel:
+        return CoupledModel(self.build_rig(frequency), self._shape, nodes=int(self.radial_nodes),
+                            steps_per_period=int(self.steps_per_period), envelope=bool(self.envelope_following))
+
+    def _checked_frequency(self) -> float:
+        return require_positive("drive_frequency", self.drive_frequency)
+
+    def _checked_excitation(self) -> float:
+        value = float(self.excitation_amplitude)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise InvalidParameterError("excitation_amplitude", value, "a finite amplitude >= 0 m")
+        return value
+
+    def _publish(self, state: CoupledState) -> None:
+        self.height, self.velocity, self.oscillation_amplitude = state.height, state.velocity, state.oscillation
+
+    # --- stepping -----------------------------------------------------------------------------------
+    def step(self, current_time: float, step_size: float) -> None:
+        excitation = self._checked_excitation()
+        frequency = self._checked_frequency()
+        if abs(frequency - self._model.rig.frequency) > FREQUENCY_TOLERANCE * self._model.rig.frequency:
+            previous, self._model = self._model, self._build_model(frequency)
+            self._state = self._model.adopt(self._state, previous)
+        state = self._state
+        if self.resting:
+            plant = self._lift_off
+            if plant.levitation_force(plant.rest_gap, excitation) <= plant.weight:
+                self._state = CoupledState(state.vector, current_time + step_size, state.epoch_s, state.period_index,
+                                           self.rest_gap, 0.0, 0.0)
+                self._publish(self._state)
+                return
+            start = max(self.rest_gap, LIFT_OFF_MARGIN * excitation * self._largest_excursion)
+            state = self._model.initial_state(start, 0.0, excitation, current_time)
+            self.resting = False
+        try:
+            self._state = self._model.advance(state, excitation, step_size)
+        except GapClosedError as exc:
+            self.log(f"touchdown in the step from t = {current_time:.9g} s: {exc}")
+            self.resting = True
+            self._state = CoupledState(state.vector, current_time + step_size, state.epoch_s, state.period_index,
+                                       self.rest_gap, 0.0, 0.0)
+        self._publish(self._state)
+
+    # --- FMU state ----------------------------------------------------------------------------------
+    def get_internal_state(self) -> dict:
+        state = self._state
+        if state is None:
+            return {}
+        return {"frequency": self._model.rig.frequency, "vector": state.vector.tolist(), "time_s": state.time_s,
+                "epoch_s": state.epoch_s, "period_index": state.period_index, "height": state.height,
+                "velocity": state.velocity, "oscillation": state.oscillation}
+
+    def set_internal_state(self, state: dict) -> None:
+        if not state or self._shape is None:
+            return
+        if state["frequency"] != self._model.rig.frequency:
+            self._model = self._build_model(float(state["frequency"]))
+        self._state = CoupledState(np.array(state["vector"], dtype=float), float(state["time_s"]), float(state["epoch_s"]),
+                                   int(state["period_index"]), float(state["height"]), float(state["velocity"]),
+                                   float(state["oscillation"]))

@@ -1,0 +1,76 @@
+"""SensorChain FMU: laser sensor, coloured noise, analog low-pass, sampling, quantisation (Fig. 7, Table 2).
+
+A thin adapter over :class:`nfal.models.sensor_chain.SensorChain` (variables per docs/cosimulation.md):
+it samples at ``sample_rate`` on the communication points a whole number of periods from the start, and
+``measured_height`` is computed when read there (with the analog filter off it feeds through from
+``true_height``; with it on it is the filter's state at that instant); ``doStep`` commits the sample, draws
+the next noise value and integrates the filter exactly over the step with ``true_height`` held. The noise
+is :class:`nfal.models.measurement_noise.ColouredNoise`: the same sequence as the pure-Python loop's
+``coloured_noise`` for the same seed, sample rate, cut-off and peak. The filter starts in steady state at
+the ``true_height`` set before initialisation ends.
+"""
+
+from __future__ import annotations
+
+from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
+from nfal.models import sensor_chain as sensor_model
+from nfal.models.errors import InvalidParameterError
+
+
+class SensorChain(NfalSlave):
+    """True clearance in, sampled noisy filtered quantised measurement out."""
+
+    description = ("Laser height sensor: true height + coloured noise -> analog 2nd-order Butterworth low-pass "
+                   "-> sampling -> quantisation")
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=5e-4)
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_input("true_height", 60e-6, unit="m", description="true clearance h of the levitated object")
+        self.add_output("measured_height", unit="m", description="sampled, filtered, quantised measurement (held)",
+                        depends_on=("true_height",), getter=self._measured)
+        self.add_parameter("sample_rate", sensor_model.SAMPLE_RATE_HZ, unit="Hz", description="sampling rate")
+        self.add_parameter("noise_peak", 2e-6, unit="m",
+                           description="maximal noise magnitude (3 standard deviations, clip level); 0: none")
+        self.add_parameter("noise_cutoff", 300.0, unit="Hz", description="cut-off of the noise's colouring filter")
+        self.add_parameter("seed", 0, description="seed of the noise (>= 0)")
+        self.add_parameter("analog_cutoff", sensor_model.ANALOG_CUTOFF_HZ, unit="Hz",
+                           description="cut-off of the analog 2nd-order Butterworth low-pass; 0: no filter")
+        self.add_parameter("resolution", 0.0, unit="m", description="quantisation step; 0: none")
+        self._chain: sensor_model.SensorChain | None = None
+        self._clock: SampleClock | None = None
+        self._state: sensor_model.SensorState | None = None
+
+    def _build(self) -> None:
+        if self.seed < 0:
+            raise InvalidParameterError("seed", self.seed, "a whole number >= 0")
+        chain = sensor_model.SensorChain(sample_rate_hz=self.sample_rate, noise_peak_m=self.noise_peak,
+                                         noise_cutoff_hz=self.noise_cutoff, seed=int(self.seed),
+                                         analog_cutoff_hz=self.analog_cutoff, resolution_m=self.resolution)
+        self._chain, self._clock = chain, SampleClock(chain.period_s, self.start_time)
+
+    def setup(self) -> None:
+        self._chain = self._clock = self._state = None
+        self._build()
+        self._state = self._chain.initial_state(self.true_height)
+
+    def _measured(self) -> float:
+        if self._state is None:  # before initialisation ends
+            return float(self.true_height)
+        return self._chain.output(self._state, self.true_height, at_sample=self._clock.is_sample(self.time))
+
+    def step(self, current_time: float, step_size: float) -> None:
+        self._clock.check_step(step_size)
+        self._state = self._chain.advance(self._state, self.true_height, step_size,
+                                          at_sample=self._clock.is_sample(current_time))
+
+    def get_internal_state(self) -> dict:
+        return {} if self._state is None else self._chain.get_state(self._state)
+
+    def set_internal_state(self, state: dict) -> None:
+        if not state:
+            self._state = None
+            return
+        if self._chain is None:
+            self._build()
+        self._state = self._chain.set_state(state)

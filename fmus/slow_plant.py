@@ -1,0 +1,105 @@
+"""SlowPlant FMU: the simplified slow model of eq. (13) with touchdown and lift-off (docs/cosimulation.md).
+
+Per communication step the excitation amplitude ``excitation_amplitude`` = |a| and the drive frequency
+are held (zero-order hold) and the state (clearance, velocity, resting) is advanced by
+:class:`~nfal.models.fixed_step_plant.FixedStepPlant` (RK4 in free flight, the event-handling
+:meth:`SimplifiedPlant.advance` near the surface). The squeeze number scales with the drive
+frequency (eq. 2): the stepping plant is rebuilt for the held ``drive_frequency`` when it differs
+from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE``.
+
+Outputs come from the state alone (no feedthrough). Lift-off from rest: when the held |a| already
+pushes harder than gravity at the rest gap at the start of a step, the object leaves the surface at
+that instant, from ``LIFT_OFF_NUDGE`` above the rest gap (SimplifiedPlant.advance only lifts off at an
+upward crossing inside an interval, which a zero-order hold that jumps at the step boundary never
+produces, and its touchdown event fires at once on a release from exactly the rest gap).
+"""
+
+from __future__ import annotations
+
+import math
+
+from nfal.fmus.base import DefaultExperiment, NfalSlave
+from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.models.fixed_step_plant import FixedStepPlant
+from nfal.models.plant import PlantState, SimplifiedPlant
+
+#: Relative change of drive_frequency that rebuilds the stepping plant.
+FREQUENCY_TOLERANCE = 1e-9
+#: Lift-off starts this far (relative) above the rest gap: SimplifiedPlant's touchdown event would
+#: otherwise fire at once on a release from exactly the rest gap (and chatter).
+LIFT_OFF_NUDGE = 1e-9
+
+
+class SlowPlant(NfalSlave):
+    """Eq. (13): m h'' = pi r0^2 p_a (|a|/h)^2 K(sigma(h)) - 3 pi mu r0^4 / (2 h^3) h' - m g, in SI."""
+
+    description = "Slow (time-averaged) levitation model, eq. (13), with touchdown and lift-off; inputs held over a step"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.1, step_size=5e-4)
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
+        self.add_input("drive_frequency", 28500.0, unit="Hz", description="drive frequency f; sigma scales with it (eq. 2)")
+        self.add_output("height", unit="m", description="clearance hbar (slow, period-averaged)")
+        self.add_output("velocity", unit="m/s", description="d hbar / dt")
+        self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
+        self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
+        self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
+        self.add_parameter("rest_gap", 5e-6, unit="m", description="closest approach: the object lands here")
+        self.add_rig_parameters()
+        self._calibration = None
+        self._plant: FixedStepPlant | None = None
+        self._plant_frequency = math.nan
+
+    # --- the model --------------------------------------------------------------------------------
+    def setup(self) -> None:
+        rest_gap = require_positive("rest_gap", self.rest_gap)
+        height = require_positive("initial_height", self.initial_height)
+        if height < rest_gap:
+            raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
+        if not math.isfinite(self.initial_velocity):
+            raise InvalidParameterError("initial_velocity", self.initial_velocity, "a finite number (m/s)")
+        self.build_rig()  # checks the rig parameters under their FMU names
+        self._calibration = self.build_calibration()
+        self._rebuild(self._checked_frequency())
+        self.height, self.velocity = float(height), float(self.initial_velocity)
+        self.resting = height <= rest_gap and self.initial_velocity <= 0.0 and not self._lifts_off(self._checked_excitation())
+
+    def _checked_frequency(self) -> float:
+        return require_positive("drive_frequency", self.drive_frequency)
+
+    def _checked_excitation(self) -> float:
+        value = float(self.excitation_amplitude)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise InvalidParameterError("excitation_amplitude", value, "a finite amplitude >= 0 m")
+        return value
+
+    def _rebuild(self, frequency: float) -> None:
+        plant = SimplifiedPlant(self.build_rig(frequency), self._calibration, rest_gap=self.rest_gap)
+        self._plant, self._plant_frequency = FixedStepPlant(plant), frequency
+
+    def _lifts_off(self, excitation: float) -> bool:
+        plant = self._plant.plant
+        return bool(plant.levitation_force(plant.rest_gap, excitation) > plant.weight)
+
+    def step(self, current_time: float, step_size: float) -> None:
+        excitation = self._checked_excitation()
+        frequency = self._checked_frequency()
+        if abs(frequency - self._plant_frequency) > FREQUENCY_TOLERANCE * self._plant_frequency:
+            self._rebuild(frequency)
+        state = PlantState(self.height, self.velocity, self.resting)
+        if state.resting and self._lifts_off(excitation):
+            state = PlantState(self._plant.plant.rest_gap * (1.0 + LIFT_OFF_NUDGE), 0.0, False)
+        state = self._plant.advance(state, excitation, step_size)
+        self.height, self.velocity, self.resting = float(state.height), float(state.velocity), bool(state.resting)
+
+    # --- FMU state ----------------------------------------------------------------------------------
+    def get_internal_state(self) -> dict:
+        # height, velocity and resting are output variables (saved by the base); the plant is rebuilt
+        # from the parameters, so only its frequency is kept
+        return {"plant_frequency": self._plant_frequency}
+
+    def set_internal_state(self, state: dict) -> None:
+        frequency = float(state.get("plant_frequency", math.nan))
+        if self._calibration is not None and math.isfinite(frequency) and frequency != self._plant_frequency:
+            self._rebuild(frequency)

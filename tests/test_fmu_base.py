@@ -1,0 +1,408 @@
+"""fmus/base.py and fmus/build.py: declarations, modelDescription.xml, errors, FMU state, self-contained build.
+
+A small test slave (``Scale``) exercises the base class, first as a Python object, then built with
+:func:`nfal.fmus.build.build_fmus` and run through fmpy. The helpers at the top (``Instance``) are
+shared with tests/test_fmu_plants.py and tests/test_fmu_controller.py.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import fmpy
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                       fmi2CallbackLoggerTYPE)
+from fmpy.validation import validate_fmu
+
+from nfal.fmus import build
+from nfal.fmus.base import UNITS, NfalSlave, SampleClock
+from nfal.models.errors import InvalidParameterError
+
+FMI_FATAL = 4  # what pythonfmu 0.7.0 returns for every Python exception (fmi2Error is out of its reach)
+
+
+# --- helpers shared by the FMU tests ----------------------------------------------------------------
+class Instance:
+    """One FMU instance over fmpy's low-level FMU2Slave: variables by name, log messages captured."""
+
+    def __init__(self, fmu_path: Path, unzipped: str, name: str = "instance", logging_on: bool = True) -> None:
+        description = read_model_description(str(fmu_path))
+        self.variables = {v.name: v for v in description.modelVariables}
+        self.messages: list[tuple[int, str]] = []
+
+        def log(_env, _instance, status, _category, message):
+            self.messages.append((int(status), message.decode("utf-8", "replace")))
+
+        self._callbacks = fmi2CallbackFunctions()
+        self._callbacks.logger = fmi2CallbackLoggerTYPE(log)
+        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+        self.fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipped,
+                             modelIdentifier=description.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
+        self.time = 0.0
+
+    def set(self, **values) -> None:
+        for name, value in values.items():
+            variable = self.variables[name]
+            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger, "Boolean": self.fmu.setBoolean,
+                      "String": self.fmu.setString}[variable.type]
+            setter([variable.valueReference], [value])
+
+    def get(self, *names):
+        values = []
+        for name in names:
+            variable = self.variables[name]
+            getter = {"Real": self.fmu.getReal, "Integer": self.fmu.getInteger, "Boolean": self.fmu.getBoolean,
+                      "String": self.fmu.getString}[variable.type]
+            values.append(getter([variable.valueReference])[0])
+        return values[0] if len(values) == 1 else tuple(values)
+
+    def initialize(self, start_time: float = 0.0, **values) -> None:
+        self.fmu.setupExperiment(startTime=start_time)
+        self.fmu.enterInitializationMode()
+        self.set(**values)
+        self.fmu.exitInitializationMode()
+        self.time = start_time
+
+    def step(self, step_size: float) -> None:
+        self.fmu.doStep(self.time, step_size)
+        self.time += step_size
+
+    def errors(self) -> list[str]:
+        return [message for status, message in self.messages if status >= 3]
+
+    def free(self) -> None:
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+def build_and_extract(tmp_path_factory, *names: str) -> dict[str, tuple[Path, str]]:
+    """Build ``names`` once into a temporary folder; {name: (fmu path, unzipped folder)}."""
+    out = tmp_path_factory.mktemp("fmus")
+    paths = build.build_fmus(out, names)
+    return {name: (path, extract(str(path), str(out / f"{name}_unzipped"))) for name, path in paths.items()}
+
+
+# --- the test slave -----------------------------------------------------------------------------------
+SCALE_SCRIPT = '''
+"""Test slave: y = k u (feedthrough), total = running sum of k u dt (state)."""
+from nfal.fmus.base import NfalSlave
+from nfal.models.errors import InvalidParameterError, require_positive
+
+
+class Scale(NfalSlave):
+    description = "test slave"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.add_parameter("k", 2.0, unit="1", description="gain")
+        self.add_parameter("label", "scale", description="a string parameter")
+        self.add_parameter("enabled", True, description="a Boolean parameter")
+        self.add_parameter("repeat", 1, description="an Integer parameter")
+        self.add_parameter("offset", 0.0, unit="m", description="a tunable parameter", tunable=True)
+        self.add_input("u", 0.0, unit="m", description="input")
+        self.add_output("y", unit="m", description="k u + offset", depends_on=("u",), getter=lambda: self.k * self.u + self.offset)
+        self.add_output("total", unit="m", description="sum of k u dt / 1 s")
+        self.add_output("positive", kind=bool, description="total > 0")
+        self.steps = 0
+
+    def setup(self):
+        require_positive("k", self.k)
+        if self.label == "reject":
+            raise InvalidParameterError("label", self.label, "anything but 'reject'")
+
+    def step(self, current_time, step_size):
+        if self.u > 1.0:
+            raise InvalidParameterError("u", self.u, "<= 1 m")
+        self.total += self.k * self.u * step_size
+        self.positive = self.total > 0
+        self.steps += self.repeat
+
+    def get_internal_state(self):
+        return {"steps": self.steps}
+
+    def set_internal_state(self, state):
+        self.steps = state["steps"]
+'''
+
+
+@pytest.fixture(scope="module")
+def scale_script(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("scripts") / "scale.py"
+    path.write_text(SCALE_SCRIPT, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def scale_class(scale_script):
+    namespace: dict = {}
+    exec(compile(scale_script.read_text(), str(scale_script), "exec"), namespace)
+    return namespace["Scale"]
+
+
+@pytest.fixture(scope="module")
+def scale_fmu(tmp_path_factory, scale_script):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(build.FMU_SCRIPTS, "Scale", str(scale_script))
+        yield build_and_extract(tmp_path_factory, "Scale")["Scale"]
+
+
+@pytest.fixture()
+def scale(scale_fmu):
+    instance = Instance(*scale_fmu)
+    yield instance
+    instance.free()
+
+
+# --- as a Python object -------------------------------------------------------------------------------
+def test_declared_values_live_in_attributes(scale_class):
+    slave = scale_class(instance_name="s")
+    assert (slave.k, slave.label, slave.enabled, slave.repeat, slave.u) == (2.0, "scale", True, 1, 0.0)
+    names = {v.name: v for v in slave.vars.values()}
+    slave.set_real([names["u"].value_reference], [0.25])
+    assert slave.get_real([names["y"].value_reference]) == [0.5]  # computed on read from the input
+
+
+def test_real_inputs_must_be_finite(scale_class):
+    slave = scale_class(instance_name="s")
+    vr = {v.name: v.value_reference for v in slave.vars.values()}
+    with pytest.raises(InvalidParameterError, match="u = nan"):
+        slave.set_real([vr["u"]], [math.nan])
+    assert slave.log_queue and "setReal failed" in slave.log_queue[-1].msg
+
+
+def test_parameters_are_checked_when_initialisation_ends(scale_class):
+    slave = scale_class(instance_name="s")
+    vr = {v.name: v.value_reference for v in slave.vars.values()}
+    slave.set_real([vr["k"]], [-1.0])  # accepted when set
+    with pytest.raises(InvalidParameterError, match="k = -1.0"):
+        slave.exit_initialization_mode()
+
+
+def test_fixed_parameters_cannot_change_after_initialisation(scale_class):
+    slave = scale_class(instance_name="s")
+    vr = {v.name: v.value_reference for v in slave.vars.values()}
+    slave.setup_experiment(0.0)
+    slave.exit_initialization_mode()
+    slave.set_real([vr["offset"]], [1e-3])  # tunable
+    assert slave.offset == 1e-3
+    with pytest.raises(InvalidParameterError, match="fixed parameter"):
+        slave.set_real([vr["k"]], [3.0])
+
+
+def test_outputs_cannot_be_set(scale_class):
+    slave = scale_class(instance_name="s")
+    vr = {v.name: v.value_reference for v in slave.vars.values()}
+    with pytest.raises(InvalidParameterError, match="it is an output"):
+        slave.set_real([vr["total"]], [1.0])
+
+
+def test_declaration_errors(scale_class):
+    slave = scale_class(instance_name="s")
+    with pytest.raises(InvalidParameterError, match="unit"):
+        slave.add_parameter("bad", 1.0, unit="furlong")
+    with pytest.raises(InvalidParameterError, match="depends_on"):
+        slave.add_output("z", depends_on=("k",), getter=lambda: 0.0)  # k is a parameter, not an input
+    with pytest.raises(InvalidParameterError, match="not declared before"):
+        slave.add_input("u", 0.0)
+    with pytest.raises(InvalidParameterError, match="non-Real"):
+        slave.add_parameter("flag", True, unit="m")
+
+
+def test_model_description_has_units_dependencies_and_initial_unknowns(scale_class):
+    root = scale_class(instance_name="s").to_xml()
+    units = {u.get("name"): u.find("BaseUnit").attrib for u in root.find("UnitDefinitions")}
+    assert units == {"1": {}, "m": {"m": "1"}}
+    assert [child.tag for child in root][:2] == ["CoSimulation", "UnitDefinitions"]
+    variables = root.find("ModelVariables").findall("ScalarVariable")
+    index = {v.get("name"): i + 1 for i, v in enumerate(variables)}
+    reals = {v.get("name"): v.find("Real") for v in variables if v.find("Real") is not None}
+    assert all(real.get("unit") for real in reals.values())
+    outputs = {int(u.get("index")): u.attrib for u in root.find("ModelStructure/Outputs")}
+    assert outputs[index["y"]]["dependencies"] == str(index["u"])
+    assert outputs[index["y"]]["dependenciesKind"] == "dependent"
+    assert outputs[index["total"]]["dependencies"] == "" and outputs[index["positive"]]["dependencies"] == ""
+    initial = [int(u.get("index")) for u in root.find("ModelStructure/InitialUnknowns")]
+    assert initial == sorted(outputs)
+    assert root.find("CoSimulation").get("canGetAndSetFMUstate") == "true"
+
+
+def test_every_unit_has_si_base_exponents():
+    allowed = {"kg", "m", "s", "A", "K", "mol", "cd", "rad"}
+    assert all(set(exponents) <= allowed for exponents in UNITS.values())
+
+
+@pytest.mark.parametrize("time_s, expected", [(0.0, 0), (5e-4, 1), (0.1 + 5e-4, 201), (3.7, 7400), (2.5e-4, None),
+                                              (5e-4 * (1 + 1e-12), 1), (-5e-4, None)])
+def test_sample_clock_instants(time_s, expected):
+    assert SampleClock(5e-4).index(time_s) == expected
+
+
+def test_sample_clock_rejects_steps_longer_than_the_period():
+    clock = SampleClock(5e-4)
+    clock.check_step(5e-4)
+    with pytest.raises(InvalidParameterError, match="sample period"):
+        clock.check_step(1e-3)
+
+
+def test_the_base_is_abstract():
+    with pytest.raises(TypeError):
+        NfalSlave(instance_name="x")
+
+
+# --- built and run with fmpy --------------------------------------------------------------------------
+def test_built_fmu_validates(scale_fmu):
+    assert validate_fmu(str(scale_fmu[0])) == []
+
+
+def test_simulate_fmu_runs(scale_fmu):
+    result = fmpy.simulate_fmu(str(scale_fmu[0]), stop_time=0.01, step_size=1e-3, output_interval=1e-3,
+                               start_values={"u": 0.5, "k": 3.0})
+    assert result["y"][-1] == pytest.approx(1.5)
+    assert result["total"][-1] == pytest.approx(3.0 * 0.5 * 0.01, rel=1e-12)
+
+
+def test_feedthrough_output_follows_the_input_at_once(scale):
+    scale.initialize()
+    for u in (0.1, -0.3, 0.7):
+        scale.set(u=u)
+        assert scale.get("y") == pytest.approx(2.0 * u)
+    scale.step(1e-3)
+    assert scale.get("total") == pytest.approx(2.0 * 0.7 * 1e-3)
+
+
+@pytest.mark.parametrize("stage", ["exit_initialization", "set_input", "do_step"])
+def test_errors_reach_the_master_with_a_logged_reason(scale, stage):
+    scale.fmu.setupExperiment(startTime=0.0)
+    scale.fmu.enterInitializationMode()
+    with pytest.raises(FMICallException) as raised:
+        if stage == "exit_initialization":
+            scale.set(label="reject")
+            scale.fmu.exitInitializationMode()
+        else:
+            scale.fmu.exitInitializationMode()
+            if stage == "set_input":
+                scale.set(u=math.nan)
+            else:
+                scale.set(u=2.0)
+                scale.step(1e-3)
+    assert raised.value.status == FMI_FATAL
+    reason = {"exit_initialization": "label = 'reject' is invalid", "set_input": "u = nan is invalid",
+              "do_step": "u = 2.0 is invalid"}[stage]
+    assert any(reason in message for message in scale.errors()), scale.messages
+
+
+def test_a_failed_instance_can_be_freed_again_and_again(scale_fmu):
+    """pythonfmu drops references on every exception; the base class gives them back (no crash, no leak)."""
+    for i in range(12):
+        instance = Instance(*scale_fmu, name=f"failing{i}", logging_on=False)
+        instance.fmu.setupExperiment(startTime=0.0)
+        instance.fmu.enterInitializationMode()
+        instance.set(k=-1.0)
+        with pytest.raises(FMICallException):
+            instance.fmu.exitInitializationMode()
+        with pytest.raises(FMICallException):
+            instance.set(u=math.nan)
+        if i == 0:
+            slave_type = type(next(o for o in gc.get_objects() if type(o).__name__ == "Scale" and isinstance(o, NfalSlave)))
+            refs_before = sys.getrefcount(slave_type)
+        instance.set(k=2.0)
+        instance.fmu.exitInitializationMode()  # still usable after the errors
+        instance.set(u=0.5)
+        assert instance.get("y") == 1.0
+        instance.free()
+        gc.collect()
+    assert sys.getrefcount(slave_type) <= refs_before
+
+
+def test_fmu_state_round_trip_reproduces_the_continuation(scale):
+    scale.initialize()
+    scale.set(u=0.3)
+    scale.step(1e-3)
+    saved = scale.fmu.getFMUstate()
+    serialized = scale.fmu.serializeFMUstate(saved)
+    scale.set(u=0.9)
+    scale.step(1e-3)
+    first = scale.get("total", "y", "u")
+    scale.fmu.setFMUstate(saved)
+    assert scale.get("u") == 0.3
+    scale.set(u=0.9)
+    scale.fmu.doStep(1e-3, 1e-3)
+    assert scale.get("total", "y", "u") == first
+    restored = scale.fmu.deSerializeFMUstate(serialized)
+    scale.fmu.setFMUstate(restored)
+    scale.set(u=0.9)
+    scale.fmu.doStep(1e-3, 1e-3)
+    assert scale.get("total", "y", "u") == first
+    scale.fmu.freeFMUstate(saved)
+    scale.fmu.freeFMUstate(restored)
+
+
+def test_a_damaged_serialized_state_is_an_error(scale):
+    scale.initialize()
+    state = scale.fmu.deSerializeFMUstate(b"not json")
+    with pytest.raises(FMICallException):
+        scale.fmu.setFMUstate(state)
+    assert any("serialized FMU state is not valid" in message for message in scale.errors())
+
+
+# --- the build ------------------------------------------------------------------------------------------
+def test_the_fmu_carries_nfal(scale_fmu):
+    resources = Path(scale_fmu[1]) / "resources"
+    assert (resources / "slavemodule.txt").read_text().strip() == "nfal_scale"
+    for relative in ("nfal/__init__.py", "nfal/fmus/__init__.py", "nfal/fmus/base.py", "nfal/models/plant.py",
+                     "nfal/models/data/fig3_mode_shape_standin.csv", "nfal_scale.py", "pythonfmu/fmi2slave.py"):
+        assert (resources / relative).is_file(), relative
+    assert not (resources / "nfal" / "cli.py").exists()
+
+
+def test_an_up_to_date_fmu_is_not_rebuilt(tmp_path, scale_script, monkeypatch):
+    monkeypatch.setitem(build.FMU_SCRIPTS, "Scale", str(scale_script))
+    path = build.build_fmus(tmp_path, ["Scale"])["Scale"]
+    built = path.stat().st_mtime_ns
+    assert build.build_fmus(tmp_path, ["Scale"])["Scale"].stat().st_mtime_ns == built
+    assert build.build_fmus(tmp_path, ["Scale"], force=True)["Scale"].stat().st_mtime_ns != built
+
+
+def test_unknown_fmu_names_are_refused(tmp_path):
+    with pytest.raises(InvalidParameterError, match="FMU name"):
+        build.build_fmus(tmp_path, ["NoSuchModel"])
+
+
+SELF_CONTAINED = textwrap.dedent('''
+    import sys
+    sys.meta_path[:] = [f for f in sys.meta_path if not getattr(f, "__module__", "").startswith("__editable__")]
+    sys.path_hooks[:] = [h for h in sys.path_hooks if not getattr(h, "__module__", "").startswith("__editable__")]
+    sys.path_importer_cache.clear()
+    try:
+        import nfal
+    except ModuleNotFoundError:
+        pass
+    else:
+        raise SystemExit("nfal is importable outside the FMU: " + str(nfal.__file__))
+    import fmpy
+    result = fmpy.simulate_fmu(sys.argv[1], stop_time=0.005, step_size=5e-4, output_interval=5e-4,
+                               start_values={"excitation_amplitude": 5e-6})
+    import nfal.models.plant
+    assert "resources" in nfal.models.plant.__file__, nfal.models.plant.__file__
+    print(len(result), result["height"][-1])
+''')
+
+
+def test_fmu_runs_where_nfal_is_not_installed(tmp_path_factory, tmp_path):
+    """Only the copy of nfal inside the FMU can serve: the editable install is hidden from the subprocess."""
+    fmu = build.build_fmus(tmp_path_factory.mktemp("contained"), ["SlowPlant"])["SlowPlant"]
+    done = subprocess.run([sys.executable, "-c", SELF_CONTAINED, str(fmu)], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:] + done.stdout[-2000:]
+    samples, height = done.stdout.split()
+    assert int(samples) == 11 and 60e-6 < float(height) < 200e-6  # 5 um lifts the object from 60 um

@@ -1,0 +1,222 @@
+"""Controller FMU (fmus/controller.py): outputs equal DiscreteControlLaw.step on the same inputs, sampled at
+its own rate with feedthrough at sample instants, bumpless start, input checks and FMU state."""
+
+from __future__ import annotations
+
+import math
+
+import fmpy
+import numpy as np
+import pytest
+from fmpy.fmi1 import FMICallException
+from fmpy.validation import validate_fmu
+from test_fmu_base import FMI_FATAL, Instance, build_and_extract
+
+from nfal.fmus.controller import Controller
+from nfal.models.calibration import paper_calibration
+from nfal.models.control_law import DiscreteControlLaw
+from nfal.models.errors import InvalidParameterError
+from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
+from nfal.models.plant import SimplifiedPlant
+from nfal.models.rig import RigParameters
+from nfal.models.stability import realizable_schedule
+
+RIG = RigParameters()
+PERIOD = 5e-4  # 2 kHz
+METRES_PER_VOLT = 0.1e-6
+RNG = np.random.default_rng(7)
+# (reference, measured) per sample: a reference step and a measured height that wanders about it
+REFERENCES = np.repeat([60e-6, 100e-6, 80e-6], 20)
+MEASURED = REFERENCES + RNG.normal(0.0, 3e-6, REFERENCES.size) + np.linspace(-10e-6, 10e-6, REFERENCES.size)
+
+
+def make_law(design="gain-scheduled"):
+    calibration, spec = paper_calibration(), DesignSpec(10.0, 300.0)
+    if design == "fixed":
+        gains = fixed_design(120e-6, RIG, calibration, spec)
+    else:
+        gains = realizable_schedule(design_schedule(None, RIG, calibration, spec), RIG, sample_rate_hz=2000.0)
+    return DiscreteControlLaw(gains, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_range_m=(50e-6, 200e-6))
+
+
+def reference_commands(law, references, measured):
+    start = float(references[0])
+    state = law.initial_state(start, float(SimplifiedPlant(RIG, paper_calibration()).equilibrium_excitation(start)))
+    out = []
+    for r, h in zip(references, measured):
+        command, state = law.step(state, float(r), float(h))
+        out.append(command)
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def fmu(tmp_path_factory):
+    return build_and_extract(tmp_path_factory, "Controller")["Controller"]
+
+
+@pytest.fixture()
+def controller(fmu):
+    instance = Instance(*fmu)
+    yield instance
+    instance.free()
+
+
+@pytest.fixture(scope="module")
+def law():
+    return make_law()
+
+
+# --- as a Python object ---------------------------------------------------------------------------------
+def initialised(**parameters) -> Controller:
+    slave = Controller(instance_name="controller")
+    for name, value in parameters.items():
+        setattr(slave, name, value)
+    slave.setup_experiment(0.0)
+    slave.exit_initialization_mode()
+    return slave
+
+
+def test_object_outputs_equal_the_law(law):
+    slave = initialised(reference=float(REFERENCES[0]))
+    expected = reference_commands(law, REFERENCES, MEASURED)
+    for k, (r, h) in enumerate(zip(REFERENCES, MEASURED)):
+        slave.reference, slave.measured_height = float(r), float(h)
+        assert slave._command() == expected[k]
+        assert slave._voltage() == expected[k] / METRES_PER_VOLT
+        slave.do_step(k * PERIOD, PERIOD)
+
+
+def test_bumpless_start_at_the_reference_equilibrium():
+    slave = initialised(reference=100e-6, measured_height=100e-6)
+    equilibrium = float(SimplifiedPlant(RIG, paper_calibration()).equilibrium_excitation(100e-6))
+    assert slave._command() == pytest.approx(equilibrium, rel=1e-12)
+
+
+def test_holds_between_sample_instants(law):
+    """Communication every 0.25 ms: outputs are law(state, inputs) at sample instants, held in between."""
+    slave = initialised(reference=float(REFERENCES[0]))
+    expected = reference_commands(law, REFERENCES[:10], MEASURED[:10])
+    for k in range(10):
+        slave.reference, slave.measured_height = float(REFERENCES[k]), float(MEASURED[k])
+        assert slave._command() == expected[k]
+        slave.do_step(k * PERIOD, PERIOD / 2)
+        slave.measured_height = 150e-6  # ignored until the next sample instant
+        assert slave._command() == expected[k]
+        slave.do_step(k * PERIOD + PERIOD / 2, PERIOD / 2)
+
+
+def test_fixed_design_uses_one_gain_set():
+    slave = initialised(design="fixed", reference=float(REFERENCES[0]))
+    expected = reference_commands(make_law("fixed"), REFERENCES, MEASURED)
+    for k, (r, h) in enumerate(zip(REFERENCES, MEASURED)):
+        slave.reference, slave.measured_height = float(r), float(h)
+        assert slave._command() == expected[k]
+        slave.do_step(k * PERIOD, PERIOD)
+    assert slave.law.name == "linear at 120 um"
+
+
+def test_realizable_only_false_keeps_the_full_schedule():
+    assert initialised(realizable_only=False).law.name == "gain-scheduled"
+    assert initialised().law.name.startswith("gain-scheduled from")
+
+
+@pytest.mark.parametrize("parameters, reason", [
+    ({"design": "adaptive"}, "design = 'adaptive'"),
+    ({"reference_min": 120e-6, "reference_max": 100e-6}, "reference_max"),
+    ({"reference": 300e-6}, "reference = 0.0003"),
+    ({"sample_rate": -1.0}, "sample_rate"),
+    ({"metres_per_volt": 0.0}, "metres_per_volt"),
+])
+def test_object_rejects_bad_parameters(parameters, reason):
+    with pytest.raises(InvalidParameterError, match=reason):
+        initialised(**parameters)
+
+
+def test_object_rejects_a_step_longer_than_the_sample_period():
+    slave = initialised()
+    with pytest.raises(InvalidParameterError, match="sample period"):
+        slave.do_step(0.0, 2 * PERIOD)
+
+
+# --- built and run with fmpy -------------------------------------------------------------------------------
+def test_controller_fmu_validates(fmu):
+    assert validate_fmu(str(fmu[0])) == []
+
+
+def test_fmu_outputs_equal_the_law(controller, law):
+    controller.initialize(reference=float(REFERENCES[0]))
+    expected = reference_commands(law, REFERENCES, MEASURED)
+    for k, (r, h) in enumerate(zip(REFERENCES, MEASURED)):
+        controller.set(reference=float(r), measured_height=float(h))
+        command, voltage = controller.get("excitation_command", "drive_voltage")
+        assert command == expected[k] and voltage == expected[k] / METRES_PER_VOLT
+        controller.step(PERIOD)
+
+
+def test_fmu_feedthrough_is_consistent_at_a_communication_point(controller, law):
+    """Setting the measurement and reading at the same instant gives law(state, new inputs), any number of times."""
+    controller.initialize(reference=100e-6, measured_height=100e-6)
+    state = law.initial_state(100e-6, float(SimplifiedPlant(RIG, paper_calibration()).equilibrium_excitation(100e-6)))
+    for measured in (95e-6, 105e-6, 101e-6):
+        controller.set(measured_height=measured)
+        assert controller.get("excitation_command") == law.step(state, 100e-6, measured)[0]
+    controller.step(PERIOD)  # commits law(state, 100 um, 101 um)
+    state = law.step(state, 100e-6, 101e-6)[1]
+    assert controller.get("excitation_command") == law.step(state, 100e-6, 101e-6)[0]
+
+
+def test_fmu_simulates_with_fmpy(fmu):
+    result = fmpy.simulate_fmu(str(fmu[0]), stop_time=0.01, step_size=PERIOD, output_interval=PERIOD,
+                               start_values={"reference": 100e-6, "measured_height": 100e-6})
+    equilibrium = float(SimplifiedPlant(RIG, paper_calibration()).equilibrium_excitation(100e-6))
+    np.testing.assert_allclose(result["excitation_command"], equilibrium, rtol=1e-12)
+
+
+@pytest.mark.parametrize("inputs, reason", [
+    ({"reference": 250e-6}, "reference = 0.00025 is invalid"),
+    ({"reference": 40e-6}, "reference = 4e-05 is invalid"),
+    ({"measured_height": math.nan}, "measured_height = nan is invalid"),
+    ({"reference": math.inf}, "reference = inf is invalid"),
+])
+def test_fmu_bad_input_is_an_error(controller, inputs, reason):
+    controller.initialize()
+    with pytest.raises(FMICallException) as raised:
+        controller.set(**inputs)
+        controller.get("excitation_command")
+    assert raised.value.status == FMI_FATAL
+    assert any(reason in message for message in controller.errors()), controller.messages
+
+
+def test_fmu_bad_parameter_is_an_error(controller):
+    with pytest.raises(FMICallException):
+        controller.initialize(design="adaptive")
+    assert any("design = 'adaptive' is invalid" in message for message in controller.errors())
+
+
+def test_fmu_rejects_a_step_longer_than_the_sample_period(controller):
+    controller.initialize()
+    with pytest.raises(FMICallException):
+        controller.step(1e-3)
+    assert any("at most the sample period" in message for message in controller.errors())
+
+
+def test_fmu_state_round_trip(controller):
+    controller.initialize(reference=float(REFERENCES[0]))
+    for r, h in zip(REFERENCES[:15], MEASURED[:15]):
+        controller.set(reference=float(r), measured_height=float(h))
+        controller.step(PERIOD)
+    saved = controller.fmu.serializeFMUstate(controller.fmu.getFMUstate())
+    time = controller.time
+
+    def continuation():
+        out = []
+        for r, h in zip(REFERENCES[15:40], MEASURED[15:40]):
+            controller.set(reference=float(r), measured_height=float(h))
+            out.append(controller.get("excitation_command"))
+            controller.step(PERIOD)
+        return out
+
+    first = continuation()
+    controller.fmu.setFMUstate(controller.fmu.deSerializeFMUstate(saved))
+    controller.time = time
+    assert continuation() == first
