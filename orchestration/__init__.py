@@ -1,1 +1,26 @@
-"""Runs SSP system structures of anyone's FMI 2.0 co-simulation FMUs over fmpy (never imports nfal.fmus)."""
+"""Runs SSP system structures of anyone's FMI 2.0 co-simulation FMUs over fmpy (never imports nfal.fmus).
+
+Modules, one job each: :mod:`.ssp` reads SSP 1.0 into data classes; :mod:`.resolve` checks them
+against the FMUs and flattens them; :mod:`.schedule` orders the exchange at a communication point;
+:mod:`.master` runs the FMUs (algorithms ``causal`` and ``jacobi``); :mod:`.signals` makes reference
+inputs; :mod:`.results` writes and reads the CSV, ``summary.json`` and the plot; :mod:`.pacing`
+releases steps on the wall clock; :mod:`.run` ties them together in :func:`run_structure`.
+"""
+
+from .errors import (AlgebraicLoopError, CausalityError, FmuCallError, MissingFmuError, OrchestrationError,
+                     SignalError, SimulationError, StructureError, TypeMismatchError, UnitMismatchError,
+                     UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
+from .master import ALGORITHMS, Master
+from .resolve import ResolvedSystem, resolve
+from .results import PlotPanel, ResultTable, read_results
+from .run import RunResult, run_structure
+from .signals import PiecewiseConstant, csv_signal, signal_from_spec, staircase, step
+from .ssp import SystemStructure, read_ssp
+
+__all__ = [
+    "ALGORITHMS", "AlgebraicLoopError", "CausalityError", "FmuCallError", "Master", "MissingFmuError",
+    "OrchestrationError", "PiecewiseConstant", "PlotPanel", "ResolvedSystem", "ResultTable", "RunResult",
+    "SignalError", "SimulationError", "StructureError", "SystemStructure", "TypeMismatchError", "UnitMismatchError",
+    "UnknownConnectorError", "UnknownElementError", "UnsupportedFeatureError", "csv_signal", "read_results",
+    "read_ssp", "resolve", "run_structure", "signal_from_spec", "staircase", "step",
+]

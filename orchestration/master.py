@@ -1,0 +1,495 @@
+"""The fixed-step co-simulation master over fmpy: any FMI 2.0 co-simulation FMUs.
+
+Two algorithms (docs/cosimulation.md, "The loop and the step order"):
+
+``causal`` (default)
+    At each communication point t_k, set inputs and read outputs in the causal order of the
+    feedthrough graph (:func:`~nfal.orchestration.schedule.causal_sweep`: an output is read only
+    after every input it depends on is set, an input is set only after its source output is read),
+    then ``doStep(t_k, dt)`` every FMU. With no algebraic loop every value exchanged at t_k is the
+    value at t_k: zero delay, as in the pure-Python sampled loop. An algebraic loop is an error.
+
+``jacobi``
+    OSP libcosim's fixed-step algorithm: set every input from the last exchange, ``doStep`` every
+    FMU, then read every output and move it to the inputs it feeds (used at the next step). Every
+    FMU with feedthrough adds one step of delay; algebraic loops are broken by that delay.
+    Initialisation, as libcosim (``fixed_step_algorithm::initialize``): as many rounds of (set the
+    inputs, read all outputs, move them to the inputs) as there are FMUs, in initialisation mode; then
+    exit initialisation, read the outputs again and move them once more, so the first step starts
+    from the outputs of the running FMUs at t0.
+
+Every run: extract each FMU (once per file, unless it can be instantiated only once per process),
+instantiate it with a logger that keeps its last messages, set the start values (typed), set up the
+experiment, enter initialisation, set the external inputs at t0 and propagate (per algorithm), exit
+initialisation. The master's ``row`` holds every recorded value at the current communication point:
+``[time, external inputs..., every output of every element...]`` (see ``columns``).
+
+A failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
+:class:`~nfal.orchestration.errors.FmuCallError` naming the element, the function, the time and the
+FMU's logged reason. :meth:`Master.close` then frees what can be freed (an instance in error is freed
+without fmi2Terminate; after fmi2Fatal, FMI allows no further call to that FMU, so none is made).
+"""
+
+from __future__ import annotations
+
+import collections
+import ctypes
+import itertools
+import logging
+import shutil
+import time
+import weakref
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from fmpy import calloc, extract, free
+from fmpy.fmi1 import FMICallException
+from fmpy.logging import addLoggerProxy
+from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2True,
+                       fmi2ValueReference)
+
+from nfal.models.errors import InvalidParameterError, require_positive
+
+from .errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, TypeMismatchError,
+                     UnknownConnectorError, UnsupportedFeatureError)
+from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
+from .results import Column
+from .schedule import Action, causal_sweep
+from .signals import as_signal
+
+logger = logging.getLogger(__name__)
+
+ALGORITHMS = ("causal", "jacobi")
+FMU_LOGGING = ("on", "off")
+_STATUS_LEVELS = {0: logging.DEBUG, 1: logging.WARNING, 2: logging.WARNING, 3: logging.ERROR, 4: logging.ERROR}
+_CTYPES = {"Real": fmi2Real, "Integer": fmi2Integer, "Boolean": fmi2Boolean}
+_CONVERT: dict[str, Callable[[float], object]] = {"Real": float, "Integer": lambda v: int(round(v)),
+                                                   "Boolean": lambda v: int(bool(v))}
+_ORDER = ("Real", "Integer", "Boolean")
+
+
+def _route_log(environment, instance, status, category, message) -> None:
+    """The one logger callback of every instance: fmpy's native proxy (which formats the variadic
+    message) keeps a single, process-wide Python logger, so messages are routed here by the
+    component environment each instance was given (its instance name as a fallback)."""
+    try:
+        slave = _SLAVES.get(environment) if environment else None
+        if slave is None:
+            name = instance.decode("utf-8", "replace") if instance else "?"
+            slave = next((s for s in list(_SLAVES.values()) if s.name == name), None)
+        text = message.decode("utf-8", "replace") if message else ""
+        if slave is not None:
+            if status >= 1:
+                slave.messages.append(text)
+            name = slave.name
+        logger.log(_STATUS_LEVELS.get(status, logging.ERROR), "[%s] %s", name, text)
+    except Exception:  # pragma: no cover - never let an exception cross the C callback
+        pass
+
+
+_LOGGER = fmi2CallbackLoggerTYPE(_route_log)
+_SLAVES: "weakref.WeakValueDictionary[int, _Slave]" = weakref.WeakValueDictionary()
+_NEXT_ID = itertools.count(1)
+
+
+class _Slave:
+    """One FMU instance: the fmpy object, its callbacks and what became of it."""
+
+    def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
+        self.element, self.name = element, element.name
+        self.messages: collections.deque[str] = collections.deque(maxlen=20)
+        self.state = "loaded"  # -> instantiated -> initialization -> running -> freed; error; fatal
+        self.step_time = 0.0
+        self.fmu_logging = fmu_logging
+        md = element.model_description
+        try:
+            self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzip_dir,
+                                 modelIdentifier=md.coSimulation.modelIdentifier, instanceName=element.name)
+        except Exception as exc:  # fmpy raises bare Exceptions for missing or unloadable binaries
+            raise FmuLoadError(f"element {self.name!r}: cannot load {element.source.name}: {exc}") from None
+        self.id = next(_NEXT_ID)
+        _SLAVES[self.id] = self
+        self.callbacks = fmi2CallbackFunctions()
+        self.callbacks.logger = _LOGGER
+        self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self.callbacks.componentEnvironment = self.id
+        try:
+            addLoggerProxy(ctypes.byref(self.callbacks))
+        except Exception as exc:  # pragma: no cover - fmpy ships the proxy for every platform it supports
+            logger.warning("no fmpy logger proxy (%s): FMU messages arrive unformatted", exc)
+
+    def instantiate(self) -> None:
+        try:
+            self.fmu.instantiate(callbacks=self.callbacks, loggingOn=self.fmu_logging != "off")
+        except Exception as exc:
+            raise FmuCallError(self.name, "fmi2Instantiate", 3, float("nan"), [*self.messages, str(exc)]) from None
+        self.component = self.fmu.component
+        self.state = "instantiated"
+
+
+class _Transfer:
+    """One fmi2Set<Type> or fmi2Get<Type> call: value references, a value buffer and row columns."""
+
+    __slots__ = ("slave", "kind", "type", "names", "vr", "n", "buffer", "function", "component", "pairs", "run")
+
+    def __init__(self, slave: _Slave, kind: str, type_: str, names: tuple[str, ...], columns: tuple[int, ...],
+                 immediate: bool) -> None:
+        variables = slave.element.variables
+        self.slave, self.kind, self.type, self.names = slave, kind, type_, names
+        self.n = len(names)
+        self.vr = (fmi2ValueReference * self.n)(*(variables[n].valueReference for n in names))
+        self.buffer = (_CTYPES[type_] * self.n)()
+        self.function = getattr(slave.fmu, f"fmi2{kind.capitalize()}{type_}")
+        self.pairs = tuple(enumerate(columns))
+        self.component = None
+        # get: read into the row; set: (causal) copy from the row and set now, (jacobi) set what was loaded
+        self.run = self.get if kind == "get" else (self.load_and_push if immediate else self.push)
+
+    def bind(self) -> None:
+        self.component = self.slave.component
+
+    def get(self, row: list) -> None:
+        buffer = self.buffer
+        self.function(self.component, self.vr, self.n, buffer)
+        for j, column in self.pairs:
+            row[column] = buffer[j]
+
+    def load(self, row: list) -> None:
+        buffer = self.buffer
+        for j, column in self.pairs:
+            buffer[j] = row[column]
+
+    def push(self, row: list | None = None) -> None:
+        self.function(self.component, self.vr, self.n, self.buffer)
+
+    def load_and_push(self, row: list) -> None:
+        self.load(row)
+        self.function(self.component, self.vr, self.n, self.buffer)
+
+
+class Master:
+    """Runs a :class:`~nfal.orchestration.resolve.ResolvedSystem` with a fixed communication step.
+
+    Parameters
+    ----------
+    system : ResolvedSystem
+    step_size : float
+        Communication step [s].
+    algorithm : {"causal", "jacobi"}
+        See the module docstring.
+    inputs : mapping, optional
+        External inputs: ``"Element.variable"`` (an input no connection feeds) or the name of an input
+        connector of the top-level system -> a function of time [s] or a constant (SI). A top-level
+        input connector with a bound value and no entry here is held at that value.
+    fmu_logging : {"on", "off"}
+        Instantiate with logging on (default: every category; messages go to this module's logger,
+        OK ones at DEBUG, and the last warnings/errors into :class:`FmuCallError`) or off (some FMUs
+        then keep their reasons to themselves).
+
+    Use as a context manager, or call :meth:`close`. Usage: ``instantiate()``, ``initialize(t0)``,
+    then ``step()`` repeatedly; ``row`` holds the values at ``time`` after each.
+    """
+
+    def __init__(self, system: ResolvedSystem, *, step_size: float, algorithm: str = "causal",
+                 inputs: Mapping[str, object] | None = None, fmu_logging: str = "on") -> None:
+        if algorithm not in ALGORITHMS:
+            raise InvalidParameterError("algorithm", algorithm, f"one of {ALGORITHMS}")
+        if fmu_logging not in FMU_LOGGING:
+            raise InvalidParameterError("fmu_logging", fmu_logging, f"one of {FMU_LOGGING}")
+        self.system, self.algorithm, self.fmu_logging = system, algorithm, fmu_logging
+        self.step_size = require_positive("step_size", step_size)
+        self.start_time, self.step_index = 0.0, 0
+        self.elements = {e.name: e for e in system.elements}
+        self._slaves: dict[str, _Slave] = {}
+        self._folders: list[str] = []
+        self._plan_columns(dict(inputs or {}))
+        self._plan_exchange()
+        self.row: list = [0.0] * len(self.columns)
+
+    # -- planning (no FMU loaded) ---------------------------------------------------------------------
+    def _plan_columns(self, inputs: dict[str, object]) -> None:
+        """Columns: time, external inputs, every recordable output; and who sets each driven input."""
+        linked = {(l.target.element, l.target.name): l for l in self.system.links}
+        self.columns: list[Column] = [Column("time", "s")]
+        self.signals: list[tuple[int, Callable[[float], float], Callable]] = []
+        self.sources: dict[tuple[str, str], int] = {}  # driven input -> row column
+        for name, system_input in self.system.system_inputs.items():
+            if name not in inputs and system_input.value is not None and system_input.targets:
+                inputs[name] = system_input.value
+            elif name not in inputs and system_input.targets:
+                logger.warning("system input %r is not driven: %s keep their start values", name,
+                               ", ".join(t.path for t in system_input.targets))
+        for name, source in inputs.items():
+            targets = self._input_targets(name, linked)
+            types = {TRANSPORT.get(t.type, t.type) for t in targets}
+            if len(types) > 1:
+                raise TypeMismatchError(f"external input {name!r} drives inputs of different types: "
+                                        f"{', '.join(f'{t.path} ({t.type})' for t in targets)}")
+            kind = types.pop() if types else "Real"
+            if kind not in _CONVERT:
+                raise UnsupportedFeatureError(f"external input {name!r}: {kind} inputs cannot be driven")
+            unit = self.system.system_inputs[name].unit if name in self.system.system_inputs else None
+            column = len(self.columns)
+            self.columns.append(Column(name, unit or (targets[0].unit if targets else None), kind))
+            self.signals.append((column, as_signal(source, name=name), _CONVERT[kind]))
+            for target in targets:
+                self.sources[(target.element, target.name)] = column
+        self.output_columns: dict[tuple[str, str], int] = {}
+        for element in self.system.elements:
+            for output in element.outputs:
+                variable = element.variables[output]
+                kind = TRANSPORT.get(variable.type)
+                if kind not in _CTYPES:
+                    logger.debug("%s.%s: %s outputs are not recorded", element.name, output, variable.type)
+                    continue
+                self.output_columns[(element.name, output)] = len(self.columns)
+                self.columns.append(Column(f"{element.name}.{output}", variable_unit(variable), kind))
+        for link in self.system.links:
+            key = (link.source.element, link.source.name)
+            if key not in self.output_columns:
+                raise UnsupportedFeatureError(f"connection {link.source.path} -> {link.target.path}: "
+                                              f"{link.source.type} connections are not supported")
+            self.sources[(link.target.element, link.target.name)] = self.output_columns[key]
+        self.columns = tuple(self.columns)
+
+    def _input_targets(self, name: str, linked: Mapping) -> list:
+        if name in self.system.system_inputs:
+            return list(self.system.system_inputs[name].targets)
+        element_name, _, variable_name = name.rpartition(".")
+        element = self.elements.get(element_name)
+        if element is None or variable_name not in element.variables:
+            known = [*self.system.system_inputs, *(f"{e.name}.{v}" for e in self.system.elements
+                                                   for v in e.variables if e.variables[v].causality == "input")]
+            raise UnknownConnectorError(f"external input {name!r}: not an input of an element nor a system input "
+                                        f"connector (inputs: {', '.join(known) or 'none'})")
+        variable = element.variables[variable_name]
+        if variable.causality != "input":
+            raise CausalityError(f"external input {name!r}: {name} is a {variable.causality}, not an input "
+                                 "(set parameters with parameter overrides)")
+        if (element_name, variable_name) in linked:
+            raise CausalityError(f"external input {name!r}: {name} is already fed by "
+                                 f"{linked[(element_name, variable_name)].source.path}")
+        return [element.port(variable_name)]
+
+    def _plan_exchange(self) -> None:
+        names = [e.name for e in self.system.elements]
+        outputs = {e: [o for (el, o) in self.output_columns if el == e] for e in names}
+        inputs = {e: [i for (el, i) in self.sources if el == e] for e in names}
+        if self.algorithm == "causal":
+            links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.system.links]
+            feedthrough = {e.name: e.feedthrough for e in self.system.elements}
+            self.plan: tuple[Action, ...] = causal_sweep(names, outputs, inputs, links, feedthrough)
+        else:
+            self.plan = tuple(a for e in names for a in (Action("set", e, tuple(inputs[e])),
+                                                          Action("get", e, tuple(outputs[e]))) if a.variables)
+            loop = self._loop_under_jacobi(names, outputs, inputs)
+            if loop:
+                logger.info("algebraic loop %s: broken by jacobi's one-step delay", loop)
+
+    def _loop_under_jacobi(self, names, outputs, inputs) -> str | None:
+        links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.system.links]
+        try:
+            causal_sweep(names, outputs, inputs, links, {e.name: e.feedthrough for e in self.system.elements})
+        except AlgebraicLoopError as exc:
+            return " -> ".join(exc.variables)
+        return None
+
+    @property
+    def order(self) -> list[str]:
+        """What happens in one communication step, as text (``set A.u``, ``get A.y, A.z``, ``doStep all``)."""
+        if self.algorithm == "causal":
+            return ["doStep all from t_k", *(f"{action} (at t_k+1)" for action in self.plan)]
+        sets = [str(a) for a in self.plan if a.kind == "set"]
+        gets = [str(a) for a in self.plan if a.kind == "get"]
+        return [*sets, "doStep all from t_k", *(f"{g} (at t_k+1, moved to the inputs)" for g in gets)]
+
+    # -- running -----------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """The current communication point [s]."""
+        return self.start_time + self.step_index * self.step_size
+
+    def instantiate(self) -> None:
+        """Extract, load and instantiate every FMU, and set its start values."""
+        folders: dict[Path, str] = {}
+        for element in self.system.elements:
+            source = element.source
+            if source.is_dir():
+                folder = str(source)
+            elif source in folders and not element.model_description.coSimulation.canBeInstantiatedOnlyOncePerProcess:
+                folder = folders[source]
+            else:
+                try:
+                    folder = extract(str(source))
+                except Exception as exc:
+                    raise FmuLoadError(f"element {element.name!r}: cannot extract {source}: {exc}") from None
+                self._folders.append(folder)
+                folders[source] = folder
+            slave = _Slave(element, folder, self.fmu_logging)
+            self._slaves[element.name] = slave
+            slave.instantiate()
+            self._apply_start_values(slave)
+        self._build_transfers()
+
+    def _apply_start_values(self, slave: _Slave) -> None:
+        variables = slave.element.variables
+        for name, value in slave.element.start_values.items():
+            variable = variables[name]
+            vr = [variable.valueReference]
+            try:
+                if variable.type == "Real":
+                    slave.fmu.setReal(vr, [value])
+                elif variable.type in ("Integer", "Enumeration"):
+                    slave.fmu.setInteger(vr, [value])
+                elif variable.type == "Boolean":
+                    slave.fmu.setBoolean(vr, [value])
+                elif variable.type == "String":
+                    slave.fmu.setString(vr, [value])
+                else:
+                    raise UnsupportedFeatureError(f"{slave.name}.{name}: cannot set a {variable.type} variable")
+            except FMICallException as exc:
+                raise self._failure(slave, exc, f" (setting {name} = {value!r}, from "
+                                                f"{slave.element.origins.get(name, '?')})") from None
+            logger.debug("%s.%s = %r (%s)", slave.name, name, value, slave.element.origins.get(name, "?"))
+
+    def _build_transfers(self) -> None:
+        immediate = self.algorithm == "causal"
+        self.sweep: list[_Transfer] = []
+        for action in self.plan:
+            slave = self._slaves[action.element]
+            by_type: dict[str, list[str]] = {}
+            for name in action.variables:
+                by_type.setdefault(TRANSPORT[slave.element.variables[name].type], []).append(name)
+            for kind in _ORDER:
+                names = tuple(by_type.get(kind, ()))
+                if not names:
+                    continue
+                table = self.output_columns if action.kind == "get" else self.sources
+                columns = tuple(table[(action.element, n)] for n in names)
+                transfer = _Transfer(slave, action.kind, kind, names, columns, immediate)
+                transfer.bind()
+                self.sweep.append(transfer)
+        self.sets = [t for t in self.sweep if t.kind == "set"]
+        self.gets = [t for t in self.sweep if t.kind == "get"]
+        self.slaves = list(self._slaves.values())
+
+    def _update_signals(self) -> None:
+        t, row = self.time, self.row
+        row[0] = t
+        for column, signal, convert in self.signals:
+            row[column] = convert(signal(t))
+
+    def _run(self, transfers: list[_Transfer], function: str = "") -> None:
+        transfer = None
+        try:
+            for transfer in transfers:
+                transfer.run(self.row)
+        except FMICallException as exc:
+            raise self._failure(transfer.slave, exc, f" ({transfer.kind} {', '.join(transfer.names)})") from None
+
+    def _call_all(self, name: str) -> None:
+        slave = None
+        try:
+            for slave in self.slaves:
+                getattr(slave.fmu, name)()
+        except FMICallException as exc:
+            raise self._failure(slave, exc) from None
+
+    def initialize(self, start_time: float = 0.0, stop_time: float | None = None) -> None:
+        """setupExperiment, enter initialisation, propagate, exit initialisation: ``row`` holds t0."""
+        self.start_time, self.step_index = float(start_time), 0
+        slave = None
+        try:
+            for slave in self.slaves:
+                slave.fmu.setupExperiment(startTime=self.start_time, stopTime=stop_time)
+        except FMICallException as exc:
+            raise self._failure(slave, exc) from None
+        self._call_all("enterInitializationMode")
+        for slave in self.slaves:
+            slave.state = "initialization"
+        self._update_signals()
+        if self.algorithm == "causal":
+            self._run(self.sweep)
+            self._call_all("exitInitializationMode")
+            self._set_running()
+            self._run(self.sweep)
+        else:
+            for round_ in range(max(1, len(self.slaves))):
+                if round_:
+                    self._run(self.sets)
+                self._run(self.gets)
+                for transfer in self.sets:
+                    transfer.load(self.row)
+            self._call_all("exitInitializationMode")
+            self._set_running()
+            self._run(self.gets)
+            for transfer in self.sets:
+                transfer.load(self.row)
+        logger.info("initialised %d FMUs at t = %g s (%s)", len(self.slaves), self.start_time, self.algorithm)
+
+    def _set_running(self) -> None:
+        for slave in self.slaves:
+            slave.state = "running"
+
+    def step(self) -> None:
+        """Advance every FMU by one communication step: ``row`` then holds the values at the new ``time``."""
+        t, dt = self.time, self.step_size
+        row = self.row
+        if self.algorithm == "jacobi":
+            self._run(self.sets)
+        slave = None
+        clock = time.perf_counter
+        try:
+            for slave in self.slaves:
+                started = clock()
+                slave.fmu.fmi2DoStep(slave.component, t, dt, fmi2True)
+                slave.step_time += clock() - started
+        except FMICallException as exc:
+            raise self._failure(slave, exc) from None
+        self.step_index += 1
+        self._update_signals()
+        if self.algorithm == "causal":
+            self._run(self.sweep)
+        else:
+            self._run(self.gets)
+            for transfer in self.sets:
+                transfer.load(row)
+
+    def _failure(self, slave: _Slave, exc: FMICallException, detail: str = "") -> FmuCallError:
+        slave.state = "fatal" if exc.status >= 4 else "error"
+        error = FmuCallError(slave.name, exc.function + detail, exc.status, self.time, list(slave.messages))
+        logger.error("%s", error)
+        return error
+
+    def timing(self) -> dict[str, dict]:
+        """Per element: its FMU file and the wall time spent in its doStep calls [s]."""
+        steps = max(self.step_index, 1)
+        return {name: {"fmu": slave.element.source.name, "do_step_total_s": slave.step_time,
+                       "do_step_mean_us": slave.step_time / steps * 1e6} for name, slave in self._slaves.items()}
+
+    def close(self) -> None:
+        """Terminate and free every instance that FMI allows to, then remove the extracted FMUs."""
+        fatal = {s.element.source for s in self._slaves.values() if s.state == "fatal"}
+        for slave in reversed(list(self._slaves.values())):
+            if slave.state in ("loaded", "freed") or slave.element.source in fatal:
+                if slave.state == "fatal" or slave.element.source in fatal:
+                    logger.warning("%s: not freed (fmi2Fatal: FMI allows no further call)", slave.name)
+                continue
+            try:
+                if slave.state == "running":
+                    slave.fmu.terminate()
+                slave.fmu.freeInstance()
+            except Exception as exc:  # cleanup must not hide the error that got us here
+                logger.warning("%s: terminate/free failed: %s", slave.name, exc)
+            slave.state = "freed"
+        for folder in self._folders:  # a library still mapped after fmi2Fatal survives its files' removal
+            shutil.rmtree(folder, ignore_errors=True)
+        self._folders.clear()
+
+    def __enter__(self) -> "Master":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

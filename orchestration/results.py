@@ -1,0 +1,244 @@
+"""Results of a run: a CSV streamed row by row, ``summary.json``, and a PNG of the response.
+
+The CSV's header names every column with its unit (``time [s]``, ``Plant.height [m]``; a column
+without a declared unit has no brackets). Rows are written as they come and flushed at least every
+``flush_interval_s`` of wall time and when the writer closes, so a run that fails keeps every row
+written before the failure. Booleans are written as 0/1.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import logging
+import math
+import os
+import re
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from nfal.models.errors import DataFormatError, InvalidParameterError
+
+logger = logging.getLogger(__name__)
+
+_HEADER = re.compile(r"^(?P<name>.*?)(?: \[(?P<unit>[^\]]*)\])?$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Column:
+    """A recorded quantity: its name (``Element.variable``), unit and FMI type."""
+
+    name: str
+    unit: str | None = None
+    type: str = "Real"
+
+    @property
+    def header(self) -> str:
+        return f"{self.name} [{self.unit}]" if self.unit else self.name
+
+
+class CsvWriter:
+    """Writes result rows to ``path`` as they come (see the module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+    columns : sequence of Column
+        The first is the time.
+    flush_interval_s : float
+        Longest wall time [s] between flushes (0: flush every row).
+    """
+
+    def __init__(self, path: str | os.PathLike, columns: Sequence[Column], *, flush_interval_s: float = 0.25) -> None:
+        self.path = Path(path)
+        self.columns = tuple(columns)
+        self.flush_interval_s = float(flush_interval_s)
+        self.rows = 0
+        self._file = open(self.path, "w", encoding="utf-8", newline="")
+        header = io.StringIO()
+        csv.writer(header, lineterminator="\n").writerow([c.header for c in self.columns])
+        self._file.write(header.getvalue())
+        self._file.flush()
+        self._last_flush = time.monotonic()
+
+    def write(self, row: Sequence[float | int | bool]) -> None:
+        """Append one row (as many values as columns)."""
+        self._file.write(",".join(map(repr, row)) + "\n")
+        self.rows += 1
+        now = time.monotonic()
+        if now - self._last_flush >= self.flush_interval_s:
+            self._file.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            self._file.close()
+
+    def __enter__(self) -> "CsvWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclasses.dataclass(frozen=True)
+class ResultTable:
+    """A results CSV read back: ``names``, ``units`` and ``data`` (one row per communication point)."""
+
+    names: tuple[str, ...]
+    units: tuple[str | None, ...]
+    data: np.ndarray
+
+    @property
+    def time(self) -> np.ndarray:
+        """The first column [s]."""
+        return self.data[:, 0]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.data[:, self.names.index(name)]
+        except ValueError:
+            raise KeyError(f"no column {name!r} (columns: {', '.join(self.names)})") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.names
+
+    def __len__(self) -> int:
+        return self.data.shape[0]
+
+    def unit(self, name: str) -> str | None:
+        return self.units[self.names.index(name)]
+
+
+def read_results(path: str | os.PathLike) -> ResultTable:
+    """Read a results CSV written by :class:`CsvWriter` (or any CSV with such a header)."""
+    path = Path(path)
+    try:
+        with open(path, encoding="utf-8", newline="") as file:
+            header = next(csv.reader(file), None)
+            if header is None:
+                raise DataFormatError(f"{path}: empty; expected a header line")
+            rows = [line for line in file if line.strip()]
+    except OSError as exc:
+        raise DataFormatError(f"cannot read {path}: {exc.strerror or exc}") from None
+    names, units = [], []
+    for cell in header:
+        match = _HEADER.match(cell.strip())
+        names.append(match["name"])
+        units.append(match["unit"])
+    if rows:
+        try:
+            data = np.loadtxt(rows, delimiter=",", ndmin=2)
+        except ValueError as exc:
+            raise DataFormatError(f"{path}: not a table of numbers: {exc}") from None
+    else:
+        data = np.empty((0, len(names)))
+    if data.shape[1] != len(names):
+        raise DataFormatError(f"{path}: {data.shape[1]} values per row, {len(names)} names in the header")
+    return ResultTable(tuple(names), tuple(units), data)
+
+
+def _json_ready(value):
+    if isinstance(value, Mapping):
+        return {str(k): _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, np.ndarray):
+        return _json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        return _json_ready(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _json_ready(value.to_dict() if hasattr(value, "to_dict") else dataclasses.asdict(value))
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
+    return repr(value)
+
+
+def write_summary(path: str | os.PathLike, summary: Mapping) -> Path:
+    """Write ``summary`` as indented JSON, atomically (a reader never sees half a file).
+
+    numpy values, paths and dataclasses (``to_dict()`` if they have it) are converted; NaN and
+    infinities become null.
+    """
+    path = Path(path)
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(_json_ready(summary), indent=2) + "\n", encoding="utf-8")
+    os.replace(temporary, path)
+    return path
+
+
+@dataclasses.dataclass(frozen=True)
+class PlotPanel:
+    """One panel of the response plot: ``columns`` scaled by ``scale``, with a y-axis label.
+
+    ``PlotPanel(("Controller.reference", "Plant.height"), scale=1e6, ylabel="height [um]")``
+    """
+
+    columns: tuple[str, ...]
+    scale: float = 1.0
+    ylabel: str | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.columns, str):
+            object.__setattr__(self, "columns", (self.columns,))
+        if not self.columns:
+            raise InvalidParameterError("PlotPanel.columns", self.columns, "at least one column name")
+
+
+_PREFIXES = ((1e-9, "n"), (1e-6, "u"), (1e-3, "m"))
+
+
+def default_panels(table: ResultTable, *, max_panels: int = 4) -> list[PlotPanel]:
+    """Panels for a table nobody described: the non-time columns grouped by unit, in column order,
+    small SI quantities shown with a prefix (um rather than 1e-6 m)."""
+    groups: dict[str | None, list[str]] = {}
+    for name, unit in zip(table.names[1:], table.units[1:]):
+        groups.setdefault(unit, []).append(name)
+    panels = []
+    for unit, names in list(groups.items())[:max_panels]:
+        peak = max((float(np.nanmax(np.abs(table[n]))) for n in names if len(table)), default=0.0)
+        scale, label = 1.0, unit or ""
+        if unit and peak > 0 and unit.isalpha():
+            for factor, prefix in _PREFIXES:
+                if peak < 1e3 * factor:
+                    scale, label = 1.0 / factor, prefix + unit
+                    break
+        panels.append(PlotPanel(tuple(names), scale, f"[{label}]" if label else None))
+    return panels
+
+
+def plot_response(table: ResultTable, path: str | os.PathLike, panels: Sequence[PlotPanel] | None = None, *,
+                  title: str | None = None) -> Path:
+    """Plot ``panels`` (default :func:`default_panels`) of ``table`` over time into a PNG at ``path``."""
+    from matplotlib.figure import Figure  # no pyplot: no global state, no display needed
+
+    panels = list(panels) if panels is not None else default_panels(table)
+    for panel in panels:
+        for name in panel.columns:
+            if name not in table:
+                raise InvalidParameterError("plot column", name, f"one of {', '.join(table.names[1:])}")
+    path = Path(path)
+    figure = Figure(figsize=(8, 2.4 * max(1, len(panels)) + 0.6), layout="constrained")
+    axes = figure.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)[:, 0]
+    for axis, panel in zip(axes, panels):
+        for name in panel.columns:
+            axis.step(table.time, table[name] * panel.scale, where="post", label=name, linewidth=1.0)
+        if panel.ylabel:
+            axis.set_ylabel(panel.ylabel)
+        axis.grid(True, alpha=0.3)
+        axis.legend(loc="best", fontsize="small")
+    axes[-1].set_xlabel("time [s]")
+    if title:
+        figure.suptitle(title)
+    figure.savefig(path, dpi=120)
+    return path

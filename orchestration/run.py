@@ -1,0 +1,266 @@
+"""``run_structure``: read an SSP, run it with the fixed-step master, and write the results.
+
+Writes into ``out_dir``: ``results.csv`` (streamed while the run goes), ``summary.json`` (written
+with status "running" before the first step, rewritten at the end) and ``response.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import logging
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+from nfal.models.errors import InvalidParameterError, require_positive
+
+from .errors import SimulationError
+from .master import ALGORITHMS, Master
+from .pacing import RealTimePacer
+from .resolve import resolve
+from .results import CsvWriter, PlotPanel, ResultTable, plot_response, read_results, write_summary
+from .signals import PiecewiseConstant
+from .ssp import read_ssp
+
+logger = logging.getLogger(__name__)
+
+RESULTS_CSV, SUMMARY_JSON, RESPONSE_PNG = "results.csv", "summary.json", "response.png"
+
+
+@dataclasses.dataclass
+class RunResult:
+    """What a run wrote: the folder, its files and the summary (also in ``summary.json``).
+
+    ``table()`` (or ``result["Plant.height"]``) reads the CSV back as arrays.
+    """
+
+    out_dir: Path
+    csv_path: Path
+    summary_path: Path
+    plot_path: Path | None
+    summary: dict
+    _table: ResultTable | None = dataclasses.field(default=None, repr=False)
+
+    def table(self) -> ResultTable:
+        """The results, read from the CSV (once)."""
+        if self._table is None:
+            self._table = read_results(self.csv_path)
+        return self._table
+
+    def __getitem__(self, name: str):
+        return self.table()[name]
+
+    def update_summary(self, **entries) -> None:
+        """Add entries (e.g. metrics computed afterwards) to the summary and rewrite ``summary.json``."""
+        self.summary.update(entries)
+        write_summary(self.summary_path, self.summary)
+
+
+def _step_count(start: float, stop: float, step: float) -> int:
+    ratio = (stop - start) / step
+    count = round(ratio)
+    if abs(ratio - count) > 1e-9 * max(1.0, ratio):
+        count = math.floor(ratio + 1e-9)
+        logger.warning("stop time %g s is not a whole number of %g s steps from %g s: the run ends at %g s",
+                       stop, step, start, start + count * step)
+    if count < 1:
+        raise InvalidParameterError("stop_time", stop, f"at least one step ({step:g} s) after the start time {start:g} s")
+    return count
+
+
+def _panels(plot) -> list[PlotPanel] | None:
+    if plot is None:
+        return None
+    panels = []
+    for panel in plot:
+        panels.append(panel if isinstance(panel, PlotPanel) else PlotPanel(tuple([panel] if isinstance(panel, str)
+                                                                                 else panel)))
+    return panels
+
+
+def _describe(source: object) -> object:
+    if isinstance(source, PiecewiseConstant):
+        return source.describe()
+    if isinstance(source, (int, float)):
+        return source
+    return repr(source)
+
+
+def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, step_size: float | None = None,
+                  start_time: float | None = None, inputs: Mapping[str, object] | None = None,
+                  parameters: Mapping[str, object] | None = None, algorithm: str = "causal",
+                  out_dir: str | os.PathLike | None = None, realtime: bool | float = False,
+                  progress: bool | None = None, plot: Sequence | bool | None = None,
+                  metrics: Callable[[ResultTable], Mapping] | None = None, undeclared_dependencies: str = "none",
+                  fmu_logging: str = "on", flush_interval_s: float = 0.25) -> RunResult:
+    """Run an SSP 1.0 system structure of FMI 2.0 co-simulation FMUs with a fixed step.
+
+    Parameters
+    ----------
+    path : path-like
+        An ``.ssp`` archive, an SSP folder or an ``.ssd`` file.
+    stop_time, step_size, start_time : float, optional
+        [s]. Default: the SSD's DefaultExperiment (step size: its OSP FixedStepAlgorithm annotation);
+        start 0. An error if neither gives a stop time or step size.
+    inputs : mapping, optional
+        External inputs: ``"Element.variable"`` or a top-level system input connector -> a function
+        of time (e.g. :func:`~nfal.orchestration.signals.staircase`, a ``Staircase``) or a constant.
+    parameters : mapping, optional
+        ``"Element.variable"`` -> value, applied after the SSD's parameter bindings. Strings are parsed
+        by the variable's type.
+    algorithm : {"causal", "jacobi"}
+        See :mod:`nfal.orchestration.master`.
+    out_dir : path-like, optional
+        Result folder (created); default a new temporary folder.
+    realtime : bool or float
+        True: release step k at wall time t0 + k dt and report overruns and jitter
+        (:mod:`nfal.orchestration.pacing`); a number: the same at that many simulated seconds per wall
+        second. A release starts the step's doStep calls; the exchange at t_{k+1} (``causal``: the
+        sweep; ``jacobi``: reading the outputs) follows them at once, within the same step's budget.
+    progress : bool, optional
+        A tqdm bar on stderr; default: only when stderr is a terminal.
+    plot : sequence of PlotPanel (or of column-name sequences), False, or None
+        The panels of ``response.png``; None: every column grouped by unit; False: no plot.
+    metrics : callable, optional
+        ``metrics(table) -> dict``, evaluated after a successful run; stored as ``summary["metrics"]``.
+    undeclared_dependencies : {"none", "all"}
+        How to read outputs that declare no dependencies (:mod:`nfal.orchestration.resolve`).
+    fmu_logging : {"on", "off"}
+        Instantiate the FMUs with logging on or off (:class:`~nfal.orchestration.master.Master`).
+    flush_interval_s : float
+        Longest wall time between CSV flushes [s].
+
+    Returns
+    -------
+    RunResult
+
+    Raises
+    ------
+    StructureError (ValueError)
+        The structure cannot be run (before anything is written): unknown element or connector, unit
+        or type mismatch, causality, algebraic loop (``causal``), missing FMU.
+    SimulationError (RuntimeError)
+        An FMU failed during the run; ``error.result`` is the :class:`RunResult` of what was written
+        (every row up to the failure, and a summary with status "failed").
+    """
+    if algorithm not in ALGORITHMS:
+        raise InvalidParameterError("algorithm", algorithm, f"one of {ALGORITHMS}")
+    speed = 0.0
+    if realtime is True:
+        speed = 1.0
+    elif realtime is not False and realtime is not None:
+        speed = require_positive("realtime", realtime)
+    started_at = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+    with read_ssp(path) as structure:
+        system = resolve(structure, parameters, undeclared_dependencies=undeclared_dependencies)
+        experiment = structure.default_experiment
+        start = float(start_time if start_time is not None else (experiment.start_time or 0.0))
+        stop = stop_time if stop_time is not None else experiment.stop_time
+        step = step_size if step_size is not None else experiment.step_size
+        if stop is None:
+            raise InvalidParameterError("stop_time", None, "given, since the SSD has no DefaultExperiment stopTime")
+        if step is None:
+            raise InvalidParameterError("step_size", None, "given, since the SSD has no FixedStepAlgorithm baseStepSize")
+        step = require_positive("step_size", step)
+        steps = _step_count(start, float(stop), step)
+        master = Master(system, step_size=step, algorithm=algorithm, inputs=inputs, fmu_logging=fmu_logging)
+        out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="nfal-run-"))
+        out.mkdir(parents=True, exist_ok=True)
+        summary: dict = {
+            "structure": str(path), "system": system.name, "algorithm": algorithm, "start_time_s": start,
+            "stop_time_s": start + steps * step, "step_size_s": step, "steps": steps, "steps_completed": 0,
+            "status": "running", "error": None, "started_at": started_at,
+            "elements": {e.name: {"fmu": str(e.source), "start_values": dict(e.start_values)} for e in system.elements},
+            "connections": [f"{l.source.path} -> {l.target.path}" for l in system.links],
+            "exchange_order": master.order, "inputs": {k: _describe(v) for k, v in dict(inputs or {}).items()},
+            "parameters": dict(parameters or {}), "unmatched_parameters": list(system.unmatched_parameters),
+            "columns": [c.header for c in master.columns], "results_csv": RESULTS_CSV,
+        }
+        summary_path = write_summary(out / SUMMARY_JSON, summary)
+        csv_path = out / RESULTS_CSV
+        pacer = RealTimePacer(step, speed=speed) if speed else None
+        from tqdm import tqdm
+        show = progress if progress is not None else sys.stderr.isatty()
+        bar = tqdm(total=steps, disable=not show, file=sys.stderr, unit="step", desc=system.name, leave=False,
+                   mininterval=0.25)
+        chunk = max(1, steps // 500)
+        error: BaseException | None = None
+        wall_start = time.perf_counter()
+        init_time = loop_time = 0.0
+        completed = 0
+        writer = CsvWriter(csv_path, master.columns, flush_interval_s=flush_interval_s)
+        try:
+            with master:
+                master.instantiate()
+                master.initialize(start, start + steps * step)
+                writer.write(master.row)
+                init_time = time.perf_counter() - wall_start
+                loop_start = time.perf_counter()
+                row = master.row
+                if pacer is not None:
+                    pacer.start()
+                for k in range(steps):
+                    if pacer is not None:
+                        pacer.wait(k)
+                    master.step()
+                    if pacer is not None:
+                        pacer.done(k)
+                    writer.write(row)
+                    completed = k + 1
+                    if completed % chunk == 0:
+                        bar.update(chunk)
+                if pacer is not None:
+                    pacer.sleep_until(steps)
+                loop_time = time.perf_counter() - loop_start
+                timing = master.timing()
+        except BaseException as exc:  # noqa: BLE001 - recorded in the summary, then re-raised
+            error = exc
+            loop_time = time.perf_counter() - wall_start - init_time
+            timing = master.timing()
+        finally:
+            writer.close()
+            bar.close()
+        wall = time.perf_counter() - wall_start
+        do_step_total = sum(t["do_step_total_s"] for t in timing.values())
+        summary.update({
+            "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
+            "error": None if error is None else str(error) or type(error).__name__,
+            "steps_completed": completed, "rows_written": writer.rows, "wall_time_s": wall,
+            "initialization_wall_time_s": init_time, "loop_wall_time_s": loop_time,
+            "real_time_factor": (completed * step) / loop_time if loop_time > 0 else None,
+            "do_step_wall_time_s": do_step_total,
+            "exchange_and_record_us_per_step": (loop_time - do_step_total) / completed * 1e6 if completed else None,
+            "timing": timing,
+            "realtime": pacer.report() if pacer is not None else None,
+        })
+        if error is not None and hasattr(error, "element"):
+            summary["error_detail"] = {"element": error.element, "function": error.function, "status": error.status,
+                                       "time_s": error.time, "messages": list(error.messages)}
+        result = RunResult(out, csv_path, summary_path, None, summary)
+        if plot is not False and writer.rows:
+            try:
+                result.plot_path = plot_response(result.table(), out / RESPONSE_PNG, _panels(plot),
+                                                 title=f"{system.name} ({algorithm}, {step:g} s)")
+                summary["plot"] = RESPONSE_PNG
+            except Exception as exc:  # a plot must not hide the run's own outcome
+                logger.warning("no plot: %s", exc)
+                summary["plot_error"] = str(exc)
+        if metrics is not None and error is None:
+            try:
+                summary["metrics"] = dict(metrics(result.table()))
+            except Exception as exc:
+                logger.warning("metrics failed: %s", exc)
+                summary["metrics_error"] = f"{type(exc).__name__}: {exc}"
+        write_summary(summary_path, summary)
+        logger.info("%s: %s, %d of %d steps in %.3f s wall time -> %s", system.name, summary["status"], completed,
+                    steps, wall, out)
+        if error is not None:
+            if isinstance(error, SimulationError):
+                error.result = result
+            raise error
+        return result

@@ -1,0 +1,193 @@
+"""Reference signals for external inputs: built-in step sequences and a CSV of (time, value).
+
+Every signal here is a :class:`PiecewiseConstant` (zero-order hold: at time t the value of the
+last change at or before t), callable as ``signal(t) -> float`` in SI. The built-in staircase is
+the paper's (Figs. 9-10), taken from :class:`nfal.models.closed_loop.Staircase` so that the
+co-simulation and the pure-Python loop see the same reference.
+
+A time within 1e-12 s (relative 1e-12) before a change counts as at the change, so that a
+communication point computed as ``k * dt`` and a change at ``0.1`` agree.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from nfal.models.csvdata import read_numeric_csv
+from nfal.models.errors import DataFormatError, NfalError
+
+from .errors import SignalError
+
+if TYPE_CHECKING:  # nfal.models.closed_loop pulls in the plant and the control law (scipy, numba): import on use
+    from nfal.models.closed_loop import Staircase
+
+#: Time tolerance [s] of a change (absolute and relative), see the module docstring.
+TIME_TOLERANCE = 1e-12
+TIME_COLUMNS = ("time_s", "time", "t", "time [s]")
+
+
+class PiecewiseConstant:
+    """A zero-order-hold signal: ``values[i]`` from ``times[i]`` until ``times[i + 1]``.
+
+    Before ``times[0]`` the value is ``values[0]``; after the last time, the last value.
+
+    Parameters
+    ----------
+    times : sequence of float
+        Change times [s], strictly increasing.
+    values : sequence of float
+        One value per time (SI).
+    name : str
+        For messages and the run summary.
+    duration_s : float, optional
+        A natural stop time [s] for runs driven by this signal (default: the last change time).
+    """
+
+    def __init__(self, times: Sequence[float], values: Sequence[float], *, name: str = "signal",
+                 duration_s: float | None = None) -> None:
+        times, values = [float(t) for t in times], [float(v) for v in values]
+        if not times or len(times) != len(values):
+            raise SignalError(f"{name}: needs as many times as values, at least one ({len(times)} times, "
+                              f"{len(values)} values)")
+        for i, (t, v) in enumerate(zip(times, values)):
+            if not (math.isfinite(t) and math.isfinite(v)):
+                raise SignalError(f"{name}: row {i + 1} is not finite (time {t}, value {v})")
+        for i in range(1, len(times)):
+            if times[i] <= times[i - 1]:
+                raise SignalError(f"{name}: time must increase strictly, but row {i + 1} has t = {times[i]!r} s after "
+                                  f"t = {times[i - 1]!r} s in row {i}")
+        self.times, self.values, self.name = tuple(times), tuple(values), name
+        self.duration_s = times[-1] if duration_s is None else float(duration_s)
+
+    def __call__(self, time_s: float) -> float:
+        t = float(time_s)
+        index = bisect.bisect_right(self.times, t + TIME_TOLERANCE * (1.0 + abs(t)))
+        return self.values[max(index - 1, 0)]
+
+    def __repr__(self) -> str:
+        return f"PiecewiseConstant({self.name!r}, {len(self.times)} levels)"
+
+    def describe(self, max_levels: int = 50) -> dict:
+        """A JSON-ready description, for the run summary (times and values when there are few)."""
+        description = {"name": self.name, "levels": len(self.times), "duration_s": self.duration_s}
+        if len(self.times) <= max_levels:
+            description.update(times_s=list(self.times), values=list(self.values))
+        return description
+
+
+def from_staircase(staircase: "Staircase", *, name: str = "staircase") -> PiecewiseConstant:
+    """A :class:`~nfal.models.closed_loop.Staircase` as a :class:`PiecewiseConstant` (same values)."""
+    times = [0.0, *map(float, staircase.step_times_s)]
+    return PiecewiseConstant(times, staircase.levels_m, name=name, duration_s=staircase.duration_s)
+
+
+def staircase(levels_m: Sequence[float] | None = None, hold_s: float = 0.6, lead_s: float = 0.1) -> PiecewiseConstant:
+    """The step sequence of Figs. 9-10: ``levels_m`` [m], the first held ``lead_s``, the others ``hold_s`` [s].
+
+    Defaults: 60, 100, 140, 180, 140, 100, 60 um (``STAIRCASE_LEVELS_M``), 0.1 s lead, 0.6 s holds
+    (3.7 s in all).
+    """
+    from nfal.models.closed_loop import STAIRCASE_LEVELS_M, Staircase
+
+    try:
+        return from_staircase(Staircase(tuple(STAIRCASE_LEVELS_M if levels_m is None else levels_m), hold_s, lead_s))
+    except NfalError as exc:
+        raise SignalError(f"staircase: {exc}") from None
+
+
+def step(initial: float, final: float, at_s: float) -> PiecewiseConstant:
+    """``initial`` until ``at_s`` [s], then ``final``."""
+    if not at_s > 0:
+        raise SignalError(f"step: at_s = {at_s!r} must be > 0")
+    return PiecewiseConstant([0.0, at_s], [initial, final], name=f"step {initial:g} -> {final:g} at {at_s:g} s")
+
+
+def constant(value: float) -> PiecewiseConstant:
+    """``value`` at all times."""
+    return PiecewiseConstant([0.0], [value], name=f"constant {value:g}", duration_s=0.0)
+
+
+def csv_signal(path: str | os.PathLike, *, column: str | None = None) -> PiecewiseConstant:
+    """A signal from a CSV of (time_s, value) rows, held between rows.
+
+    The file may have a header line and ``#`` comment lines. With a header, the time column is the
+    one named ``time_s`` (or ``time``, ``t``), else the first; the value column is ``column`` or the
+    other one (there must then be exactly two).
+
+    Raises
+    ------
+    SignalError
+        Unreadable, not numeric, not finite, no rows, or times not strictly increasing (names the row).
+    """
+    path = Path(path)
+    try:
+        names, table = read_numeric_csv(path)
+    except DataFormatError as exc:
+        raise SignalError(str(exc)) from None
+    time_index = next((names.index(n) for n in TIME_COLUMNS if n in names), 0)
+    if column is not None:
+        if column.lower() not in names:
+            raise SignalError(f"{path}: no column {column!r} (columns: {', '.join(names)})")
+        value_index = names.index(column.lower())
+    else:
+        others = [i for i in range(len(names)) if i != time_index]
+        if len(others) != 1:
+            raise SignalError(f"{path}: {len(names)} columns ({', '.join(names)}); expected time and one value, "
+                              "or say which column")
+        value_index = others[0]
+    return PiecewiseConstant(table[:, time_index], table[:, value_index], name=path.name)
+
+
+def signal_from_spec(spec: str) -> PiecewiseConstant:
+    """A signal from a short text, for command lines.
+
+    ``staircase`` (the paper's), ``staircase:L1,L2,...[:HOLD[:LEAD]]`` [m, s], ``step:INITIAL,FINAL,AT``,
+    ``constant:VALUE``, or the path of a CSV file (see :func:`csv_signal`).
+    """
+    kind, _, rest = spec.partition(":")
+    try:
+        if kind == "staircase":
+            if not rest:
+                return staircase()
+            parts = rest.split(":")
+            levels = [float(v) for v in parts[0].split(",")]
+            return staircase(levels, *(float(p) for p in parts[1:3]))
+        if kind == "step":
+            initial, final, at = (float(v) for v in rest.split(","))
+            return step(initial, final, at)
+        if kind == "constant":
+            return constant(float(rest))
+    except ValueError:
+        raise SignalError(f"signal {spec!r}: expected staircase[:L1,L2,...[:HOLD[:LEAD]]], step:INITIAL,FINAL,AT, "
+                          "constant:VALUE or a CSV file") from None
+    if Path(spec).is_file():
+        return csv_signal(spec)
+    raise SignalError(f"signal {spec!r}: not a built-in signal (staircase, step:..., constant:...) nor an existing CSV file")
+
+
+def as_signal(source: object, *, name: str = "input") -> Callable[[float], float]:
+    """Anything a caller may give as an external input, as ``f(t) -> float``.
+
+    A number is a constant; a :class:`~nfal.models.closed_loop.Staircase` becomes a
+    :class:`PiecewiseConstant` (same values, faster); any other callable of time is wrapped so
+    that its result is a float.
+    """
+    if isinstance(source, PiecewiseConstant):
+        return source
+    closed_loop = sys.modules.get("nfal.models.closed_loop")  # not loaded: source cannot be a Staircase
+    if closed_loop is not None and isinstance(source, closed_loop.Staircase):
+        return from_staircase(source)
+    if isinstance(source, (int, float)) and not isinstance(source, bool):
+        return constant(float(source))
+    if callable(source):
+        def call(time_s: float, _f=source) -> float:
+            return float(_f(time_s))
+        call.__name__ = getattr(source, "__name__", type(source).__name__)
+        return call
+    raise SignalError(f"{name}: {source!r} is neither a number nor a function of time")

@@ -1,0 +1,123 @@
+"""Results (CSV streamed with units, summary.json, plot) and real-time pacing, without FMUs."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.orchestration.pacing import RealTimePacer
+from nfal.orchestration.results import (Column, CsvWriter, PlotPanel, default_panels, plot_response, read_results,
+                                        write_summary)
+
+COLUMNS = (Column("time", "s"), Column("reference", "m"), Column("Plant.height", "m"),
+           Column("Plant.resting", None, "Boolean"), Column("Sensor.count", None, "Integer"))
+
+
+def test_rows_are_readable_while_the_writer_is_still_open(tmp_path):
+    writer = CsvWriter(tmp_path / "r.csv", COLUMNS, flush_interval_s=0.0)
+    writer.write([0.0, 6e-5, 6e-5, 1, 0])
+    writer.write([0.0005, 1e-4, 6.000000000000001e-5, 0, 3])
+    table = read_results(tmp_path / "r.csv")  # as after a crash: never closed
+    assert table.names == ("time", "reference", "Plant.height", "Plant.resting", "Sensor.count")
+    assert table.units == ("s", "m", "m", None, None)
+    assert table["Plant.height"][1] == 6.000000000000001e-5  # full precision
+    assert len(table) == 2 and table.unit("reference") == "m"
+    writer.close()
+    assert (tmp_path / "r.csv").read_text().splitlines()[0] == "time [s],reference [m],Plant.height [m],Plant.resting,Sensor.count"
+
+
+@given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=3, max_size=3),
+                min_size=1, max_size=20))
+def test_csv_round_trip_is_exact(rows):
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "r.csv"
+        with CsvWriter(path, COLUMNS[:3]) as writer:
+            for row in rows:
+                writer.write(row)
+        np.testing.assert_array_equal(read_results(path).data, np.array(rows))
+
+
+def test_header_only_and_bad_files(tmp_path):
+    CsvWriter(tmp_path / "empty.csv", COLUMNS).close()
+    assert read_results(tmp_path / "empty.csv").data.shape == (0, 5)
+    (tmp_path / "bad.csv").write_text("time [s],x\n0,1\n1\n")
+    with pytest.raises(DataFormatError):
+        read_results(tmp_path / "bad.csv")
+
+
+def test_summary_is_json_with_nan_as_null(tmp_path):
+    path = write_summary(tmp_path / "summary.json", {"a": np.float64(1.5), "b": math.nan, "c": [np.int64(2)],
+                                                     "d": tmp_path, "e": np.arange(2)})
+    assert json.loads(path.read_text()) == {"a": 1.5, "b": None, "c": [2], "d": str(tmp_path), "e": [0, 1]}
+
+
+def test_plot_of_chosen_and_default_panels(tmp_path):
+    with CsvWriter(tmp_path / "r.csv", COLUMNS) as writer:
+        for k in range(50):
+            writer.write([k * 1e-3, 6e-5 if k < 10 else 1e-4, 6e-5 + k * 1e-6, 0, k])
+    table = read_results(tmp_path / "r.csv")
+    panels = default_panels(table)
+    assert panels[0].columns == ("reference", "Plant.height") and panels[0].scale == pytest.approx(1e6)
+    assert panels[0].ylabel == "[um]"
+    plot_response(table, tmp_path / "auto.png")
+    plot_response(table, tmp_path / "chosen.png", [PlotPanel(("reference", "Plant.height"), 1e6, "height [um]")])
+    assert (tmp_path / "chosen.png").stat().st_size > 1000
+    with pytest.raises(InvalidParameterError, match="Plant.speed"):
+        plot_response(table, tmp_path / "x.png", [PlotPanel("Plant.speed")])
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+    def sleep(self, seconds):
+        self.now += seconds + 1e-12  # never a hair short of the deadline (the pacer spins until it)
+
+
+def test_pacer_releases_on_the_grid_and_counts_overruns():
+    clock = FakeClock()
+    pacer = RealTimePacer(0.01, spin_s=0.0, clock=clock, sleep=clock.sleep)
+    pacer.start()
+    durations = [0.002, 0.015, 0.001, 0.002]  # the second step overruns by 5 ms
+    for k, duration in enumerate(durations):
+        pacer.wait(k)
+        clock.now += duration
+        pacer.done(k)
+    report = pacer.report()
+    assert report["overruns"] == 1 and report["first_overruns"][0]["step"] == 1
+    assert report["overrun_max_s"] == pytest.approx(0.005)
+    assert pacer.lateness == pytest.approx([0.0, 0.0, 0.005, 0.0])  # late once, then back on the grid
+    assert report["jitter_max_s"] == pytest.approx(0.005) and report["jitter_mean_s"] == pytest.approx(0.00125)
+    pacer.sleep_until(len(durations))
+    assert clock.now == pytest.approx(100.04)
+
+
+def test_pacer_on_the_real_clock():
+    import time
+
+    pacer = RealTimePacer(0.005)
+    started = time.perf_counter()
+    pacer.start()
+    for k in range(20):
+        pacer.wait(k)
+        pacer.done(k)
+    assert 0.095 <= time.perf_counter() - started < 0.2
+    assert pacer.report()["jitter_p95_s"] < 0.005
+
+
+@pytest.mark.parametrize("kwargs", [{"step_size": 0}, {"step_size": 0.1, "speed": -1}, {"step_size": 0.1, "spin_s": 2}])
+def test_pacer_rejects_bad_arguments(kwargs):
+    with pytest.raises(InvalidParameterError):
+        RealTimePacer(**kwargs)

@@ -1,0 +1,278 @@
+"""Reading SSP 1.0 structures and checking them against the FMUs (nfal.orchestration.ssp, .resolve)."""
+
+from __future__ import annotations
+
+import pytest
+
+from nfal.orchestration import (CausalityError, MissingFmuError, StructureError, TypeMismatchError, UnitMismatchError,
+                                UnknownConnectorError, UnknownElementError, UnsupportedFeatureError, read_ssp, resolve)
+from toy_fmus import build_toys
+from toy_fmus.ssd import (bindings, component, connection, connector, pack, parameter_set, ssd, ssv_file, system,
+                          write_folder)
+
+PLANT_CONNECTORS = (connector("u", "input", "m/s"), connector("x", "output", "m"))
+
+
+@pytest.fixture(scope="session")
+def toys(tmp_path_factory):
+    return build_toys(tmp_path_factory.getbasetemp() / "toy_fmus")
+
+
+def loop_text(plant_bindings: str = "", system_bindings: str = "", plant_connectors=PLANT_CONNECTORS) -> str:
+    """Integrator (Plant) and Gain (Controller) in a feedback loop."""
+    return ssd(system("loop", (component("Plant", "Integrator", plant_connectors, plant_bindings),
+                               component("Controller", "Gain")),
+                      (connection("Plant.x", "Controller.u"), connection("Controller.y", "Plant.u")),
+                      parameter_bindings=system_bindings), stop_time=1.0, step_size=0.1)
+
+
+def test_folder_archive_and_bare_ssd_read_alike(tmp_path, toys):
+    folder = write_folder(tmp_path / "loop", loop_text(), toys)
+    archive = pack(folder, tmp_path / "loop.ssp")
+    read = [read_ssp(folder), read_ssp(archive), read_ssp(folder / "SystemStructure.ssd")]
+    for structure in read:
+        with structure:
+            assert structure.name == "toy"
+            assert [c.name for c in structure.system.elements] == ["Plant", "Controller"]
+            assert [(c.start, c.end) for c in structure.system.connections] == [("Plant.x", "Controller.u"),
+                                                                              ("Controller.y", "Plant.u")]
+            assert [c.name for c in structure.system.elements[0].connectors] == ["u", "x"]
+            assert structure.default_experiment.stop_time == 1.0
+            assert structure.default_experiment.step_size == 0.1
+            assert structure.system.elements[0].source.is_file()
+    unpacked = read[1].ssd_path.parent
+    read[1].close()
+    assert not unpacked.exists()
+
+
+def test_connectors_are_typed(tmp_path, toys):
+    with read_ssp(write_folder(tmp_path, loop_text(), toys)) as structure:
+        plant = structure.system.element("Plant")
+        assert plant.connector("u").kind == "input" and plant.connector("u").unit == "m/s"
+        assert plant.connector("x").type == "Real" and plant.connector("x").unit == "m"
+
+
+def test_ssv_file_and_inline_bindings_are_applied_later_ones_winning(tmp_path, toys):
+    rig = ssv_file({"x0": ("Real", 2.5, "m"), "frozen": ("Boolean", True), "decimation": ("Integer", 3),
+                    "label": ("String", "from-ssv"), "mass": ("Real", 1.0)})
+    inline = parameter_set({"x0": ("Real", 4.0, "m")})
+    text = loop_text(plant_bindings=bindings("resources/rig.ssv", inline))
+    with read_ssp(write_folder(tmp_path, text, toys, {"resources/rig.ssv": rig})) as structure:
+        plant = resolve(structure).element("Plant")
+    assert plant.start_values == {"x0": 4.0, "frozen": True, "decimation": 3, "label": "from-ssv"}
+    assert type(plant.start_values["decimation"]) is int
+
+
+def test_names_matching_no_variable_are_ignored_and_reported(tmp_path, toys):
+    text = loop_text(plant_bindings=bindings(parameter_set({"mass": ("Real", 1.0)})))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        system_ = resolve(structure)
+    assert len(system_.unmatched_parameters) == 1 and system_.unmatched_parameters[0].endswith("mass")
+
+
+def test_system_bindings_use_hierarchical_names_prefix_and_win_over_element_bindings(tmp_path, toys):
+    element_level = bindings(parameter_set({"x0": ("Real", 1.0, "m")}))
+    system_level = bindings(parameter_set({"Plant.x0": ("Real", 2.0, "m"), "Controller.k": ("Real", -3.0)}))
+    text = loop_text(plant_bindings=element_level, system_bindings=system_level)
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        resolved = resolve(structure)
+    assert resolved.element("Plant").start_values["x0"] == 2.0
+    assert resolved.element("Controller").start_values["k"] == -3.0
+    prefixed = bindings(parameter_set({"k": ("Real", 2.0)})).replace("<ssd:ParameterBinding>",
+                                                                      '<ssd:ParameterBinding prefix="Controller.">')
+    with read_ssp(write_folder(tmp_path / "prefixed", loop_text(system_bindings=prefixed), toys)) as structure:
+        assert resolve(structure).element("Controller").start_values["k"] == 2.0
+
+
+def test_overrides_win_and_strings_are_parsed_by_type(tmp_path, toys):
+    text = loop_text(plant_bindings=bindings(parameter_set({"x0": ("Real", 1.0, "m")})))
+    overrides = {"Plant.x0": "3e-6", "Plant.frozen": "true", "Plant.decimation": 2.0, "Plant.label": "cli"}
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        plant = resolve(structure, overrides).element("Plant")
+    assert plant.start_values == {"x0": 3e-6, "frozen": True, "decimation": 2, "label": "cli"}
+
+
+@pytest.mark.parametrize("override, error", [
+    ({"Plant.nothing": 1.0}, UnknownConnectorError),
+    ({"Nobody.x0": 1.0}, UnknownElementError),
+    ({"Plant.decimation": 2.5}, TypeMismatchError),
+    ({"Plant.frozen": "maybe"}, TypeMismatchError),
+    ({"Plant.label": 3.0}, TypeMismatchError),
+    ({"Plant.x": 1.0}, CausalityError),  # an output: calculated, cannot be set
+])
+def test_bad_overrides_are_named(tmp_path, toys, override, error):
+    with read_ssp(write_folder(tmp_path, loop_text(), toys)) as structure:
+        with pytest.raises(error, match=list(override)[0].replace(".", r"\.")):
+            resolve(structure, override)
+
+
+def test_flattened_links_and_feedthrough(tmp_path, toys):
+    with read_ssp(write_folder(tmp_path, loop_text(), toys)) as structure:
+        resolved = resolve(structure)
+    assert [(l.source.path, l.target.path) for l in resolved.links] == [("Plant.x", "Controller.u"),
+                                                                       ("Controller.y", "Plant.u")]
+    assert resolved.element("Controller").feedthrough == {"y": ("u",)}
+    assert resolved.element("Plant").feedthrough == {"x": (), "steps": ()}
+
+
+def test_start_and_end_do_not_give_the_direction(tmp_path, toys):
+    text = loop_text().replace('startElement="Plant" startConnector="x" endElement="Controller" endConnector="u"',
+                               'startElement="Controller" startConnector="u" endElement="Plant" endConnector="x"')
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        links = resolve(structure).links
+    assert ("Plant.x", "Controller.u") in [(l.source.path, l.target.path) for l in links]
+
+
+def test_unknown_element_in_a_connection(tmp_path, toys):
+    text = loop_text().replace('endElement="Controller" endConnector="u"', 'endElement="Controler" endConnector="u"')
+    with pytest.raises(UnknownElementError, match="Controler"):
+        read_ssp(write_folder(tmp_path, text, toys))
+
+
+def test_missing_fmu(tmp_path, toys):
+    text = loop_text().replace("resources/Gain.fmu", "resources/Missing.fmu")
+    with pytest.raises(MissingFmuError, match="Controller.*Missing.fmu"):
+        read_ssp(write_folder(tmp_path, text, toys))
+
+
+def test_connector_not_in_the_model_description(tmp_path, toys):
+    text = loop_text(plant_connectors=PLANT_CONNECTORS + (connector("speed", "output", "m/s"),))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(UnknownConnectorError, match="'Plant'.*'speed'"):
+            resolve(structure)
+
+
+def test_connection_to_a_variable_the_fmu_lacks(tmp_path, toys):
+    text = loop_text().replace('endConnector="u"/><ssd:Connection startElement="Controller"',
+                               'endConnector="input"/><ssd:Connection startElement="Controller"')
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(UnknownConnectorError, match="'Controller' has no variable 'input'"):
+            resolve(structure)
+
+
+def test_connector_kind_against_causality(tmp_path, toys):
+    text = loop_text(plant_connectors=(connector("u", "output", "m/s"), connector("x", "output", "m")))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(CausalityError, match="'Plant'.*'u'.*output.*input"):
+            resolve(structure)
+
+
+def test_output_to_output_is_a_causality_error(tmp_path, toys):
+    text = loop_text().replace('endElement="Controller" endConnector="u"', 'endElement="Controller" endConnector="y"')
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(CausalityError, match="Plant.x.*Controller.y"):
+            resolve(structure)
+
+
+def test_unit_mismatch_between_connector_and_fmu(tmp_path, toys):
+    text = loop_text(plant_connectors=(connector("u", "input", "m/s"), connector("x", "output", "mm")))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(UnitMismatchError, match="'Plant'.*'x'.*'mm'.*'m'"):
+            resolve(structure)
+
+
+def test_unit_mismatch_between_the_two_ends(tmp_path, toys):
+    text = ssd(system("chain", (component("A", "Integrator"), component("B", "Integrator")),
+                      (connection("A.x", "B.u"),)))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(UnitMismatchError, match=r"A\.x.*'m'.*B\.u.*'m/s'"):
+            resolve(structure)
+
+
+def test_differently_named_units_with_one_definition_are_compatible(tmp_path, toys):
+    units = ('<ssc:Unit name="metre"><ssc:BaseUnit m="1"/></ssc:Unit>'
+             '<ssc:Unit name="m"><ssc:BaseUnit m="1"/></ssc:Unit>')
+    text = ssd(system("loop", (component("Plant", "Integrator", (connector("x", "output", "metre"),)),
+                               component("Controller", "Gain")),
+                      (connection("Plant.x", "Controller.u"),)), units=units)
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        resolve(structure)  # no error: metre and m are the same unit
+
+
+def test_ssv_value_in_the_wrong_unit(tmp_path, toys):
+    text = loop_text(plant_bindings=bindings("resources/bad.ssv"))
+    files = {"resources/bad.ssv": ssv_file({"x0": ("Real", 1.0, "s")})}
+    with read_ssp(write_folder(tmp_path, text, toys, files)) as structure:
+        with pytest.raises(UnitMismatchError, match="bad.ssv.*x0"):
+            resolve(structure)
+
+
+def test_ssv_value_of_the_wrong_type(tmp_path, toys):
+    text = loop_text(plant_bindings=bindings(parameter_set({"frozen": ("Real", 1.0)})))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(TypeMismatchError, match="frozen"):
+            resolve(structure)
+
+
+def test_system_input_connector_drives_element_inputs(tmp_path, toys):
+    text = ssd(system("open", (component("Controller", "Gain"),), (connection("reference", "Controller.u"),),
+                      connectors=(connector("reference", "input", "m"),),
+                      parameter_bindings=bindings(parameter_set({"reference": ("Real", 0.5, "m")}))))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        resolved = resolve(structure)
+    reference = resolved.system_inputs["reference"]
+    assert [t.path for t in reference.targets] == ["Controller.u"] and reference.value == 0.5
+    assert reference.unit == "m"
+
+
+def test_nested_systems_are_flattened_through_their_connectors(tmp_path, toys):
+    inner = system("Inner", (component("Controller", "Gain"),),
+                   (connection("e", "Controller.u"), connection("Controller.y", "command")),
+                   connectors=(connector("e", "input"), connector("command", "output")))
+    text = ssd(system("outer", (component("Plant", "Integrator"), inner),
+                      (connection("Plant.x", "Inner.e"), connection("Inner.command", "Plant.u")),
+                      parameter_bindings=bindings(parameter_set({"Inner.Controller.k": ("Real", -2.0)}))))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        resolved = resolve(structure)
+    assert [e.name for e in resolved.elements] == ["Plant", "Inner.Controller"]
+    assert {(l.source.path, l.target.path) for l in resolved.links} == {("Plant.x", "Inner.Controller.u"),
+                                                                      ("Inner.Controller.y", "Plant.u")}
+    assert resolved.element("Inner.Controller").start_values == {"k": -2.0}
+
+
+def test_referenced_ssd_is_read_as_a_nested_system(tmp_path, toys):
+    inner_text = ssd(system("sub", (component("Controller", "Gain"),),
+                            (connection("e", "Controller.u"), connection("Controller.y", "command")),
+                            connectors=(connector("e", "input"), connector("command", "output"))))
+    write_folder(tmp_path, inner_text, toys)
+    (tmp_path / "SystemStructure.ssd").rename(tmp_path / "controller.ssd")
+    outer = ssd(system("outer", (component("Plant", "Integrator"),
+                                 '<ssd:Component name="Ctl" source="controller.ssd" type="application/x-ssp-definition">'
+                                 '<ssd:Connectors><ssd:Connector name="e" kind="input"/>'
+                                 '<ssd:Connector name="command" kind="output"/></ssd:Connectors></ssd:Component>'),
+                       (connection("Plant.x", "Ctl.e"), connection("Ctl.command", "Plant.u"))))
+    (tmp_path / "SystemStructure.ssd").write_text(outer)
+    with read_ssp(tmp_path) as structure:
+        resolved = resolve(structure)
+    assert [e.name for e in resolved.elements] == ["Plant", "Ctl.Controller"]
+
+
+@pytest.mark.parametrize("change, feature", [
+    (('<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u"/>',
+      '<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u">'
+      '<ssc:LinearTransformation factor="2"/></ssd:Connection>'), "LinearTransformation"),
+    (('source="resources/Gain.fmu"', 'source="resources/Gain.fmu" implementation="ModelExchange"'), "ModelExchange"),
+    (('source="resources/Gain.fmu"', 'source="http://example.com/Gain.fmu"'), "file: URIs"),
+])
+def test_unsupported_features_are_named(tmp_path, toys, change, feature):
+    text = loop_text().replace(*change)
+    with pytest.raises(UnsupportedFeatureError, match=feature):
+        read_ssp(write_folder(tmp_path, text, toys))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("<notssd/>", "not an SSP 1.0 system structure"),
+    ("<ssd:Broken", "not well-formed"),
+])
+def test_not_an_ssd(tmp_path, text, message):
+    (tmp_path / "SystemStructure.ssd").write_text(text)
+    with pytest.raises(StructureError, match=message):
+        read_ssp(tmp_path)
+
+
+def test_a_second_source_for_one_input_is_an_error(tmp_path, toys):
+    text = ssd(system("two", (component("A", "Gain"), component("B", "Gain"), component("C", "Gain")),
+                      (connection("A.y", "C.u"), connection("B.y", "C.u"))))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(CausalityError, match="C.u already has a source"):
+            resolve(structure)
