@@ -7,17 +7,18 @@ import logging
 import sys
 
 from nfal import __version__
-from nfal.commands import control, physics
+from nfal.commands import control, cosim, physics
 from nfal.models.errors import NfalError
 
-COMMAND_GROUPS = (physics, control)
+COMMAND_GROUPS = (cosim, physics, control)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nfal",
         description="Near-field acoustic levitation: squeeze-film physics (Reynolds and the simplified "
-        "slow model), K(sigma) calibration, gain-scheduled control. Every quantity is SI.",
+        "slow model), K(sigma) calibration, gain-scheduled control, and the closed loop of Fig. 7 as FMUs "
+        "wired by SSP. Every quantity is SI.",
         epilog="Run 'nfal COMMAND --help' for a command's options.",
     )
     parser.add_argument("--version", action="version", version=f"nfal {__version__}")

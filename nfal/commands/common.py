@@ -40,6 +40,16 @@ def _to_builtin(value):
     raise TypeError(f"cannot write {type(value).__name__} as JSON")
 
 
+def print_step_table(steps: list[dict]) -> None:
+    """The per-step metrics (``StepMetrics.to_dict()`` rows) as an indented table in ms, %, nm and um s."""
+    show = lambda v, scale, fmt: "-" if v is None else format(v * scale, fmt)  # noqa: E731
+    print(f"  {'step [um]':>13} {'rise [ms]':>9} {'overshoot [%]':>13} {'settle [ms]':>11} {'noise [nm]':>10} {'IAE [um s]':>10}")
+    for step in steps:
+        print(f"  {step['from_m'] * 1e6:5.0f} -> {step['to_m'] * 1e6:4.0f} {show(step['rise_time_s'], 1e3, '9.1f')} "
+              f"{step['overshoot_percent']:13.1f} {show(step['settling_time_s'], 1e3, '11.1f')} "
+              f"{step['noise_rms_m'] * 1e9:10.1f} {step['iae'] * 1e6:10.3f}")
+
+
 def progress_bar(total: int, description: str) -> tqdm:
     """A progress bar on stderr (silent when stderr is not a terminal or under --json pipes)."""
     return tqdm(total=total, desc=description, file=sys.stderr, disable=None, leave=False)

@@ -7,7 +7,8 @@ import time
 
 import numpy as np
 
-from nfal.commands.common import add_output_options, add_rig_options, number_list, print_json, progress_bar, rig_from_args
+from nfal.commands.common import (add_output_options, add_rig_options, number_list, print_json, print_step_table,
+                                  progress_bar, rig_from_args)
 from nfal.models.errors import InvalidParameterError
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
@@ -175,11 +176,6 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def _print_table(results: dict) -> None:
-    show = lambda v, scale, fmt: "-" if v is None else format(v * scale, fmt)  # noqa: E731
     for key, result in results.items():
         print(f"{key} ({result['name']}): IAE {result['iae'] * 1e6:.3f} um s")
-        print(f"  {'step [um]':>13} {'rise [ms]':>9} {'overshoot [%]':>13} {'settle [ms]':>11} {'noise [nm]':>10} {'IAE [um s]':>10}")
-        for step in result["steps"]:
-            print(f"  {step['from_m'] * 1e6:5.0f} -> {step['to_m'] * 1e6:4.0f} {show(step['rise_time_s'], 1e3, '9.1f')} "
-                  f"{step['overshoot_percent']:13.1f} {show(step['settling_time_s'], 1e3, '11.1f')} "
-                  f"{step['noise_rms_m'] * 1e9:10.1f} {step['iae'] * 1e6:10.3f}")
+        print_step_table(result["steps"])

@@ -1,0 +1,148 @@
+"""``nfal build`` (FMUs and SSP archives) and ``nfal run`` (a system structure, by default the Fig. 7 loop)."""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+from pathlib import Path
+
+from nfal.commands.common import print_json, print_step_table
+from nfal.models.errors import InvalidParameterError
+
+REFERENCE_INPUT = "Controller.reference"
+
+
+def register(commands) -> None:
+    build = commands.add_parser(
+        "build", help="build the FMUs and pack the SSP archives of the Fig. 7 loop",
+        description="Build every FMU (SlowPlant, ReynoldsPlant, Controller, ResonanceTracker, SensorChain) with "
+        "pythonfmu, self-contained, and pack fig7_slow.ssp and fig7_reynolds.ssp (SSP 1.0). FMUs newer than "
+        "their sources are kept.")
+    build.add_argument("--out", default="build", metavar="DIR", help="output folder (default build/)")
+    build.add_argument("--json", action="store_true", help="print the built archives as JSON")
+    build.set_defaults(handler=run_build)
+
+    run = commands.add_parser(
+        "run", help="run a system structure: by default the closed loop of Fig. 7 (gain-scheduled PID, slow plant)",
+        description="Run an SSP system structure with the fixed-step master over fmpy. Without STRUCTURE, builds "
+        "what is missing and runs fig7_slow (gain-scheduled PID, slow plant, resonance tracker, sensor chain) on the "
+        "reference of Figs. 9-10, writing runs/<name>/results.csv, summary.json and response.png, and printing the "
+        "step metrics.",
+        epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
+        "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
+        "nfal run --reference my_reference.csv --realtime")
+    run.add_argument("structure", nargs="?", default="fig7_slow",
+                     help="a built-in structure (fig7_slow, fig7_reynolds) or an .ssp archive, .ssd file or SSP folder "
+                     "(default fig7_slow)")
+    run.add_argument("--stop-time", type=float, metavar="S", help="stop time [s] (default: the structure's, 3.7 s for Fig. 7)")
+    run.add_argument("--step", type=float, default=5e-4, metavar="S", help="communication step [s] (default 5e-4: 2 kHz)")
+    run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
+                     help="override a parameter or start value (repeatable)")
+    run.add_argument("--reference", default="staircase", metavar="staircase|FILE.csv",
+                     help="reference on Controller.reference: the built-in staircase of Figs. 9-10 (60-180 um) or a CSV "
+                     "of time_s,reference_m (held between rows) (default staircase)")
+    run.add_argument("--reference-input", default=REFERENCE_INPUT, metavar="ELEMENT.VAR",
+                     help=f"the input the reference drives (default {REFERENCE_INPUT}; 'none' for no external input)")
+    run.add_argument("--algorithm", choices=("causal", "jacobi"), default="causal",
+                     help="causal: outputs propagated in feedthrough order at each step, then all FMUs step (default); "
+                     "jacobi: all step, then outputs move to inputs (as OSP libcosim does)")
+    run.add_argument("--realtime", action="store_true", help="release steps on the wall clock; report overruns and jitter")
+    run.add_argument("--out", metavar="DIR", help="result folder (default runs/<structure>-<date-time>)")
+    run.add_argument("--build-dir", default="build", metavar="DIR", help="where built-in structures are built (default build/)")
+    run.add_argument("--json", action="store_true", help="print the summary as JSON")
+    run.set_defaults(handler=run_run)
+
+
+def run_build(args: argparse.Namespace) -> int:
+    from nfal.build import build_all
+
+    archives = build_all(args.out)
+    if args.json:
+        print_json({name: str(path) for name, path in archives.items()})
+    else:
+        for name, path in archives.items():
+            print(f"{name}: {path}")
+    return 0
+
+
+def parse_parameter(text: str) -> tuple[str, object]:
+    """``Element.var=value`` -> (name, value): true/false as Boolean, numbers as float, else the string."""
+    name, sep, value = text.partition("=")
+    if not sep or "." not in name.strip(".") or not value:
+        raise InvalidParameterError("--param", text, "ELEMENT.VAR=VALUE")
+    lowered = value.strip().lower()
+    if lowered in ("true", "false"):
+        return name.strip(), lowered == "true"
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        return name.strip(), value
+
+
+def _structure_path(args: argparse.Namespace) -> Path:
+    from nfal.build import STRUCTURES, build_all
+
+    if args.structure in STRUCTURES:
+        return build_all(args.build_dir, structures=(args.structure,))[args.structure]
+    path = Path(args.structure)
+    if not path.exists():
+        raise InvalidParameterError("structure", args.structure, f"one of {', '.join(STRUCTURES)} or an existing .ssp/.ssd/folder")
+    return path
+
+
+def _reference(args: argparse.Namespace):
+    from nfal.models.closed_loop import Staircase
+    from nfal.orchestration.signals import csv_signal
+
+    if args.reference == "staircase":
+        return Staircase()
+    return csv_signal(args.reference)
+
+
+def run_run(args: argparse.Namespace) -> int:
+    from nfal.fig7 import loop_metrics, response_panels
+    from nfal.models.closed_loop import Staircase
+    from nfal.orchestration import SimulationError, run_structure
+
+    parameters = dict(parse_parameter(text) for text in args.param)
+    structure = _structure_path(args)
+    reference = _reference(args)
+    inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
+    stop_time = args.stop_time
+    if stop_time is None and isinstance(reference, Staircase):
+        stop_time = reference.duration_s
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
+    fig7 = args.reference_input == REFERENCE_INPUT
+    metrics = None
+    if fig7 and isinstance(reference, Staircase) and (stop_time is None or stop_time >= reference.duration_s - 1e-9):
+        metrics = lambda table: loop_metrics(table, reference)  # noqa: E731
+    try:
+        result = run_structure(structure, stop_time=stop_time, step_size=args.step, inputs=inputs, parameters=parameters,
+                               algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
+                               plot=response_panels() if fig7 else None, metrics=metrics)
+    except SimulationError as exc:
+        if exc.result is not None:
+            _report(exc.result.summary, out, args.json)
+        raise
+    _report(result.summary, out, args.json)
+    return 0
+
+
+def _report(summary: dict, out: Path, as_json: bool) -> None:
+    if as_json:
+        print_json(summary)
+    else:
+        _print_summary(summary, out)
+
+
+def _print_summary(summary: dict, out: Path) -> None:
+    print(f"{summary.get('structure')}: {summary.get('stop_time_s'):g} s in {summary.get('wall_time_s', 0.0):.2f} s "
+          f"wall time ({summary.get('algorithm')}, step {summary.get('step_size_s'):g} s) -> {out}")
+    metrics = summary.get("metrics")
+    if metrics:
+        print(f"IAE {metrics['iae'] * 1e6:.3f} um s")
+        print_step_table(metrics["steps"])
+    realtime = summary.get("realtime")
+    if realtime:
+        print(f"real time: {realtime.get('overruns')} overruns, jitter max {realtime.get('jitter_max_s', 0) * 1e3:.3f} ms")
