@@ -365,12 +365,10 @@ class NfalSlave(Fmi2Slave):
         """Outputs read in initialisation mode are those of a provisional :meth:`setup` with the values set
         so far (the initial state: the plant at initial_height, the controller's bumpless command), so a
         master that propagates outputs before the first step hands on consistent values, not zeros."""
-        def run():
-            if self._in_initialization and self._settings_changed:
-                self.setup()
-                self._settings_changed = False
-            return read(vrs)
-        return self._guard(what, run)
+        if self._in_initialization and self._settings_changed:
+            self._guard("initialisation (checking the parameters)", self.setup)
+            self._settings_changed = False
+        return self._guard(what, read, vrs)
 
     def exit_initialization_mode(self) -> None:
         def run():

@@ -137,6 +137,10 @@ def _report(summary: dict, out: Path, as_json: bool) -> None:
 
 
 def _print_summary(summary: dict, out: Path) -> None:
+    if summary.get("status", "ok") != "ok":
+        print(f"{summary.get('structure')}: {summary.get('status')} after {summary.get('steps_completed')} of "
+              f"{summary.get('steps')} steps; the results up to there are in {out}")
+        return
     print(f"{summary.get('structure')}: {summary.get('stop_time_s'):g} s in {summary.get('wall_time_s', 0.0):.2f} s "
           f"wall time ({summary.get('algorithm')}, step {summary.get('step_size_s'):g} s) -> {out}")
     metrics = summary.get("metrics")
