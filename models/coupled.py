@@ -31,7 +31,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .errors import ConvergenceError, InvalidParameterError, require_positive
+from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .excitation import ExcitationShape
 from .perturbation import first_order_pressure, radial_grid
 from .reynolds import discrete_mean_correction
@@ -414,11 +414,11 @@ class CoupledModel:
         """The state :meth:`simulate` starts from: object at ``height`` [m] moving at ``velocity`` [m/s],
         quasi-steady film of the excitation |a| = ``amplitude`` [m], at time ``time_s`` [s] (period 0 starts there)."""
         height0 = require_positive("height", height)
-        velocity0 = _finite("velocity", velocity, "a finite number (m/s)")
-        amplitude0 = _finite("amplitude", amplitude, "a finite amplitude >= 0 m")
+        velocity0 = require_finite("velocity", velocity, "a finite number (m/s)")
+        amplitude0 = require_finite("amplitude", amplitude, "a finite amplitude >= 0 m")
         if amplitude0 < 0:
             raise InvalidParameterError("amplitude", amplitude, "a finite amplitude >= 0 m")
-        time0 = _finite("time_s", time_s, "a finite time (s)")
+        time0 = require_finite("time_s", time_s, "a finite time (s)")
         h0, omega = self.rig.reference_clearance, self.rig.omega
         vector = self._initial_state(height0 / h0, velocity0 / (h0 * omega), amplitude0 / h0)
         return CoupledState(vector, time0, time0, 0, height0, velocity0, 0.0)
@@ -445,7 +445,7 @@ class CoupledModel:
         if state.vector.shape != (2 * self.nodes + 4,):
             raise InvalidParameterError("state", f"{state.vector.size} values", f"a state of a model with {self.nodes} nodes")
         step = require_positive("step_s", step_s)
-        amplitude = _finite("amplitude", amplitude, "a finite amplitude >= 0 m")
+        amplitude = require_finite("amplitude", amplitude, "a finite amplitude >= 0 m")
         if amplitude < 0:
             raise InvalidParameterError("amplitude", amplitude, "a finite amplitude >= 0 m")
         envelope = self.envelope if envelope is None else envelope
@@ -603,13 +603,3 @@ def _sample_excitation(excitation: Excitation, times: np.ndarray) -> np.ndarray:
         raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time")
     return np.full(times.size, value)
 
-
-def _finite(name: str, value, allowed: str) -> float:
-    """``value`` as a finite float, else :class:`InvalidParameterError`."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameterError(name, value, allowed) from None
-    if not math.isfinite(number):
-        raise InvalidParameterError(name, value, allowed)
-    return number

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 
 class NfalError(Exception):
     """Base of every error nfal raises on purpose."""
@@ -31,4 +33,15 @@ def require_positive(name: str, value: float) -> float:
         raise InvalidParameterError(name, value, "a finite number > 0") from None
     if not (number > 0.0 and number < float("inf")):
         raise InvalidParameterError(name, value, "a finite number > 0")
+    return number
+
+
+def require_finite(name: str, value: float, allowed: str = "a finite number") -> float:
+    """Return ``value`` as float if it is finite, else raise :class:`InvalidParameterError` saying ``allowed``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, value, allowed) from None
+    if not math.isfinite(number):
+        raise InvalidParameterError(name, value, allowed)
     return number

@@ -48,7 +48,7 @@ import cmath
 import dataclasses
 import math
 
-from .errors import InvalidParameterError, require_positive
+from .errors import InvalidParameterError, require_finite, require_positive
 
 #: Nominal resonance [Hz] (the rig's nominal frequency).
 RESONANCE_FREQUENCY_HZ = 28500.0
@@ -56,16 +56,6 @@ RESONANCE_FREQUENCY_HZ = 28500.0
 QUALITY_FACTOR = 500.0
 #: ||a|| per volt of drive amplitude at resonance in steady state [m/V] (assumption, as the Controller FMU).
 METRES_PER_VOLT = 0.1e-6
-
-
-def _finite(name: str, value, allowed: str = "a finite number") -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameterError(name, value, allowed) from None
-    if not math.isfinite(number):
-        raise InvalidParameterError(name, value, allowed)
-    return number
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +88,7 @@ class Transducer:
     # --- derived quantities -------------------------------------------------------------------------
     def resonance_hz(self, resonance_shift_hz: float = 0.0) -> float:
         """The current resonance f_r + shift [Hz] (> 0)."""
-        shift = _finite("resonance_shift_hz", resonance_shift_hz, "a finite shift [Hz]")
+        shift = require_finite("resonance_shift_hz", resonance_shift_hz, "a finite shift [Hz]")
         resonance = self.resonance_frequency_hz + shift
         if not resonance > 0:
             raise InvalidParameterError("resonance_shift_hz", resonance_shift_hz,
@@ -117,7 +107,7 @@ class Transducer:
     def _coefficients(self, voltage_v: float, drive_frequency_hz: float, resonance_shift_hz: float
                       ) -> tuple[complex, complex]:
         """(lambda [1/s], b V [m/s]) of (T2) at the given inputs (checked)."""
-        voltage = _finite("voltage_v", voltage_v, "a finite amplitude >= 0 V")
+        voltage = require_finite("voltage_v", voltage_v, "a finite amplitude >= 0 V")
         if voltage < 0:
             raise InvalidParameterError("voltage_v", voltage_v, "a finite amplitude >= 0 V")
         drive = require_positive("drive_frequency_hz", drive_frequency_hz)
