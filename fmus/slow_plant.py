@@ -9,9 +9,7 @@ from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE``.
 
 Outputs come from the state alone (no feedthrough). Lift-off from rest: when the held |a| already
 pushes harder than gravity at the rest gap at the start of a step, the object leaves the surface at
-that instant, from ``LIFT_OFF_NUDGE`` above the rest gap (SimplifiedPlant.advance only lifts off at an
-upward crossing inside an interval, which a zero-order hold that jumps at the step boundary never
-produces, and its touchdown event fires at once on a release from exactly the rest gap).
+that instant (:meth:`SimplifiedPlant.advance` decides rest and lift-off at the start of each step).
 """
 
 from __future__ import annotations
@@ -25,9 +23,6 @@ from nfal.models.plant import PlantState, SimplifiedPlant
 
 #: Relative change of drive_frequency that rebuilds the stepping plant.
 FREQUENCY_TOLERANCE = 1e-9
-#: Lift-off starts this far (relative) above the rest gap: SimplifiedPlant's touchdown event would
-#: otherwise fire at once on a release from exactly the rest gap (and chatter).
-LIFT_OFF_NUDGE = 1e-9
 
 
 class SlowPlant(NfalSlave):
@@ -63,7 +58,7 @@ class SlowPlant(NfalSlave):
         self._calibration = self.build_calibration()
         self._rebuild(self._checked_frequency())
         self.height, self.velocity = float(height), float(self.initial_velocity)
-        self.resting = height <= rest_gap and self.initial_velocity <= 0.0 and not self._lifts_off(self._checked_excitation())
+        self.resting = self._plant.plant.rests(PlantState(self.height, self.velocity), self._checked_excitation())
 
     def _checked_frequency(self) -> float:
         return require_positive("drive_frequency", self.drive_frequency)
@@ -78,19 +73,12 @@ class SlowPlant(NfalSlave):
         plant = SimplifiedPlant(self.build_rig(frequency), self._calibration, rest_gap=self.rest_gap)
         self._plant, self._plant_frequency = FixedStepPlant(plant), frequency
 
-    def _lifts_off(self, excitation: float) -> bool:
-        plant = self._plant.plant
-        return bool(plant.levitation_force(plant.rest_gap, excitation) > plant.weight)
-
     def step(self, current_time: float, step_size: float) -> None:
         excitation = self._checked_excitation()
         frequency = self._checked_frequency()
         if abs(frequency - self._plant_frequency) > FREQUENCY_TOLERANCE * self._plant_frequency:
             self._rebuild(frequency)
-        state = PlantState(self.height, self.velocity, self.resting)
-        if state.resting and self._lifts_off(excitation):
-            state = PlantState(self._plant.plant.rest_gap * (1.0 + LIFT_OFF_NUDGE), 0.0, False)
-        state = self._plant.advance(state, excitation, step_size)
+        state = self._plant.advance(PlantState(self.height, self.velocity, self.resting), excitation, step_size)
         self.height, self.velocity, self.resting = float(state.height), float(state.velocity), bool(state.resting)
 
     # --- FMU state ----------------------------------------------------------------------------------

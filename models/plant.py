@@ -4,7 +4,9 @@
 
 is eq. (13) multiplied by m omega^2 h0 (``rhs_nondimensional`` is eq. 13 itself). The object cannot
 come closer to the driving surface than ``rest_gap``: it lands there (inelastically), rests while the
-levitation force is below its weight, and lifts off when the force returns.
+levitation force is below its weight, and lifts off when the force returns. A state that rests, or that
+is at rest_gap with velocity <= 0, is on the surface: from it the object lifts off at once (from rest_gap,
+at rest) if the film force there beats its weight, and rests otherwise.
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ Excitation = float | Callable[[float], float]
 DEFAULT_REST_GAP = 5e-6
 #: Touchdowns plus lift-offs allowed in one integration before it is called chattering.
 MAX_EVENTS = 10_000
+#: Lift-off needs the film force at rest_gap to beat the weight by more than this fraction of it. Below,
+#: round-off in eq. (13)'s force balance (~1e-16 of the weight, against a damping rate c/m ~ 3e7 1/s at
+#: 5 um) can turn the first step of a lift-off downwards, into a touchdown at the same instant, again and
+#: again; the creep it forgoes is ~ margin x m g / c (~3e-16 m/s at 5 um).
+LIFT_OFF_MARGIN = 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,13 +136,25 @@ class SimplifiedPlant:
         return self._integrate(state, _as_function(excitation), times, rtol)
 
     def advance(self, state: PlantState, excitation: float, step: float, rtol: float = 1e-8) -> PlantState:
-        """The state ``step`` seconds later under a constant |a| = ``excitation`` [m] (zero-order hold)."""
+        """The state ``step`` seconds later under a constant |a| = ``excitation`` [m] (zero-order hold).
+
+        On the surface (resting, or at rest_gap with velocity <= 0) the object lifts off at the start of
+        the step if the film force at rest_gap beats its weight, and rests otherwise.
+        """
         step = require_positive("step", step)
         if not (np.isfinite(excitation) and excitation >= 0):
             raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m")
         self._check_state(state)
         path = self._integrate(state, lambda t: excitation, np.array([0.0, step]), rtol)
         return PlantState(float(path.height[-1]), float(path.velocity[-1]), bool(path.resting[-1]))
+
+    def rests(self, state: PlantState, excitation: float) -> bool:
+        """Whether ``state`` rests under a held |a| = ``excitation`` [m]: it is on the surface (resting, or
+        at rest_gap with velocity <= 0) and the film force at rest_gap does not beat the weight."""
+        return self._on_surface(state) and self._net_resting_force(0.0, lambda t: excitation) <= 0
+
+    def _on_surface(self, state: PlantState) -> bool:
+        return state.resting or (state.height <= self.rest_gap and state.velocity <= 0)
 
     def _check_state(self, state: PlantState) -> None:
         if not (np.isfinite(state.height) and state.height >= self.rest_gap):
@@ -148,7 +167,10 @@ class SimplifiedPlant:
         scale = self.rig.reference_clearance  # integrate h / h0 and v / h0 (order-one numbers)
         t0, t_end = float(times[0]), float(times[-1])
         y = np.array([state.height / scale, state.velocity / scale])
-        resting = state.resting or (state.height <= self.rest_gap and self._net_resting_force(t0, excitation) <= 0)
+        resting = False
+        if self._on_surface(state):
+            resting = self._net_resting_force(t0, excitation) <= 0  # rests, or lifts off from rest_gap at once
+            y = np.array([self.rest_gap / scale, 0.0])
         out_h, out_v, out_rest = np.empty_like(times), np.empty_like(times), np.zeros(times.shape, dtype=bool)
         filled, events = 0, 0
         while t0 < t_end:
@@ -162,7 +184,9 @@ class SimplifiedPlant:
                 event.direction, event.terminal = 1.0, True
                 solution = integrate.solve_ivp(lambda t, _y: np.zeros(2), (t0, t_end), y, events=event, t_eval=pending, rtol=rtol)
             else:
-                event = lambda t, y_: y_[0] - self.rest_gap / scale  # noqa: E731
+                # touchdown: at rest_gap moving down. Zero where the height reaches it (v < 0), and positive
+                # while rising, so that a lift-off from rest_gap (v = 0, film beats gravity) is no touchdown
+                event = lambda t, y_: max(y_[0] - self.rest_gap / scale, y_[1])  # noqa: E731
                 event.direction, event.terminal = -1.0, True
                 solution = integrate.solve_ivp(lambda t, y_: self._free_rhs(t, y_, excitation), (t0, t_end), y,
                                                method="LSODA", events=event, t_eval=pending, rtol=rtol,
@@ -200,7 +224,8 @@ class SimplifiedPlant:
         return np.array([y[1], self.acceleration(height, y[1] * scale, excitation(t)) / scale])
 
     def _net_resting_force(self, t, excitation) -> float:
-        return float(self.levitation_force(self.rest_gap, excitation(t)) - self.weight)
+        """Film force at rest_gap minus the weight, less ``LIFT_OFF_MARGIN`` of it [N]: > 0 lifts off."""
+        return float(self.levitation_force(self.rest_gap, excitation(t)) - (1.0 + LIFT_OFF_MARGIN) * self.weight)
 
 
 def _as_function(excitation: Excitation) -> Callable[[float], float]:

@@ -1,5 +1,8 @@
+import dataclasses
+
 import numpy as np
 import pytest
+from scipy import integrate
 
 from nfal.models.calibration import paper_calibration
 from nfal.models.errors import InvalidParameterError
@@ -87,3 +90,96 @@ def test_rejects_state_below_rest_gap(plant):
 def test_equilibrium_out_of_calibrated_range(plant):
     with pytest.raises(InvalidParameterError, match="calibrated range"):
         plant.equilibrium_height(1e-3)
+
+
+# --- the surface: rest and lift-off decided at the start of a step ---------------------------------------
+SURFACES = {  # rig, rest gap [m]: the default pair, and a heavy object on a rougher surface
+    "default": (RigParameters(), 5e-6),
+    "heavy": (RigParameters(mass=2.0), 20e-6),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(SURFACES))
+def surface_plant(request):
+    rig, rest_gap = SURFACES[request.param]
+    return SimplifiedPlant(rig, paper_calibration(), rest_gap=rest_gap)
+
+
+def free_release_from_rest_gap(plant, excitation, step):
+    """Eq. (13) integrated without any surface logic from (rest_gap, 0): the reference for a lift-off."""
+    solution = integrate.solve_ivp(lambda t, y: [y[1], plant.acceleration(y[0], y[1], excitation)], (0.0, step),
+                                   [plant.rest_gap, 0.0], method="Radau", rtol=1e-12, atol=(1e-17, 1e-14))
+    assert solution.success
+    return solution.y[0, -1]
+
+
+@pytest.mark.parametrize("step", [5e-4, 1e-3])
+@pytest.mark.parametrize("factor", [1.5, 2.0, 10.0])
+@pytest.mark.parametrize("start", [
+    PlantState(0.0, 0.0, resting=True),       # resting on the surface
+    PlantState(0.0, 0.0, resting=False),      # released at the rest gap
+    PlantState(0.0, -1e-6, resting=False),    # arriving at the rest gap, slowly
+    PlantState(0.0, -1e-3, resting=False),    # arriving at the rest gap
+], ids=["resting", "free-v0", "free-slow-down", "free-down"])
+def test_lifting_excitation_at_rest_gap_leaves_the_surface(surface_plant, start, factor, step):
+    """The film force at rest_gap beats gravity (|a| = factor x the rest-gap equilibrium amplitude): the
+    object lands (inelastically) if it was moving down, then leaves at once; after the step it is free,
+    above rest_gap, and where a free release from rest_gap at rest would be."""
+    plant = surface_plant
+    excitation = factor * plant.equilibrium_excitation(plant.rest_gap)
+    state = plant.advance(dataclasses.replace(start, height=plant.rest_gap), excitation, step)
+    expected = free_release_from_rest_gap(plant, excitation, step)
+    assert not state.resting and state.velocity > 0
+    assert state.height > plant.rest_gap
+    assert state.height - plant.rest_gap == pytest.approx(expected - plant.rest_gap, rel=1e-3)
+
+
+@pytest.mark.parametrize("factor", [0.0, 0.5, 0.99])
+@pytest.mark.parametrize("velocity", [0.0, -1e-6, -1e-3, -0.1])
+def test_release_at_rest_gap_without_lift_rests(surface_plant, velocity, factor):
+    """Released (not resting) at rest_gap moving down or at rest, with a film force below the weight: it
+    lands and rests there, without error."""
+    plant = surface_plant
+    excitation = factor * plant.equilibrium_excitation(plant.rest_gap)
+    state = plant.advance(PlantState(plant.rest_gap, velocity, resting=False), excitation, 5e-4)
+    assert state == PlantState(plant.rest_gap, 0.0, resting=True)
+
+
+@pytest.mark.parametrize("factor", [1.0 - 1e-12, 1.0, 1.0 + 1e-12])
+@pytest.mark.parametrize("start", [PlantState(0.0, 0.0, resting=True), PlantState(0.0, 0.0, resting=False),
+                                   PlantState(0.0, -1e-3, resting=False)], ids=["resting", "free-v0", "free-down"])
+def test_excitation_at_the_lift_off_threshold_does_not_chatter(surface_plant, start, factor):
+    """|a| at the rest-gap equilibrium amplitude to the last bits: it either rests or creeps up, no error."""
+    plant = surface_plant
+    excitation = factor * plant.equilibrium_excitation(plant.rest_gap)
+    state = plant.advance(dataclasses.replace(start, height=plant.rest_gap), excitation, 5e-4)
+    if state.resting:
+        assert state == PlantState(plant.rest_gap, 0.0, resting=True)
+    else:
+        assert 0 <= state.height - plant.rest_gap < 1e-15 and state.velocity >= 0
+
+
+@pytest.mark.parametrize("slope", [0.1, 1.0, 100.0])
+def test_ramp_through_the_lift_off_threshold(surface_plant, slope):
+    """|a| ramps (slope per s, relative) through the rest-gap equilibrium amplitude: rests until then, free
+    from the next sample on."""
+    plant = surface_plant
+    a0 = plant.equilibrium_excitation(plant.rest_gap)
+    crossing = 0.1 / slope
+    path = plant.simulate(3 * crossing, lambda t: a0 * (0.9 + slope * t), PlantState(plant.rest_gap, 0.0, resting=True),
+                          samples=300)  # no sample on the crossing
+    np.testing.assert_array_equal(path.resting, path.time <= crossing)
+    assert np.all(np.diff(path.height[path.time > crossing]) > 0)
+
+
+@pytest.mark.parametrize("state, factor, expected", [
+    (PlantState(0.0, 0.0, resting=True), 0.5, True),
+    (PlantState(0.0, 0.0, resting=True), 2.0, False),
+    (PlantState(0.0, -1e-3, resting=False), 0.5, True),
+    (PlantState(0.0, 1e-3, resting=False), 0.5, False),
+    (PlantState(1e-6, -1e-3, resting=False), 0.5, False),
+], ids=["resting", "resting-lifted", "landing", "rising", "above"])
+def test_rests(plant, state, factor, expected):
+    """On the surface (resting, or at rest_gap with v <= 0) and the film at rest_gap below the weight."""
+    state = dataclasses.replace(state, height=plant.rest_gap + state.height)
+    assert plant.rests(state, factor * plant.equilibrium_excitation(plant.rest_gap)) is expected
