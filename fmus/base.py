@@ -296,6 +296,20 @@ class NfalSlave(Fmi2Slave):
         self.add_parameter("calibration", "paper", description="K(sigma): 'paper' = eq. (17), 'perturbation' "
                            "(eqs. 9-11 for the paper's excitation form), or the path of a calibration JSON")
 
+    def add_plant_interface(self) -> None:
+        """Declare what every plant shares (contract: SlowPlant, ReynoldsPlant, a hardware proxy): inputs
+        ``excitation_amplitude`` and ``drive_frequency``; outputs ``height``, ``velocity``, ``resting``;
+        parameters ``initial_height``, ``initial_velocity``, ``rest_gap`` and the rig."""
+        self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
+        self.add_input("drive_frequency", 28500.0, unit="Hz", description="drive frequency f; sigma scales with it (eq. 2)")
+        self.add_output("height", unit="m", description="clearance hbar (slow, averaged over an excitation period)")
+        self.add_output("velocity", unit="m/s", description="d hbar / dt")
+        self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
+        self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
+        self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
+        self.add_parameter("rest_gap", 5e-6, unit="m", description="closest approach: the object lands and rests here")
+        self.add_rig_parameters()
+
     # --- shared model builders ---------------------------------------------------------------------
     def build_rig(self, frequency: float | None = None) -> RigParameters:
         """RigParameters from the rig parameters (the excitation at ``frequency`` [Hz], default nominal)."""

@@ -44,22 +44,14 @@ class ReynoldsPlant(NfalSlave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
-        self.add_input("drive_frequency", 28500.0, unit="Hz", description="drive frequency f (excitation frequency)")
-        self.add_output("height", unit="m", description="clearance: mean object position z over the last excitation period")
-        self.add_output("velocity", unit="m/s", description="mean dz/dt over the last excitation period")
-        self.add_output("resting", kind=bool, description="true while the object rests on the surface (after the gap closed)")
+        self.add_plant_interface()
         self.add_output("oscillation_amplitude", unit="m", description="amplitude of the object's fast oscillation chi (eq. 1)")
-        self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
-        self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
-        self.add_parameter("rest_gap", 5e-6, unit="m", description="where a landed object rests")
         self.add_parameter("radial_nodes", 41, description="radial finite-volume nodes of the film (>= 5)")
         self.add_parameter("steps_per_period", 64, description="BDF2 steps per excitation period (>= 8)")
         self.add_parameter("envelope_following", True, description="envelope following within a step (pays only "
                            "for steps of many excitation periods)")
         self.add_parameter("shape", "paper", description="excitation form: 'paper' (Fig. 3 stand-in), 'piston', "
                            "'plate:N' or the path of a CSV of (R, eps)")
-        self.add_rig_parameters()
         self._shape = None
         self._model: CoupledModel | None = None
         self._state: CoupledState | None = None

@@ -33,15 +33,7 @@ class SlowPlant(NfalSlave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
-        self.add_input("drive_frequency", 28500.0, unit="Hz", description="drive frequency f; sigma scales with it (eq. 2)")
-        self.add_output("height", unit="m", description="clearance hbar (slow, period-averaged)")
-        self.add_output("velocity", unit="m/s", description="d hbar / dt")
-        self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
-        self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
-        self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
-        self.add_parameter("rest_gap", 5e-6, unit="m", description="closest approach: the object lands here")
-        self.add_rig_parameters()
+        self.add_plant_interface()
         self._calibration = None
         self._plant: FixedStepPlant | None = None
         self._plant_frequency = math.nan
