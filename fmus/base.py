@@ -81,6 +81,9 @@ from nfal.models.calibration import CalibrationFunction, load_calibration, paper
 from nfal.models.errors import InvalidParameterError, NfalError, require_positive
 from nfal.models.rig import RigParameters
 
+#: Relative change of a plant's drive_frequency input that rebuilds its model.
+FREQUENCY_TOLERANCE = 1e-9
+
 logger = logging.getLogger(__name__)
 
 __all__ = ["NfalSlave", "SampleClock", "FmuStateError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
@@ -309,6 +312,32 @@ class NfalSlave(Fmi2Slave):
         self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
         self.add_parameter("rest_gap", 5e-6, unit="m", description="closest approach: the object lands and rests here")
         self.add_rig_parameters()
+
+    def checked_release(self) -> tuple[float, float, float]:
+        """(rest_gap, initial_height, initial_velocity) of the plant interface, checked."""
+        rest_gap = require_positive("rest_gap", self.rest_gap)
+        height = require_positive("initial_height", self.initial_height)
+        if height < rest_gap:
+            raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
+        if not math.isfinite(self.initial_velocity):
+            raise InvalidParameterError("initial_velocity", self.initial_velocity, "a finite number (m/s)")
+        return rest_gap, height, float(self.initial_velocity)
+
+    def checked_excitation(self) -> float:
+        """The ``excitation_amplitude`` input [m], checked."""
+        value = float(self.excitation_amplitude)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise InvalidParameterError("excitation_amplitude", value, "a finite amplitude >= 0 m")
+        return value
+
+    def checked_frequency(self) -> float:
+        """The ``drive_frequency`` input [Hz], checked."""
+        return require_positive("drive_frequency", self.drive_frequency)
+
+    @staticmethod
+    def frequency_changed(frequency: float, built_for: float) -> bool:
+        """True when a plant built for ``built_for`` [Hz] must be rebuilt for ``frequency``."""
+        return abs(frequency - built_for) > FREQUENCY_TOLERANCE * built_for
 
     # --- shared model builders ---------------------------------------------------------------------
     def build_rig(self, frequency: float | None = None) -> RigParameters:

@@ -7,7 +7,7 @@ outputs are those of the last period marched (mean clearance, mean velocity, fas
 amplitude), so they depend on the state alone. The excitation form is ``shape``.
 
 ``drive_frequency``: when it differs from the frequency the model was built for by more than a relative
-``FREQUENCY_TOLERANCE``, the model is rebuilt for it and the state carried over
+``FREQUENCY_TOLERANCE`` (fmus/base.py), the model is rebuilt for it and the state carried over
 (:meth:`CoupledModel.adopt`).
 
 Contact (the full model has none; docs/cosimulation.md): when the film gap closes during a step (the
@@ -20,18 +20,14 @@ max(rest_gap, 1.05 |a| max eps_hat).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.coupled import CoupledModel, CoupledState, GapClosedError
-from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.models.errors import InvalidParameterError
 from nfal.models.excitation import parse_shape
 from nfal.models.plant import SimplifiedPlant
 
-#: Relative change of drive_frequency that rebuilds the model.
-FREQUENCY_TOLERANCE = 1e-9
 #: Lift-off clearance margin over the surface's largest excursion |a| max eps_hat.
 LIFT_OFF_MARGIN = 1.05
 
@@ -59,21 +55,16 @@ class ReynoldsPlant(NfalSlave):
 
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
-        rest_gap = require_positive("rest_gap", self.rest_gap)
-        height = require_positive("initial_height", self.initial_height)
-        if height < rest_gap:
-            raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
-        if not math.isfinite(self.initial_velocity):
-            raise InvalidParameterError("initial_velocity", self.initial_velocity, "a finite number (m/s)")
+        rest_gap, height, velocity = self.checked_release()
         for name, lowest in (("radial_nodes", 5), ("steps_per_period", 8)):
             if getattr(self, name) < lowest:
                 raise InvalidParameterError(name, getattr(self, name), f"a whole number >= {lowest}")
         self._shape = parse_shape(str(self.shape))
         self._largest_excursion = float(np.max(np.abs(self._shape(np.linspace(0.0, 1.0, 401)))))
         self._lift_off = SimplifiedPlant(self.build_rig(), self.build_calibration(), rest_gap=rest_gap)
-        self._model = self._build_model(self._checked_frequency())
-        excitation = self._checked_excitation()
-        self._state = self._model.initial_state(height, float(self.initial_velocity), excitation, self.start_time)
+        self._model = self._build_model(self.checked_frequency())
+        excitation = self.checked_excitation()
+        self._state = self._model.initial_state(height, velocity, excitation, self.start_time)
         self._publish(self._state)
         self.resting = False
 
@@ -81,23 +72,14 @@ class ReynoldsPlant(NfalSlave):
         return CoupledModel(self.build_rig(frequency), self._shape, nodes=int(self.radial_nodes),
                             steps_per_period=int(self.steps_per_period), envelope=bool(self.envelope_following))
 
-    def _checked_frequency(self) -> float:
-        return require_positive("drive_frequency", self.drive_frequency)
-
-    def _checked_excitation(self) -> float:
-        value = float(self.excitation_amplitude)
-        if not (math.isfinite(value) and value >= 0.0):
-            raise InvalidParameterError("excitation_amplitude", value, "a finite amplitude >= 0 m")
-        return value
-
     def _publish(self, state: CoupledState) -> None:
         self.height, self.velocity, self.oscillation_amplitude = state.height, state.velocity, state.oscillation
 
     # --- stepping -----------------------------------------------------------------------------------
     def step(self, current_time: float, step_size: float) -> None:
-        excitation = self._checked_excitation()
-        frequency = self._checked_frequency()
-        if abs(frequency - self._model.rig.frequency) > FREQUENCY_TOLERANCE * self._model.rig.frequency:
+        excitation = self.checked_excitation()
+        frequency = self.checked_frequency()
+        if self.frequency_changed(frequency, self._model.rig.frequency):
             previous, self._model = self._model, self._build_model(frequency)
             self._state = self._model.adopt(self._state, previous)
         state = self._state

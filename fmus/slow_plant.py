@@ -5,7 +5,7 @@ are held (zero-order hold) and the state (clearance, velocity, resting) is advan
 :class:`~nfal.models.fixed_step_plant.FixedStepPlant` (RK4 in free flight, the event-handling
 :meth:`SimplifiedPlant.advance` near the surface). The squeeze number scales with the drive
 frequency (eq. 2): the stepping plant is rebuilt for the held ``drive_frequency`` when it differs
-from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE``.
+from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE`` (fmus/base.py).
 
 Outputs come from the state alone (no feedthrough). Lift-off from rest: when the held |a| already
 pushes harder than gravity at the rest gap at the start of a step, the object leaves the surface at
@@ -17,12 +17,8 @@ from __future__ import annotations
 import math
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
-from nfal.models.errors import InvalidParameterError, require_positive
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant
-
-#: Relative change of drive_frequency that rebuilds the stepping plant.
-FREQUENCY_TOLERANCE = 1e-9
 
 
 class SlowPlant(NfalSlave):
@@ -40,35 +36,21 @@ class SlowPlant(NfalSlave):
 
     # --- the model --------------------------------------------------------------------------------
     def setup(self) -> None:
-        rest_gap = require_positive("rest_gap", self.rest_gap)
-        height = require_positive("initial_height", self.initial_height)
-        if height < rest_gap:
-            raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
-        if not math.isfinite(self.initial_velocity):
-            raise InvalidParameterError("initial_velocity", self.initial_velocity, "a finite number (m/s)")
+        _, height, velocity = self.checked_release()
         self.build_rig()  # checks the rig parameters under their FMU names
         self._calibration = self.build_calibration()
-        self._rebuild(self._checked_frequency())
-        self.height, self.velocity = float(height), float(self.initial_velocity)
-        self.resting = self._plant.plant.rests(PlantState(self.height, self.velocity), self._checked_excitation())
-
-    def _checked_frequency(self) -> float:
-        return require_positive("drive_frequency", self.drive_frequency)
-
-    def _checked_excitation(self) -> float:
-        value = float(self.excitation_amplitude)
-        if not (math.isfinite(value) and value >= 0.0):
-            raise InvalidParameterError("excitation_amplitude", value, "a finite amplitude >= 0 m")
-        return value
+        self._rebuild(self.checked_frequency())
+        self.height, self.velocity = height, velocity
+        self.resting = self._plant.plant.rests(PlantState(self.height, self.velocity), self.checked_excitation())
 
     def _rebuild(self, frequency: float) -> None:
         plant = SimplifiedPlant(self.build_rig(frequency), self._calibration, rest_gap=self.rest_gap)
         self._plant, self._plant_frequency = FixedStepPlant(plant), frequency
 
     def step(self, current_time: float, step_size: float) -> None:
-        excitation = self._checked_excitation()
-        frequency = self._checked_frequency()
-        if abs(frequency - self._plant_frequency) > FREQUENCY_TOLERANCE * self._plant_frequency:
+        excitation = self.checked_excitation()
+        frequency = self.checked_frequency()
+        if self.frequency_changed(frequency, self._plant_frequency):
             self._rebuild(frequency)
         state = self._plant.advance(PlantState(self.height, self.velocity, self.resting), excitation, step_size)
         self.height, self.velocity, self.resting = float(state.height), float(state.velocity), bool(state.resting)

@@ -386,7 +386,7 @@ class CoupledModel:
         periods = max(1, math.ceil(duration * rig.frequency - 1e-9))
         period_starts = np.arange(periods) / rig.frequency
         excitation_values = _sample_excitation(excitation, period_starts)
-        h0, omega, steps, nodes = rig.reference_clearance, rig.omega, self.steps_per_period, self.nodes
+        h0, omega, steps = rig.reference_clearance, rig.omega, self.steps_per_period
         amplitudes = excitation_values / h0
         state = self._initial_state(height0 / h0, velocity0 / (h0 * omega), float(amplitudes[0]))
 
