@@ -29,6 +29,7 @@ from nfal.models.stability import realizable_schedule
 DESIGNS = ("gain-scheduled", "fixed")
 
 
+
 class Controller(NfalSlave):
     """Sampled PID of eqs. (21)-(22) with saturation and anti-windup; outputs feed through from both inputs."""
 
@@ -61,6 +62,7 @@ class Controller(NfalSlave):
         self._state: ControllerState | None = None
         self._held = 0.0  # the command of the last sample instant
         self._cache: tuple | None = None  # (state, reference, measured, command, next state)
+        self._gains: tuple | None = None  # (settings, gains) of the last design
 
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -71,12 +73,11 @@ class Controller(NfalSlave):
         spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
                           require_positive("filter_cutoff", self.filter_cutoff))
         sample_rate = require_positive("sample_rate", self.sample_rate)
-        if self.design == "fixed":
-            gains = fixed_design(require_positive("design_height", self.design_height), rig, calibration, spec)
-        else:
-            gains = design_schedule(None, rig, calibration, spec)
-            if self.realizable_only:
-                gains = realizable_schedule(gains, rig, sample_rate_hz=sample_rate)
+        design_height = require_positive("design_height", self.design_height) if self.design == "fixed" else None
+        key = (self.design, design_height, bool(self.realizable_only), sample_rate, rig, str(self.calibration), spec)
+        if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
+            self._gains = (key, self._design(design_height, sample_rate, rig, calibration, spec))
+        gains = self._gains[1]
         low, high = require_positive("reference_min", self.reference_min), require_positive("reference_max", self.reference_max)
         if low > high:
             raise InvalidParameterError("reference_max", high, f">= reference_min = {low:g} m")
@@ -90,6 +91,12 @@ class Controller(NfalSlave):
         self._held = equilibrium
         self._clock = SampleClock(self.law.period_s, self.start_time)
         self._cache = None
+
+    def _design(self, design_height, sample_rate, rig, calibration, spec):
+        if self.design == "fixed":
+            return fixed_design(design_height, rig, calibration, spec)
+        gains = design_schedule(None, rig, calibration, spec)
+        return realizable_schedule(gains, rig, sample_rate_hz=sample_rate) if self.realizable_only else gains
 
     def _checked_reference(self) -> float:
         low, high = self.law.reference_range_m
