@@ -70,3 +70,24 @@ def test_parse_parameter(text, expected):
 def test_parse_parameter_rejects(text):
     with pytest.raises(InvalidParameterError):
         parse_parameter(text)
+
+
+@pytest.mark.parametrize("pll, settles_near", [("true", 28557.0), ("false", 28500.0)])
+def test_run_drives_a_resonance_drift_input(capsys, tmp_path, fig7_archives, pll, settles_near):
+    """--input drives a second input: a 57 Hz (0.2 %) resonance step; the PLL follows it, a fixed drive does not."""
+    from nfal.orchestration import read_results
+
+    out = tmp_path / "run"
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.4", "--out", str(out), "--json",
+                 "--input", "ResonanceTracker.resonance_shift=step:0,57,0.15",
+                 "--param", f"ResonanceTracker.pll_enabled={pll}"]) == 0
+    capsys.readouterr()
+    table = read_results(out / "results.csv")
+    assert table["ResonanceTracker.drive_frequency"][-1] == pytest.approx(settles_near, abs=1.0)
+
+
+@pytest.mark.parametrize("text", ["ResonanceTracker", "A.b=", "A.b=wobble:3"])
+def test_bad_input_signal_is_a_clear_error(capsys, tmp_path, fig7_archives, text):
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.01", "--out", str(tmp_path / "r"),
+                 "--input", text]) == 2
+    assert "error" in capsys.readouterr().err

@@ -43,6 +43,10 @@ def register(commands) -> None:
                      "of time_s,reference_m (held between rows) (default staircase)")
     run.add_argument("--reference-input", default=REFERENCE_INPUT, metavar="ELEMENT.VAR",
                      help=f"the input the reference drives (default {REFERENCE_INPUT}; 'none' for no external input)")
+    run.add_argument("--input", action="append", default=[], metavar="ELEMENT.VAR=SIGNAL",
+                     help="drive another input (repeatable): SIGNAL is constant:V, step:INITIAL,FINAL,AT_S, "
+                     "staircase:L1,L2,...[:HOLD[:LEAD]] or a CSV of time_s,value; e.g. "
+                     "ResonanceTracker.resonance_shift=step:0,57,1.0 (a 0.2 %% resonance drift at 1 s)")
     run.add_argument("--algorithm", choices=("causal", "jacobi"), default="causal",
                      help="causal: outputs propagated in feedthrough order at each step, then all FMUs step (default); "
                      "jacobi: all step, then outputs move to inputs (as OSP libcosim does)")
@@ -79,6 +83,16 @@ def parse_parameter(text: str) -> tuple[str, object]:
         return name.strip(), value
 
 
+def parse_input(text: str) -> tuple[str, object]:
+    """``Element.var=SIGNAL`` -> (name, signal of time), SIGNAL as :func:`signal_from_spec` reads it."""
+    from nfal.orchestration.signals import signal_from_spec
+
+    name, sep, spec = text.partition("=")
+    if not sep or "." not in name.strip(".") or not spec:
+        raise InvalidParameterError("--input", text, "ELEMENT.VAR=SIGNAL")
+    return name.strip(), signal_from_spec(spec.strip())
+
+
 def _structure_path(args: argparse.Namespace) -> Path:
     from nfal.build import STRUCTURES, build_all
 
@@ -108,6 +122,7 @@ def run_run(args: argparse.Namespace) -> int:
     structure = _structure_path(args)
     reference = _reference(args)
     inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
+    inputs.update(parse_input(text) for text in args.input)
     stop_time = args.stop_time
     if stop_time is None and isinstance(reference, Staircase):
         stop_time = reference.duration_s
