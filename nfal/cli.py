@@ -7,10 +7,10 @@ import logging
 import sys
 
 from nfal import __version__
-from nfal.commands import control, cosim, physics
+from nfal.commands import control, cosim, physics, sweep
 from nfal.models.errors import NfalError
 
-COMMAND_GROUPS = (cosim, physics, control)
+COMMAND_GROUPS = (cosim, physics, control, sweep)
 
 
 def build_parser() -> argparse.ArgumentParser:

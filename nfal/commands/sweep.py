@@ -1,0 +1,74 @@
+"""``nfal sweep``: many runs (SSP runs with overrides, K(sigma) calibrations, Table-1 cases) on Dask."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from nfal.commands.common import print_json
+
+
+def register(commands) -> None:
+    sweep = commands.add_parser(
+        "sweep", help="run a sweep spec (grid or seeded random draws) on a local or remote Dask cluster",
+        description="Expand SPEC.toml into runs (an SSP run with parameter overrides, a K(sigma) calibration or a "
+        "Table-1 case, over a [grid] and/or seeded [random] draws) and run them on Dask: a local cluster on this "
+        "machine's cores, or the scheduler at --scheduler (no shared file system needed: archives are shipped once "
+        "per worker and checked by sha256). Each finished run is appended to DIR/results.csv (a failed run is a row "
+        "with its error); re-running the same spec into the same DIR skips finished runs. Writes summary.json and "
+        "sweep.png at the end.",
+        epilog="Examples: nfal sweep examples/sweeps/robustness.toml; "
+        "nfal sweep examples/sweeps/k_sigma.toml --workers 2 --out runs/k; "
+        "nfal sweep spec.toml --scheduler tcp://10.0.0.5:8786")
+    sweep.add_argument("spec", metavar="SPEC.toml", help="the sweep spec (see docs in README 'Sweep many runs on Dask')")
+    sweep.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
+                       "(default: a local cluster)")
+    sweep.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster "
+                       "(default: this machine's cores)")
+    sweep.add_argument("--out", metavar="DIR", help="result folder (default runs/sweep-<spec name>); continued if it "
+                       "holds the same spec's table")
+    sweep.add_argument("--build-dir", default="build", metavar="DIR",
+                       help="where built-in structures (fig7_slow, fig7_reynolds) are built (default build/)")
+    sweep.add_argument("--json", action="store_true", help="print the summary as JSON")
+    sweep.set_defaults(handler=run_sweep_command)
+
+
+def run_sweep_command(args: argparse.Namespace) -> int:
+    import logging
+
+    from nfal.models.errors import InvalidParameterError
+    from nfal.orchestration.sweep import run_sweep
+    from nfal.orchestration.sweep_spec import load_spec
+
+    if args.workers is not None and args.workers < 1:
+        raise InvalidParameterError("--workers", args.workers, "a whole number >= 1")
+    spec = load_spec(args.spec)
+    if not getattr(args, "verbose", False):  # Dask's scheduler and nanny log every connection at INFO
+        import distributed  # noqa: F401 - configures its loggers on import; quiet them afterwards
+
+        for name in [n for n in logging.root.manager.loggerDict if n.split(".")[0] == "distributed"] + ["distributed"]:
+            logging.getLogger(name).setLevel(logging.ERROR)
+    archives = None
+    if spec.kind == "ssp":
+        from nfal.build import STRUCTURES, build_all
+
+        if spec.settings["structure"] in STRUCTURES:
+            archives = build_all(args.build_dir, structures=(spec.settings["structure"],))
+    out = Path(args.out) if args.out else Path("runs") / f"sweep-{spec.name}"
+    result = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers, archives=archives)
+    summary = result.summary
+    if args.json:
+        print_json(summary | {"results_csv": str(result.csv_path),
+                              "plot": str(result.plot_path) if result.plot_path else None})
+        return 0 if summary["failed"] == 0 else 1
+    where = (f" in {summary['wall_time_s']:.1f} s on {summary['workers']} workers ({summary['scheduler']})"
+             if summary["new"] else "")
+    print(f"{spec.name}: {summary['runs']} runs ({summary['skipped']} already done, {summary['new']} run now){where}: "
+          f"{summary['ok']} ok, {summary['failed']} failed -> {result.csv_path}")
+    if result.plot_path:
+        print(f"plot: {result.plot_path}")
+    if summary["failed"]:
+        for row in result.rows():
+            if row["status"] != "ok":
+                print(f"  failed {row['run_id']}: {row['error']}")
+    return 0 if summary["failed"] == 0 else 1

@@ -1,0 +1,548 @@
+"""Sweeps: many runs of a :mod:`~nfal.orchestration.sweep_spec` spec on a Dask cluster, one results table.
+
+:func:`run_sweep` expands the spec, skips the runs already in ``out_dir/results.csv``, and submits the
+others to a :class:`dask.distributed.Client`: a local cluster of ``workers`` single-threaded processes
+by default, or the scheduler at ``scheduler``. Nothing needs a shared file system: an SSP archive is
+scattered to every worker once (``broadcast=True``) with its sha256; the first task on a machine
+checks the hash and unpacks it, FMUs included, into a local cache (``<tmp>/nfal-sweep-cache/<sha256>/``),
+which later tasks reuse (they check the hash of the bytes they hold, and the cache's marker).
+
+Every finished run is appended to ``results.csv`` at once (flushed), as one row: run id, status, error,
+wall time, the swept parameters and the kind's metrics. A run that raises is a row with status
+"failed" and its error; the sweep goes on. Written as well: ``spec.json`` (the expanded spec),
+``summary.json`` and ``sweep.png`` (each metric over the main swept parameter, else metric histograms).
+
+Task functions import :mod:`nfal.models` (and :mod:`nfal.fig7` for the loop's metric definitions),
+never :mod:`nfal.fmus`.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import io
+import json
+import logging
+import math
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+import zipfile
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from nfal.models.errors import NfalError
+
+from .sweep_spec import RunSpec, SweepSpec, SweepSpecError, canonical_json
+
+logger = logging.getLogger(__name__)
+
+RESULTS_CSV, SUMMARY_JSON, SPEC_JSON, SWEEP_PNG = "results.csv", "summary.json", "spec.json", "sweep.png"
+FIXED_COLUMNS = ("run_id", "index", "status", "error", "wall_time_s", "worker")
+SSP_METRICS = ("iae_m_s", "rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_m",
+               "noise_rms_m")
+TABLE1_METRICS = ("delta_simplified", "delta_full", "error_percent")
+CACHE_DIR_NAME = "nfal-sweep-cache"
+
+
+class SweepError(NfalError, RuntimeError):
+    """A sweep cannot go on (an unreadable or foreign results table, a missing archive, no cluster)."""
+
+
+def metric_columns(spec: SweepSpec) -> tuple[str, ...]:
+    """The metric columns of ``spec``'s kind (SI; the unit ends the name)."""
+    if spec.kind == "ssp":
+        return SSP_METRICS
+    if spec.kind == "table1":
+        return TABLE1_METRICS
+    return tuple(f"K_at_sigma_{s:g}" for s in spec.settings["sigma"]) + ("K_min", "K_max", "sigma_K_zero")
+
+
+def columns(spec: SweepSpec) -> list[str]:
+    """The header of ``results.csv``: fixed columns, swept parameters, metrics."""
+    return list(FIXED_COLUMNS) + [f"param:{n}" for n in spec.swept_names] + list(metric_columns(spec))
+
+
+# ---------------------------------------------------------------------------------------------- tasks
+
+@dataclasses.dataclass(frozen=True)
+class Ramp:
+    """``initial`` until ``start_s``, then linear to ``final`` over ``duration_s`` [s], then held."""
+
+    initial: float
+    final: float
+    start_s: float
+    duration_s: float
+
+    def __call__(self, time_s: float) -> float:
+        if time_s <= self.start_s:
+            return self.initial
+        fraction = min(1.0, (time_s - self.start_s) / self.duration_s) if self.duration_s > 0 else 1.0
+        return self.initial + fraction * (self.final - self.initial)
+
+
+def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | None = None) -> Path:
+    """The worker-local SSP folder of the archive ``data``, unpacked once after checking its sha256.
+
+    The archive is unpacked into ``<cache>/<sha256>/`` with every ``.fmu`` in it unpacked in place (a
+    folder of the same name), so that runs neither unzip the archive nor extract the FMUs again. The
+    folder is complete when its ``.sha256`` file holds the hash; it is built in a temporary folder
+    and renamed, so worker processes sharing the cache do not race.
+    """
+    actual = hashlib.sha256(data).hexdigest()
+    if actual != sha256:
+        raise SweepError(f"the archive arrived with sha256 {actual}, not {sha256}: refusing to run it")
+    cache = Path(cache_dir) if cache_dir is not None else Path(tempfile.gettempdir()) / CACHE_DIR_NAME
+    folder = cache / sha256
+    marker = folder / ".sha256"
+    if marker.is_file() and marker.read_text().strip() == sha256:
+        return folder
+    cache.mkdir(parents=True, exist_ok=True)
+    temp = Path(tempfile.mkdtemp(dir=cache, prefix=".part-"))
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            archive.extractall(temp)
+        for fmu in list(temp.rglob("*.fmu")):
+            if fmu.is_file() and zipfile.is_zipfile(fmu):
+                packed = fmu.with_name(fmu.name + ".zip")
+                fmu.rename(packed)
+                with zipfile.ZipFile(packed) as archive:
+                    archive.extractall(fmu)
+                packed.unlink()
+        (temp / ".sha256").write_text(sha256 + "\n")
+        if marker.is_file() and marker.read_text().strip() == sha256:  # another process finished first
+            shutil.rmtree(temp, ignore_errors=True)
+            return folder
+        if folder.exists():  # an incomplete folder from an interrupted unpack
+            shutil.rmtree(folder, ignore_errors=True)
+        os.rename(temp, folder)
+    except OSError:
+        shutil.rmtree(temp, ignore_errors=True)
+        if not (marker.is_file() and marker.read_text().strip() == sha256):  # not another process's win
+            raise
+    except zipfile.BadZipFile as exc:
+        shutil.rmtree(temp, ignore_errors=True)
+        raise SweepError(f"the archive {sha256[:12]}... is not a zip (SSP) archive: {exc}") from None
+    return folder
+
+
+def _staircase(reference):
+    from nfal.models.closed_loop import Staircase
+
+    if reference == "staircase":
+        return Staircase()
+    if reference == "none":
+        return None
+    return Staircase(tuple(reference["levels_m"]), **{k: reference[k] for k in ("hold_s", "lead_s") if k in reference})
+
+
+def _completed(staircase, stop_time: float):
+    """The steps of ``staircase`` whose holds end by ``stop_time`` (None if none does)."""
+    from nfal.models.closed_loop import Staircase
+
+    if stop_time >= staircase.duration_s - 1e-9:
+        return staircase
+    levels = int((stop_time - staircase.lead_s) / staircase.hold_s + 1e-9) + 1
+    if levels < 2:
+        return None
+    return Staircase(staircase.levels_m[:levels], hold_s=staircase.hold_s, lead_s=staircase.lead_s)
+
+
+def loop_summary(table, staircase) -> dict:
+    """The sweep's metrics of a Fig. 7 run: IAE, the worst step's rise/settling time and overshoot,
+    the final hold's steady-state error |mean(height - reference)| over its last quarter, mean noise."""
+    from nfal.fig7 import HEIGHT, REFERENCE, loop_metrics
+
+    metrics = loop_metrics(table, staircase)
+    steps = metrics["steps"]
+
+    def worst(key):
+        values = [s[key] for s in steps]
+        return math.nan if not values or any(v is None for v in values) else float(max(values))
+
+    time_s = np.asarray(table.time)
+    tail_start = time_s[-1] - 0.25 * (time_s[-1] - float(staircase.step_times_s[-1]))
+    tail = time_s >= tail_start
+    error = np.asarray(table[HEIGHT])[tail] - np.asarray(table[REFERENCE])[tail]
+    return {"iae_m_s": float(metrics["iae"]), "rise_time_s": worst("rise_time_s"),
+            "overshoot_percent": worst("overshoot_percent"), "settling_time_s": worst("settling_time_s"),
+            "steady_state_error_m": float(abs(np.mean(error))),
+            "noise_rms_m": float(np.mean([s["noise_rms_m"] for s in steps]))}
+
+
+def ssp_task(run: RunSpec, archive: bytes, sha256: str) -> dict:
+    """One SSP run: the archive (from the worker cache) with the run's overrides; the loop metrics."""
+    from .run import run_structure
+
+    settings = run.settings
+    path = cached_structure(archive, sha256)
+    parameters = dict(settings["parameters"])
+    inputs: dict = {k: float(v) for k, v in settings["inputs"].items()}
+    for name, value in run.parameters.items():
+        if name.startswith("inputs."):
+            target = name[len("inputs."):]
+            ramp = settings["ramps"].get(target)
+            inputs[target] = (Ramp(float(ramp.get("initial", 0.0)), float(value), float(ramp.get("start_s", 0.0)),
+                                   float(ramp["duration_s"])) if ramp is not None else float(value))
+        else:
+            parameters[name] = value
+    staircase = _staircase(settings["reference"])
+    if staircase is not None:
+        inputs.setdefault(settings["reference_input"], staircase)
+    stop_time = settings["stop_time"] or (staircase.duration_s if staircase is not None else None)
+    completed = _completed(staircase, stop_time) if staircase is not None and stop_time else None
+    with tempfile.TemporaryDirectory(prefix="nfal-sweep-run-") as out:
+        result = run_structure(path, stop_time=stop_time, step_size=settings["step_size"], inputs=inputs,
+                               parameters=parameters, algorithm=settings["algorithm"], out_dir=out, plot=False,
+                               progress=False)
+        if completed is None:
+            return {}
+        return loop_summary(result.table(), completed)
+
+
+def calibration_task(run: RunSpec) -> dict:
+    """K(sigma) by the perturbation route for the run's shape: K at the spec's sigma, K's least and greatest
+    value on the grid, and the first sigma where K changes sign (NaN if it does not)."""
+    from nfal.models.calibration import perturbation_calibration
+    from nfal.models.excitation import parse_shape
+
+    s = {**run.settings, **run.parameters}
+    calibration = perturbation_calibration(parse_shape(str(s["shape"])), tuple(s["sigma_range"]), points=int(s["points"]),
+                                           nodes=int(s["nodes"]))
+    values = np.asarray(calibration(np.asarray(run.settings["sigma"], dtype=float)), dtype=float)
+    grid = np.geomspace(*(float(v) for v in s["sigma_range"]), int(s["points"]))
+    on_grid = np.asarray(calibration(grid), dtype=float)
+    out = {f"K_at_sigma_{sigma:g}": float(v) for sigma, v in zip(run.settings["sigma"], values)}
+    crossings = np.flatnonzero(np.diff(np.sign(on_grid)) != 0)
+    if crossings.size:
+        i = int(crossings[0])
+        zero = float(grid[i] - on_grid[i] * (grid[i + 1] - grid[i]) / (on_grid[i + 1] - on_grid[i]))
+    else:
+        zero = math.nan
+    out.update({"K_min": float(on_grid.min()), "K_max": float(on_grid.max()), "sigma_K_zero": zero})
+    return out
+
+
+def table1_task(run: RunSpec) -> dict:
+    """One Table-1 case (simplified model against the full Reynolds model), with the run's overrides."""
+    from nfal.models.errors import InvalidParameterError
+    from nfal.models.excitation import parse_shape
+    from nfal.models.table1 import TABLE1, run_case
+
+    s = {**run.settings, **run.parameters}
+    cases = {c.name: c for c in TABLE1}
+    if s["case"] not in cases:
+        raise InvalidParameterError("case", s["case"], f"one of {', '.join(cases)}")
+    changes = {k: float(s[k]) for k in ("mass", "frequency", "excitation") if s.get(k) is not None}
+    case = dataclasses.replace(cases[s["case"]], **changes)
+    result = run_case(case, shape=parse_shape(str(s["shape"])), nodes=int(s["nodes"]),
+                      steps_per_period=int(s["steps_per_period"]))
+    return {"delta_simplified": float(result.delta_simplified), "delta_full": float(result.delta_full),
+            "error_percent": float(result.error_percent)}
+
+
+def run_task(run: RunSpec, kind: str, archive: bytes | None = None, sha256: str | None = None) -> dict:
+    """Run one run of a sweep and return its row (status "failed" and the error if it raised)."""
+    started = time.perf_counter()
+    row = {"run_id": run.run_id, "index": run.index, "status": "ok", "error": "", "worker": socket.gethostname()
+           + f":{os.getpid()}"}
+    try:
+        if kind == "ssp":
+            metrics = ssp_task(run, archive, sha256)
+        elif kind == "calibration":
+            metrics = calibration_task(run)
+        else:
+            metrics = table1_task(run)
+        row.update(metrics)
+    except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a dead sweep
+        row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
+    row["wall_time_s"] = time.perf_counter() - started
+    return row
+
+
+# ---------------------------------------------------------------------------------------------- table
+
+def _format(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, dict)):
+        return canonical_json(value)
+    return str(value).replace("\n", " ")
+
+
+class ResultsTable:
+    """``results.csv``: one row per finished run, appended and flushed as each finishes."""
+
+    def __init__(self, path: Path, header: list[str]) -> None:
+        self.path = path
+        self.header = header
+        self.finished: dict[str, dict] = {}
+        if path.exists() and path.stat().st_size:
+            self._recover()
+        else:
+            path.write_text(",".join(header) + "\n", encoding="utf-8")
+        self._handle = path.open("a", encoding="utf-8", newline="")
+        self._writer = csv.DictWriter(self._handle, fieldnames=header, lineterminator="\n")
+
+    def _recover(self) -> None:
+        data = self.path.read_bytes()
+        if not data.endswith(b"\n"):  # the last row was cut off mid-write: drop it (that run is redone)
+            data = data[: data.rfind(b"\n") + 1]
+            self.path.write_bytes(data)
+        reader = csv.reader(io.StringIO(data.decode("utf-8")))
+        found = next(reader, None)
+        if found != self.header:
+            raise SweepError(f"{self.path} holds another sweep's table (its columns differ from this spec's); "
+                             "use another --out folder")
+        for fields in reader:
+            if len(fields) == len(self.header):
+                row = dict(zip(self.header, fields))
+                self.finished[row["run_id"]] = row
+
+    def append(self, row: Mapping) -> None:
+        self._writer.writerow({k: _format(row.get(k)) for k in self.header})
+        self._handle.flush()
+        self.finished[row["run_id"]] = dict(row)
+
+    def close(self) -> None:
+        self._handle.close()
+
+
+def read_table(path: str | os.PathLike) -> list[dict]:
+    """``results.csv`` as dicts: numbers as float, empty as None, sorted by run index."""
+    rows = []
+    with open(path, encoding="utf-8", newline="") as handle:
+        for row in csv.DictReader(handle):
+            out = {}
+            for key, text in row.items():
+                if text == "" or text is None:
+                    out[key] = None
+                elif key in ("run_id", "status", "error", "worker"):
+                    out[key] = text
+                else:
+                    try:
+                        out[key] = float(text)
+                    except ValueError:
+                        out[key] = text
+            rows.append(out)
+    return sorted(rows, key=lambda r: r["index"])
+
+
+# ---------------------------------------------------------------------------------------------- engine
+
+@dataclasses.dataclass
+class SweepResult:
+    """What a sweep wrote and did: the folder, the table, the counts and the summary."""
+
+    out_dir: Path
+    csv_path: Path
+    plot_path: Path | None
+    summary: dict
+
+    def rows(self) -> list[dict]:
+        """Every row of ``results.csv`` (by run index), including rows of other specs' runs if any."""
+        return read_table(self.csv_path)
+
+
+def _archive_path(spec: SweepSpec, archives: Mapping[str, os.PathLike] | None) -> Path:
+    structure = str(spec.settings["structure"])
+    if archives and structure in archives:
+        return Path(archives[structure])
+    path = Path(structure)
+    if not path.is_absolute():
+        path = spec.base_dir / path
+    if not path.is_file():
+        known = ", ".join(archives or ()) or "none given"
+        raise SweepError(f"[run] structure = {structure!r}: no such .ssp archive ({path}); built-in: {known}")
+    return path
+
+
+def _client(scheduler: str | None, workers: int | None):
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as exc:
+            raise SweepError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    n = workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | None = None, workers: int | None = None,
+              archives: Mapping[str, os.PathLike] | None = None, progress: bool | None = None, plot: bool = True,
+              on_row: Callable[[dict], None] | None = None) -> SweepResult:
+    """Run every run of ``spec`` not yet in ``out_dir/results.csv``; append each row as it finishes.
+
+    Parameters
+    ----------
+    spec : SweepSpec
+        From :func:`~nfal.orchestration.sweep_spec.load_spec`.
+    out_dir : path-like
+        Result folder (created). A ``results.csv`` already there from the same spec is continued.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:port``); default: a local cluster.
+    workers : int, optional
+        Worker processes of the local cluster (default: this machine's cores). Ignored with ``scheduler``.
+    archives : mapping, optional
+        Built-in structure name -> ``.ssp`` path (the CLI builds them); other ``structure`` values are paths.
+    progress : bool, optional
+        A tqdm bar on stderr; default: only when stderr is a terminal.
+    plot : bool
+        Write ``sweep.png`` at the end.
+    on_row : callable, optional
+        Called with each new row after it is written.
+
+    Raises
+    ------
+    SweepError
+        The folder holds another sweep's table, the archive is missing, or the scheduler is unreachable.
+    """
+    from dask.distributed import as_completed
+    from tqdm import tqdm
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = spec.runs()
+    header = columns(spec)
+    table = ResultsTable(out / RESULTS_CSV, header)
+    todo = [r for r in runs if r.run_id not in table.finished]
+    skipped = len(runs) - len(todo)
+    foreign = len(set(table.finished) - {r.run_id for r in runs})
+    if foreign:
+        logger.warning("%s holds %d rows of runs this spec does not have (its run settings or values changed); "
+                       "they are kept", table.path, foreign)
+    (out / SPEC_JSON).write_text(json.dumps({"name": spec.name, "kind": spec.kind, "settings": spec.settings,
+                                             "grid": spec.grid, "random": spec.random, "draws": spec.draws,
+                                             "seed": spec.seed, "runs": [dataclasses.asdict(r) | {"settings": None}
+                                                                         for r in runs]}, indent=2) + "\n")
+    summary = {"name": spec.name, "kind": spec.kind, "runs": len(runs), "skipped": skipped, "other_rows": foreign,
+               "new": 0, "ok": 0,
+               "failed": 0, "status": "running", "scheduler": scheduler or "local", "workers": None,
+               "wall_time_s": 0.0, "task_wall_time_s": 0.0}
+    logger.info("%s: %d runs, %d already finished in %s", spec.name, len(runs), skipped, out)
+    started = time.perf_counter()
+    client = cluster = None
+    bar = tqdm(total=len(runs), initial=skipped, desc=spec.name, unit="run", file=sys.stderr,
+               disable=not (progress if progress is not None else sys.stderr.isatty()))
+    try:
+        if todo:
+            archive = sha = None
+            if spec.kind == "ssp":
+                data = _archive_path(spec, archives).read_bytes()
+                sha = hashlib.sha256(data).hexdigest()
+            client, cluster = _client(scheduler, workers)
+            summary["workers"] = len(client.scheduler_info().get("workers", {}))
+            if spec.kind == "ssp":
+                archive = client.scatter(data, broadcast=True)  # once per worker, not per task
+            futures = [client.submit(run_task, run, spec.kind, archive, sha, pure=False) for run in todo]
+            by_future = {f.key: r for f, r in zip(futures, todo)}
+            for future in as_completed(futures):
+                run = by_future[future.key]
+                try:
+                    row = future.result()
+                except Exception as exc:  # noqa: BLE001 - the task died (worker lost): a failed row
+                    row = {"run_id": run.run_id, "index": run.index, "status": "failed",
+                           "error": f"{type(exc).__name__}: {exc}", "wall_time_s": None, "worker": ""}
+                row.update({f"param:{k}": v for k, v in run.parameters.items()})
+                table.append(row)
+                summary["new"] += 1
+                summary["task_wall_time_s"] += row.get("wall_time_s") or 0.0
+                bar.update(1)
+                if row["status"] != "ok":
+                    logger.warning("run %s (%s) failed: %s", run.run_id, canonical_json(run.parameters), row["error"])
+                if on_row is not None:
+                    on_row(row)
+        summary["status"] = "ok"
+    except BaseException as exc:
+        summary["status"] = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+        summary["error"] = f"{type(exc).__name__}: {exc}"
+        raise
+    finally:
+        bar.close()
+        table.close()
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        summary["wall_time_s"] = time.perf_counter() - started
+        ids = {r.run_id for r in runs}
+        rows = [r for r in read_table(out / RESULTS_CSV) if r["run_id"] in ids]
+        summary["ok"] = sum(r["status"] == "ok" for r in rows)
+        summary["failed"] = sum(r["status"] != "ok" for r in rows)
+        summary["finished"] = len(rows)
+        (out / SUMMARY_JSON).write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    plot_path = None
+    if plot:
+        try:
+            plot_path = plot_sweep(spec, rows, out / SWEEP_PNG)
+        except Exception as exc:  # a plot must not hide the sweep's outcome
+            logger.warning("no sweep plot: %s", exc)
+    return SweepResult(out, out / RESULTS_CSV, plot_path, summary)
+
+
+def plot_sweep(spec: SweepSpec, rows: list[dict], path: Path) -> Path | None:
+    """Each metric over the study's main parameter, else histograms of the metrics.
+
+    The main parameter is the first ``[grid]`` parameter with more than one value (or the only swept
+    one): numbers on the x axis (a line when it is the only swept parameter, else every run as a dot),
+    strings as categories. With only random draws over several parameters: histograms.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    metrics = [m for m in metric_columns(spec)
+               if any(isinstance(r.get(m), float) and math.isfinite(r[m]) for r in ok)]
+    if not ok or not metrics:
+        return None
+    names = spec.swept_names
+    main = next((n for n in spec.grid if len(spec.grid[n]) > 1), names[0] if len(names) == 1 else None)
+    key = f"param:{main}" if main else None
+    numeric = key is not None and all(isinstance(r.get(key), float) for r in ok)
+    categories = sorted({str(r.get(key)) for r in ok}) if key is not None and not numeric else []
+    cols = min(3, len(metrics))
+    rows_n = math.ceil(len(metrics) / cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(4.2 * cols, 3.2 * rows_n), squeeze=False)
+    for ax, metric in zip(axes.flat, metrics):
+        values = [(r.get(key), r[metric]) for r in ok if isinstance(r.get(metric), float)]
+        if key is None:
+            finite = [v[1] for v in values if math.isfinite(v[1])]
+            ax.hist(finite, bins=min(20, max(5, len(finite) // 2)))
+            ax.set_ylabel("runs")
+        else:
+            if numeric:
+                values.sort()
+                x = [v[0] for v in values]
+            else:
+                x = [categories.index(str(v[0])) for v in values]
+                ax.set_xticks(range(len(categories)), categories, rotation=30, fontsize=8)
+            ax.plot(x, [v[1] for v in values], "o-" if len(names) == 1 else "o", alpha=0.8)
+            ax.set_xlabel(main)
+        ax.set_title(metric, fontsize=9)
+    for ax in list(axes.flat)[len(metrics):]:
+        ax.set_visible(False)
+    failed = len(rows) - len(ok)
+    fig.suptitle(f"{spec.name}: {len(ok)} runs" + (f", {failed} failed" if failed else ""))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+__all__ = ["Ramp", "ResultsTable", "SweepError", "SweepResult", "SweepSpecError", "cached_structure", "columns",
+           "metric_columns", "plot_sweep", "read_table", "run_sweep", "run_task"]

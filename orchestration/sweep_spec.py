@@ -1,0 +1,304 @@
+"""Sweep specifications: a TOML file naming what each run is and the values its parameters take.
+
+A spec has a ``[run]`` table (``kind`` and that kind's settings), and a ``[grid]`` (name -> list of
+values: every combination is run) and/or a ``[random]`` table (``draws`` and ``seed``, and name ->
+``{distribution, ...}``: ``draws`` seeded draws, combined with every grid point)::
+
+    [sweep]
+    name = "robustness"              # optional; used in plot titles
+
+    [run]
+    kind = "ssp"                     # "ssp" | "calibration" | "table1"
+    structure = "fig7_slow"          # built-in structure or path of an .ssp (relative to the spec)
+    stop_time = 0.4
+    reference = {levels_m = [100e-6, 140e-6], hold_s = 0.3, lead_s = 0.1}
+
+    [grid]
+    "Plant.mass" = [0.108, 0.1347, 0.162]
+    "SensorChain.seed" = [0, 1]
+
+    [random]
+    draws = 4
+    seed = 1
+    "ResonanceTracker.resonance_frequency" = {distribution = "uniform", low = 28400, high = 28600}
+
+Distributions: ``uniform`` (low, high), ``loguniform`` (low, high > 0), ``normal`` (mean, std),
+``integers`` (low, high, both included). Each run gets a stable id: a hash of the canonical JSON of
+its run settings and parameters, so the same spec expands to the same ids on every machine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from nfal.models.errors import NfalError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+KINDS = ("ssp", "calibration", "table1")
+DISTRIBUTIONS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"),
+                 "integers": ("low", "high")}
+
+# Settings each kind accepts in [run] (besides ``kind``), with their defaults.
+RUN_SETTINGS = {
+    "ssp": {"structure": "fig7_slow", "stop_time": None, "step_size": 5e-4, "algorithm": "causal",
+            "reference": "staircase", "reference_input": "Controller.reference", "parameters": {}, "inputs": {},
+            "ramps": {}},
+    "calibration": {"shape": "paper", "sigma": [10.0, 100.0, 1000.0], "sigma_range": [1.0, 1e5], "points": 200,
+                    "nodes": 401},
+    "table1": {"case": "a", "shape": "paper", "nodes": 101, "steps_per_period": 256, "mass": None,
+               "frequency": None, "excitation": None},
+}
+# Names a grid or random draw may set for the non-SSP kinds (SSP runs take "Element.variable" and "inputs.X").
+SWEEPABLE = {
+    "calibration": ("shape", "points", "nodes", "sigma_range"),
+    "table1": ("case", "shape", "nodes", "steps_per_period", "mass", "frequency", "excitation"),
+}
+
+
+class SweepSpecError(NfalError, ValueError):
+    """A sweep spec cannot be read or names a bad key or value (the message says which)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep: its id, its swept parameters, and the run settings they apply to."""
+
+    run_id: str
+    index: int
+    parameters: dict
+    settings: dict
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """A parsed spec: the run kind and settings, the grid, the random draws, and where it came from."""
+
+    name: str
+    kind: str
+    settings: dict
+    grid: dict
+    random: dict
+    draws: int
+    seed: int | None
+    base_dir: Path
+
+    @property
+    def swept_names(self) -> list[str]:
+        """The parameter names that vary, grid first, in spec order."""
+        return list(self.grid) + list(self.random)
+
+    def runs(self) -> list[RunSpec]:
+        """Every run: the grid's combinations (in order) times the random draws."""
+        return expand(self)
+
+
+def canonical_json(data: object) -> str:
+    """Sorted keys, no spaces, floats by ``repr``: the same text for the same values everywhere."""
+    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def run_id(kind: str, settings: dict, parameters: dict) -> str:
+    """16 hex digits of the sha256 of the run's canonical JSON (kind, settings, parameters)."""
+    text = canonical_json({"kind": kind, "settings": settings, "parameters": parameters})
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def load_spec(path: str | os.PathLike) -> SweepSpec:
+    """Read and check a sweep spec from a TOML file (relative paths in it are relative to the file)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise SweepSpecError(f"{path}: cannot read the sweep spec ({exc.strerror or exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SweepSpecError(f"{path}: not valid TOML: {exc}") from None
+    return parse_spec(data, base_dir=path.parent, source=str(path))
+
+
+def parse_spec(data: dict, *, base_dir: str | os.PathLike = ".", source: str = "spec") -> SweepSpec:
+    """Check a spec given as a (TOML-decoded) mapping; see the module docstring for the format."""
+    unknown = set(data) - {"sweep", "run", "grid", "random"}
+    if unknown:
+        raise SweepSpecError(f"{source}: unknown table(s) {sorted(unknown)}; allowed: sweep, run, grid, random")
+    sweep = _table(data.get("sweep", {}), "sweep", source)
+    bad = set(sweep) - {"name"}
+    if bad:
+        raise SweepSpecError(f"{source}: [sweep] has unknown key(s) {sorted(bad)}; allowed: name")
+    run = dict(_table(data.get("run"), "run", source, required=True))
+    kind = run.pop("kind", None)
+    if kind not in KINDS:
+        raise SweepSpecError(f"{source}: [run] kind = {kind!r}; allowed: {', '.join(KINDS)}")
+    defaults = RUN_SETTINGS[kind]
+    bad = set(run) - set(defaults)
+    if bad:
+        raise SweepSpecError(f"{source}: [run] has unknown key(s) {sorted(bad)} for kind {kind!r}; "
+                             f"allowed: {', '.join(sorted(defaults))}")
+    settings = {**defaults, **run}
+    _check_settings(kind, settings, source)
+    grid = _parse_grid(_table(data.get("grid", {}), "grid", source), kind, source)
+    random_table = dict(_table(data.get("random", {}), "random", source))
+    draws = random_table.pop("draws", None)
+    seed = random_table.pop("seed", None)
+    random = {name: _parse_distribution(name, value, source) for name, value in random_table.items()}
+    for name in random:
+        _check_name(name, kind, source, "random")
+        if name in grid:
+            raise SweepSpecError(f"{source}: {name!r} is in both [grid] and [random]")
+    if random:
+        if not isinstance(draws, int) or isinstance(draws, bool) or draws < 1:
+            raise SweepSpecError(f"{source}: [random] draws = {draws!r}; must be a whole number >= 1")
+        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+            raise SweepSpecError(f"{source}: [random] seed = {seed!r}; must be a whole number >= 0 (runs are seeded)")
+    elif draws is not None or seed is not None:
+        raise SweepSpecError(f"{source}: [random] has draws/seed but no distributions")
+    if not grid and not random:
+        raise SweepSpecError(f"{source}: nothing to sweep; give a [grid] (name = [values]) or a [random] table")
+    name = sweep.get("name", Path(source).stem)
+    return SweepSpec(str(name), kind, settings, grid, random, int(draws or 1), seed, Path(base_dir))
+
+
+def _table(value, name: str, source: str, required: bool = False) -> dict:
+    if value is None and required:
+        raise SweepSpecError(f"{source}: missing the [{name}] table")
+    if not isinstance(value, dict):
+        raise SweepSpecError(f"{source}: [{name}] must be a table, not {type(value).__name__}")
+    return value
+
+
+def _check_settings(kind: str, settings: dict, source: str) -> None:
+    def number(key, positive=True, optional=False):
+        value = settings[key]
+        if value is None and optional:
+            return
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or (
+                positive and value <= 0):
+            raise SweepSpecError(f"{source}: [run] {key} = {value!r}; must be a {'positive ' if positive else ''}number")
+
+    if kind == "ssp":
+        number("stop_time", optional=True)
+        number("step_size")
+        for key in ("parameters", "inputs", "ramps"):
+            if not isinstance(settings[key], dict):
+                raise SweepSpecError(f"{source}: [run] {key} must be a table")
+        for key, value in settings["inputs"].items():
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise SweepSpecError(f"{source}: [run.inputs] {key} = {value!r}; must be a finite number (a constant)")
+        for key, ramp in settings["ramps"].items():
+            if not isinstance(ramp, dict) or set(ramp) - {"start_s", "duration_s", "initial"} or "duration_s" not in ramp:
+                raise SweepSpecError(f"{source}: [run.ramps] {key} = {ramp!r}; must be {{start_s, duration_s[, initial]}}")
+        reference = settings["reference"]
+        if not (reference in ("staircase", "none") or (isinstance(reference, dict) and "levels_m" in reference
+                                                       and set(reference) <= {"levels_m", "hold_s", "lead_s"})):
+            raise SweepSpecError(f"{source}: [run] reference = {reference!r}; must be \"staircase\", \"none\" or "
+                                 "{levels_m = [...], hold_s = ..., lead_s = ...}")
+    elif kind == "calibration":
+        sigma = settings["sigma"]
+        if not isinstance(sigma, list) or not sigma or not all(
+                isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0 for s in sigma):
+            raise SweepSpecError(f"{source}: [run] sigma = {sigma!r}; must be a list of positive squeeze numbers")
+
+
+def _check_name(name: str, kind: str, source: str, table: str) -> None:
+    if kind == "ssp":
+        if name.startswith("inputs."):
+            if len(name) > len("inputs."):
+                return
+        elif "." in name.strip(".") and not name.startswith("."):
+            return
+        raise SweepSpecError(f"{source}: [{table}] {name!r}: an SSP run sweeps \"Element.variable\" parameters or "
+                             "\"inputs.NAME\" (a constant, or a ramp's final value with [run.ramps])")
+    if name not in SWEEPABLE[kind]:
+        raise SweepSpecError(f"{source}: [{table}] {name!r} cannot be swept for kind {kind!r}; "
+                             f"allowed: {', '.join(SWEEPABLE[kind])}")
+
+
+def _parse_grid(grid: dict, kind: str, source: str) -> dict:
+    out = {}
+    for name, values in grid.items():
+        _check_name(name, kind, source, "grid")
+        if not isinstance(values, list) or not values:
+            raise SweepSpecError(f"{source}: [grid] {name} = {values!r}; must be a non-empty list of values")
+        for value in values:
+            if isinstance(value, float) and not math.isfinite(value):
+                raise SweepSpecError(f"{source}: [grid] {name} has a non-finite value {value!r}")
+            if not isinstance(value, (int, float, str, bool, list)):
+                raise SweepSpecError(f"{source}: [grid] {name} has a value {value!r} that is not a number, "
+                                     "string or Boolean")
+        out[name] = list(values)
+    return out
+
+
+def _parse_distribution(name: str, value, source: str) -> dict:
+    if not isinstance(value, dict):
+        raise SweepSpecError(f"{source}: [random] {name} = {value!r}; must be {{distribution = ..., ...}}")
+    distribution = value.get("distribution")
+    if distribution not in DISTRIBUTIONS:
+        raise SweepSpecError(f"{source}: [random] {name}: distribution = {distribution!r}; allowed: "
+                             f"{', '.join(DISTRIBUTIONS)}")
+    needed = DISTRIBUTIONS[distribution]
+    keys = set(value) - {"distribution"}
+    if keys != set(needed):
+        raise SweepSpecError(f"{source}: [random] {name}: a {distribution} distribution takes exactly "
+                             f"{', '.join(needed)} (got {', '.join(sorted(keys)) or 'nothing'})")
+    a, b = (value[k] for k in needed)
+    for key, number in zip(needed, (a, b)):
+        if not isinstance(number, (int, float)) or isinstance(number, bool) or not math.isfinite(number):
+            raise SweepSpecError(f"{source}: [random] {name}: {key} = {number!r}; must be a finite number")
+    if distribution == "normal" and not b > 0:
+        raise SweepSpecError(f"{source}: [random] {name}: std = {b!r}; must be > 0")
+    if distribution in ("uniform", "loguniform", "integers") and not a < b:
+        raise SweepSpecError(f"{source}: [random] {name}: low = {a!r} must be below high = {b!r}")
+    if distribution == "loguniform" and not a > 0:
+        raise SweepSpecError(f"{source}: [random] {name}: low = {a!r}; a loguniform distribution needs low > 0")
+    if distribution == "integers" and not (isinstance(a, int) and isinstance(b, int)):
+        raise SweepSpecError(f"{source}: [random] {name}: integers need whole-number low and high")
+    return {"distribution": distribution, **{k: value[k] for k in needed}}
+
+
+def draw(random: dict, draws: int, seed: int) -> list[dict]:
+    """``draws`` samples of every distribution (names in spec order), from ``default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    columns = {}
+    for name, d in random.items():
+        kind = d["distribution"]
+        if kind == "uniform":
+            values = rng.uniform(d["low"], d["high"], draws)
+        elif kind == "loguniform":
+            values = np.exp(rng.uniform(math.log(d["low"]), math.log(d["high"]), draws))
+        elif kind == "normal":
+            values = rng.normal(d["mean"], d["std"], draws)
+        else:
+            values = rng.integers(d["low"], d["high"], draws, endpoint=True)
+        columns[name] = [v.item() for v in values]
+    return [{name: columns[name][i] for name in random} for i in range(draws)]
+
+
+def expand(spec: SweepSpec) -> list[RunSpec]:
+    """The runs of ``spec``: every grid combination with every random draw, each with its stable id."""
+    names = list(spec.grid)
+    points = [dict(zip(names, combo)) for combo in itertools.product(*(spec.grid[n] for n in names))]
+    samples = draw(spec.random, spec.draws, spec.seed) if spec.random else [{}]
+    runs = []
+    seen = set()
+    for point in points:
+        for sample in samples:
+            parameters = {**point, **sample}
+            rid = run_id(spec.kind, spec.settings, parameters)
+            if rid in seen:
+                raise SweepSpecError(f"the spec gives the same run twice: {canonical_json(parameters)}")
+            seen.add(rid)
+            runs.append(RunSpec(rid, len(runs), parameters, spec.settings))
+    return runs

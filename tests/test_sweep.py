@@ -1,0 +1,366 @@
+"""Sweeps (``nfal sweep``): spec parsing, the Dask engine locally and on a real scheduler, restarts, failures."""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from nfal.orchestration.sweep import (Ramp, ResultsTable, SweepError, cached_structure, columns, read_table,
+                                      run_sweep, run_task)
+from nfal.orchestration.sweep_spec import SweepSpecError, expand, load_spec, parse_spec
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
+
+# 3 masses (one impossible: the run fails inside the worker) x 2 noise seeds, 0.15 s each.
+SMALL_SSP = {
+    "sweep": {"name": "small"},
+    "run": {"kind": "ssp", "structure": "fig7_slow", "stop_time": 0.15, "step_size": 5e-4,
+            "reference": {"levels_m": [100e-6, 140e-6], "hold_s": 0.1, "lead_s": 0.05}},
+    "grid": {"Plant.mass": [0.1347, 0.16, -1.0], "SensorChain.seed": [0, 1]},
+}
+METRICS = ("iae_m_s", "rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_m", "noise_rms_m")
+
+
+# ------------------------------------------------------------------------------------------- spec
+
+@pytest.mark.parametrize("name, runs", [("robustness.toml", 12), ("k_sigma.toml", 8), ("table1_grid.toml", 6)])
+def test_example_specs_expand(name, runs):
+    spec = load_spec(EXAMPLES / name)
+    expanded = spec.runs()
+    assert len(expanded) == runs
+    assert len({r.run_id for r in expanded}) == runs
+    assert [r.run_id for r in load_spec(EXAMPLES / name).runs()] == [r.run_id for r in expanded]
+
+
+BAD_SPECS = [
+    ({"run": {"kind": "fmu"}, "grid": {"a": [1]}}, "kind"),
+    ({"run": {"kind": "ssp", "stop": 1.0}, "grid": {"Plant.mass": [1]}}, "stop"),
+    ({"run": {"kind": "ssp", "stop_time": -1.0}, "grid": {"Plant.mass": [1]}}, "stop_time"),
+    ({"run": {"kind": "ssp"}, "grid": {"mass": [1]}}, "mass"),
+    ({"run": {"kind": "ssp"}, "grid": {"Plant.mass": 1.0}}, "Plant.mass"),
+    ({"run": {"kind": "ssp"}, "grid": {"Plant.mass": []}}, "Plant.mass"),
+    ({"run": {"kind": "ssp"}}, "nothing to sweep"),
+    ({"run": {"kind": "calibration"}, "grid": {"viscosity": [1.0]}}, "viscosity"),
+    ({"run": {"kind": "table1"}, "random": {"draws": 2, "mass": {"distribution": "uniform", "low": 1, "high": 2}}},
+     "seed"),
+    ({"run": {"kind": "table1"}, "random": {"draws": 0, "seed": 1,
+                                            "mass": {"distribution": "uniform", "low": 1, "high": 2}}}, "draws"),
+    ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
+                                            "mass": {"distribution": "gamma", "low": 1, "high": 2}}}, "gamma"),
+    ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
+                                            "mass": {"distribution": "uniform", "low": 2, "high": 1}}}, "low"),
+    ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
+                                            "mass": {"distribution": "loguniform", "low": 0, "high": 1}}}, "loguniform"),
+    ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
+                                            "mass": {"distribution": "normal", "mean": 1}}}, "std"),
+    ({"run": {"kind": "table1"}, "grid": {"mass": [1.0]}, "random": {
+        "draws": 2, "seed": 1, "mass": {"distribution": "uniform", "low": 1, "high": 2}}}, "both"),
+    ({"run": {"kind": "table1"}, "grid": {"case": ["a", "a"]}}, "twice"),
+    ({"run": {"kind": "ssp"}, "grid": {"Plant.mass": [1]}, "extra": {}}, "extra"),
+    ({"grid": {"Plant.mass": [1]}}, "[run]"),
+    ({"run": {"kind": "ssp", "inputs": {"ResonanceTracker.resonance_shift": "x"}}, "grid": {"Plant.mass": [1]}},
+     "resonance_shift"),
+    ({"run": {"kind": "ssp", "ramps": {"ResonanceTracker.resonance_shift": {"start_s": 0.1}}},
+      "grid": {"Plant.mass": [1]}}, "duration_s"),
+]
+
+
+@pytest.mark.parametrize("data, names", BAD_SPECS)
+def test_bad_specs_name_the_key(data, names):
+    with pytest.raises(SweepSpecError, match=names.replace("[", r"\[").replace("]", r"\]")):
+        parse_spec(data).runs()
+
+
+def test_bad_toml_is_a_spec_error(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text("[run\nkind = 'ssp'\n")
+    with pytest.raises(SweepSpecError, match="TOML"):
+        load_spec(path)
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid=st.dictionaries(st.sampled_from(["Plant.mass", "Controller.kp", "SensorChain.seed"]),
+                            st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=1, max_size=3, unique=True),
+                            min_size=1, max_size=3),
+       draws=st.integers(1, 4), seed=st.integers(0, 2**32))
+def test_expansion_is_complete_stable_and_seeded(grid, draws, seed):
+    data = {"run": {"kind": "ssp"}, "grid": grid,
+            "random": {"draws": draws, "seed": seed,
+                       "inputs.ResonanceTracker.resonance_shift": {"distribution": "normal", "mean": 0.0, "std": 20.0}}}
+    runs = parse_spec(data).runs()
+    assert len(runs) == math.prod(len(v) for v in grid.values()) * draws
+    assert len({r.run_id for r in runs}) == len(runs)
+    again = parse_spec(data).runs()
+    assert [(r.run_id, r.parameters) for r in again] == [(r.run_id, r.parameters) for r in runs]
+
+
+def test_random_draws_depend_on_the_seed():
+    def shifts(seed):
+        data = {"run": {"kind": "table1"}, "random": {"draws": 3, "seed": seed,
+                                                      "mass": {"distribution": "uniform", "low": 1, "high": 2}}}
+        return [r.parameters["mass"] for r in expand(parse_spec(data))]
+
+    assert shifts(1) == shifts(1)
+    assert shifts(1) != shifts(2)
+    assert all(1 <= m <= 2 for m in shifts(3))
+
+
+# ------------------------------------------------------------------------------------------- pieces
+
+def test_ramp_holds_ramps_and_holds():
+    ramp = Ramp(0.0, 10.0, 1.0, 2.0)
+    assert [ramp(t) for t in (0.0, 1.0, 2.0, 3.0, 9.0)] == [0.0, 0.0, 5.0, 10.0, 10.0]
+
+
+def test_cached_structure_checks_the_hash_and_unpacks_the_fmus(tmp_path, fig7_archives):
+    import hashlib
+
+    data = fig7_archives["fig7_slow"].read_bytes()
+    sha = hashlib.sha256(data).hexdigest()
+    folder = cached_structure(data, sha, cache_dir=tmp_path)
+    assert (folder / "SystemStructure.ssd").is_file()
+    assert (folder / "resources" / "SlowPlant.fmu" / "modelDescription.xml").is_file()
+    assert cached_structure(data, sha, cache_dir=tmp_path) == folder
+    (folder / ".sha256").write_text("0" * 64)  # an incomplete or foreign cache entry is rebuilt
+    assert cached_structure(data, sha, cache_dir=tmp_path) == folder
+    assert (folder / ".sha256").read_text().strip() == sha
+    with pytest.raises(SweepError, match="sha256"):
+        cached_structure(data[:-1], sha, cache_dir=tmp_path / "other")
+
+
+def test_a_task_runs_in_process_with_a_ramped_input(fig7_archives):
+    import hashlib
+
+    data = fig7_archives["fig7_slow"].read_bytes()
+    spec = parse_spec({**SMALL_SSP, "run": {**SMALL_SSP["run"], "inputs": {"ResonanceTracker.resonance_shift": 0.0},
+                                           "ramps": {"ResonanceTracker.resonance_shift": {"duration_s": 0.1}}},
+                       "grid": {"inputs.ResonanceTracker.resonance_shift": [0.0, 300.0]}})
+    rows = [run_task(run, "ssp", data, hashlib.sha256(data).hexdigest()) for run in spec.runs()]
+    assert [r["status"] for r in rows] == ["ok", "ok"], rows
+    assert rows[1]["iae_m_s"] != rows[0]["iae_m_s"]  # the drift reached the loop
+    bad = run_task(spec.runs()[0], "ssp", data, "0" * 64)
+    assert bad["status"] == "failed" and "sha256" in bad["error"]
+
+
+def test_results_table_drops_a_cut_off_last_row(tmp_path):
+    spec = parse_spec(SMALL_SSP)
+    header = columns(spec)
+    path = tmp_path / "results.csv"
+    table = ResultsTable(path, header)
+    table.append({"run_id": "r1", "index": 0, "status": "ok", "iae_m_s": 1.5})
+    table.close()
+    with path.open("a") as handle:
+        handle.write("r2,1,ok,,0.3")  # killed mid-row
+    again = ResultsTable(path, header)
+    again.close()
+    assert set(again.finished) == {"r1"}
+    assert path.read_text().endswith("\n")
+    with pytest.raises(SweepError, match="another sweep"):
+        ResultsTable(path, header[:-1])
+
+
+# ------------------------------------------------------------------------------------------- engine
+
+@pytest.fixture(scope="module")
+def small_spec():
+    return parse_spec(SMALL_SSP)
+
+
+@pytest.fixture(scope="module")
+def local_sweep(small_spec, fig7_archives, tmp_path_factory):
+    return run_sweep(small_spec, tmp_path_factory.mktemp("local"), workers=2, archives=fig7_archives)
+
+
+def _by_id(rows):
+    return {r["run_id"]: r for r in rows}
+
+
+def test_local_sweep_writes_one_row_per_run(local_sweep, small_spec):
+    rows = local_sweep.rows()
+    assert [r["run_id"] for r in rows] == [r.run_id for r in small_spec.runs()]
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert len(ok) == 4
+    for row in ok:
+        assert all(math.isfinite(row[m]) for m in METRICS)
+        assert 0 < row["rise_time_s"] < 0.1 and row["wall_time_s"] > 0
+    assert local_sweep.summary["ok"] == 4 and local_sweep.summary["failed"] == 2
+    assert local_sweep.plot_path is not None and local_sweep.plot_path.stat().st_size > 0
+
+
+def test_a_run_that_raises_in_a_worker_is_a_row(local_sweep):
+    failed = [r for r in local_sweep.rows() if r["status"] == "failed"]
+    assert [r["param:Plant.mass"] for r in failed] == [-1.0, -1.0]
+    assert all(r["error"] and r["iae_m_s"] is None for r in failed)
+
+
+def test_heavier_plant_rises_slower(local_sweep):
+    rows = [r for r in local_sweep.rows() if r["status"] == "ok" and r["param:SensorChain.seed"] == 0]
+    by_mass = sorted(rows, key=lambda r: r["param:Plant.mass"])
+    assert by_mass[0]["rise_time_s"] < by_mass[1]["rise_time_s"]
+
+
+def test_interrupted_sweep_resumes_without_repeating(small_spec, fig7_archives, tmp_path, local_sweep):
+    first: list[str] = []
+
+    def interrupt_after_two(row):
+        first.append(row["run_id"])
+        if len(first) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(small_spec, tmp_path, workers=1, archives=fig7_archives, on_row=interrupt_after_two, plot=False)
+    assert [r["run_id"] for r in read_table(tmp_path / "results.csv")] == sorted(
+        first, key=lambda rid: next(r.index for r in small_spec.runs() if r.run_id == rid))
+    second: list[str] = []
+    result = run_sweep(small_spec, tmp_path, workers=2, archives=fig7_archives, on_row=lambda r: second.append(r["run_id"]))
+    assert result.summary["skipped"] == 2 and result.summary["new"] == 4
+    assert not set(first) & set(second)
+    rows = result.rows()
+    assert sorted(r["run_id"] for r in rows) == sorted(r.run_id for r in small_spec.runs())
+    _assert_same_table(rows, local_sweep.rows())
+    third = run_sweep(small_spec, tmp_path, workers=1, archives=fig7_archives, plot=False)
+    assert third.summary["new"] == 0 and len(third.rows()) == 6
+
+
+def _assert_same_table(rows, reference):
+    reference = _by_id(reference)
+    assert set(_by_id(rows)) == set(reference)
+    for row in rows:
+        expected = reference[row["run_id"]]
+        assert row["status"] == expected["status"]
+        assert {k: v for k, v in row.items() if k.startswith("param:")} == \
+            {k: v for k, v in expected.items() if k.startswith("param:")}
+        for metric in METRICS:
+            if expected[metric] is None:
+                assert row[metric] is None
+            else:
+                assert row[metric] == pytest.approx(expected[metric], rel=1e-12, abs=0)
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def dask_cluster(tmp_path):
+    """A real ``dask scheduler`` and two ``dask worker`` processes on loopback (no shared folder)."""
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    dask = [sys.executable, "-m", "dask"]
+    logs = [open(tmp_path / f"{name}.log", "w") for name in ("scheduler", "worker0", "worker1")]
+    processes = [subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                                  stdout=logs[0], stderr=subprocess.STDOUT)]
+    try:
+        for i in (0, 1):
+            local = tmp_path / f"worker{i}"
+            local.mkdir()
+            processes.append(subprocess.Popen(
+                dask + ["worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--no-nanny",
+                        "--local-directory", str(local)], stdout=logs[i + 1], stderr=subprocess.STDOUT))
+        from dask.distributed import Client
+
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with Client(address, timeout="5s") as client:
+                    client.wait_for_workers(2, timeout=60)
+                break
+            except (OSError, TimeoutError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.3)
+        yield address
+    finally:
+        for process in reversed(processes):
+            process.terminate()
+        for process in processes:
+            try:
+                process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        for log in logs:
+            log.close()
+
+
+def test_scheduler_sweep_gives_the_local_table(dask_cluster, small_spec, fig7_archives, local_sweep, tmp_path):
+    result = run_sweep(small_spec, tmp_path / "remote", scheduler=dask_cluster, archives=fig7_archives, plot=False)
+    assert result.summary["workers"] == 2 and result.summary["scheduler"] == dask_cluster
+    rows = result.rows()
+    assert len({r["worker"] for r in rows if r["status"] == "ok"}) == 2  # both workers ran some
+    _assert_same_table(rows, local_sweep.rows())
+
+
+def test_cli_sweep_calibration(tmp_path, capsys):
+    import json
+
+    from nfal.cli import main
+
+    spec = tmp_path / "k.toml"
+    spec.write_text('[sweep]\nname = "k"\n[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 40\n'
+                    '[grid]\nshape = ["piston", "plate:1", "nonsense"]\nnodes = [101]\n')
+    code = main(["sweep", str(spec), "--workers", "1", "--out", str(tmp_path / "out"), "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 1 and summary["ok"] == 2 and summary["failed"] == 1
+    rows = read_table(tmp_path / "out" / "results.csv")
+    piston = next(r for r in rows if r["param:shape"] == "piston")
+    assert 0 < piston["K_at_sigma_10"] < piston["K_at_sigma_100"] < 1.3
+    assert "nonsense" in next(r for r in rows if r["status"] == "failed")["error"]
+    assert main(["sweep", str(tmp_path / "missing.toml")]) == 2
+
+
+def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7_archives, small_spec):
+    """SIGKILL the whole ``nfal sweep`` process group once two rows are written, then run the spec again."""
+    import os
+    import signal
+
+    spec_path = tmp_path / "small.toml"
+    spec_path.write_text(
+        f'[sweep]\nname = "small"\n[run]\nkind = "ssp"\nstructure = "{fig7_archives["fig7_slow"]}"\nstop_time = 0.15\n'
+        'step_size = 5e-4\nreference = {levels_m = [100e-6, 140e-6], hold_s = 0.1, lead_s = 0.05}\n'
+        '[grid]\n"Plant.mass" = [0.1347, 0.16, -1.0]\n"SensorChain.seed" = [0, 1]\n')
+    out = tmp_path / "out"
+    process = subprocess.Popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "1", "--out", str(out)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    csv_path = out / "results.csv"
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline and process.poll() is None:
+            if csv_path.exists() and csv_path.read_text().count("\n") >= 3:  # header + 2 rows
+                break
+            time.sleep(0.05)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=15)
+    before = {r["run_id"] for r in read_table(csv_path)}
+    assert 2 <= len(before) < 6
+    spec = load_spec(spec_path)
+    again: list[str] = []
+    result = run_sweep(spec, out, workers=1, plot=False, on_row=lambda r: again.append(r["run_id"]))
+    assert not before & set(again)
+    ids = [r["run_id"] for r in result.rows()]
+    assert len(ids) == len(set(ids)) == 6 and set(ids) == {r.run_id for r in spec.runs()}
+
+
+def test_an_extended_spec_skips_its_old_runs_and_a_changed_one_keeps_their_rows(tmp_path):
+    data = {"sweep": {"name": "k"}, "run": {"kind": "calibration", "sigma": [10.0], "points": 20},
+            "grid": {"shape": ["piston"], "nodes": [51]}}
+    first = run_sweep(parse_spec(data), tmp_path, workers=1, plot=False)
+    data["grid"]["nodes"] = [51, 61]  # extended: the old run keeps its id and is skipped
+    extended = run_sweep(parse_spec(data), tmp_path, workers=1, plot=False)
+    data["run"]["points"] = 30       # changed settings: new ids; the old rows belong to another spec
+    changed = run_sweep(parse_spec(data), tmp_path, workers=1, plot=False)
+    assert first.summary["ok"] == 1
+    assert (extended.summary["skipped"], extended.summary["new"], extended.summary["ok"]) == (1, 1, 2)
+    assert (changed.summary["skipped"], changed.summary["other_rows"], changed.summary["ok"]) == (0, 2, 2)
+    assert len(changed.rows()) == 4
