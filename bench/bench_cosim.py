@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from machine import describe
 
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
@@ -38,16 +38,6 @@ from nfal.orchestration.ssp import read_ssp
 
 STEP = 5e-4
 REFERENCE = "Controller.reference"
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as handle:
-            cpu = next(line.split(":", 1)[1].strip() for line in handle if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{cpu}, nproc = {os.cpu_count()}, Python {platform.python_version()}"
 
 
 def load() -> str:
@@ -354,7 +344,7 @@ def main() -> None:
     stop = 0.3 if args.quick else Staircase().duration_s
     steps = int(round(stop / STEP))
     fmu_steps = 4 * steps
-    print(f"Machine: {machine()}; {load()} at the start", flush=True)
+    print(f"Machine: {describe()}; {load()} at the start", flush=True)
     holder = tempfile.TemporaryDirectory(prefix="nfal-bench-cosim-")  # removed at the end
     tmp = Path(holder.name)
     # (5) nfal run end to end from an empty build folder; its archive serves every other case.

@@ -14,10 +14,10 @@ import os
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from machine import describe  # noqa: E402
 
 from nfal.models.calibration import perturbation_calibration  # noqa: E402
 from nfal.models.coupled import CoupledModel  # noqa: E402
@@ -26,16 +26,6 @@ from nfal.models.perturbation import perturbation_K  # noqa: E402
 from nfal.models.plant import SimplifiedPlant  # noqa: E402
 from nfal.models.reynolds import time_marching_K  # noqa: E402
 from nfal.models.rig import RigParameters  # noqa: E402
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as handle:
-            cpu = next(line.split(":", 1)[1].strip() for line in handle if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{cpu}, nproc = {os.cpu_count()}, Python {platform.python_version()}, NUMBA_NUM_THREADS = {os.environ['NUMBA_NUM_THREADS']}"
 
 
 def timed(function, *args, **kwargs):
@@ -101,7 +91,7 @@ def main() -> None:
     args = parser.parse_args()
     shape = paper_shape()
     rows = bench_K(shape) + bench_coupled(shape, args.quick)
-    print(f"Machine: {machine()}\n")
+    print(f"Machine: {describe()}, NUMBA_NUM_THREADS = {os.environ['NUMBA_NUM_THREADS']}\n")
     print("| case | wall time [s] | ratio | notes |")
     print("|---|---:|---:|---|")
     for name, seconds, ratio, notes in rows:

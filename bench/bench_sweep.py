@@ -17,12 +17,11 @@ times) / runs: scheduling, shipping, result rows, idle tail.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
+from machine import describe
 from nfal.build import build_all
 from nfal.orchestration.sweep import read_table, run_sweep
 from nfal.orchestration.sweep_spec import parse_spec
@@ -74,7 +73,7 @@ def main() -> None:
         results = [measure(sweep, archives, n, Path(tmp) / f"w{n}") for n in (1, 2)]
     one, two = results
     same = all(a["iae_m_s"] == b["iae_m_s"] for a, b in zip(one["rows"], two["rows"]))
-    print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
+    print(f"{describe()}; "
           f"{len(one['rows'])} runs of {args.stop_time:g} s (0.5 ms steps); tables identical: {same}\n")
     print("| workers | startup [s] | warm-up [s] | sweep wall [s] | task mean [s] | overhead per task [ms] | ok |")
     print("|---|---|---|---|---|---|---|")

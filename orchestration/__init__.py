@@ -5,6 +5,9 @@ against the FMUs and flattens them; :mod:`.schedule` orders the exchange at a co
 :mod:`.master` runs the FMUs (algorithms ``causal`` and ``jacobi``); :mod:`.signals` makes reference
 inputs; :mod:`.results` writes and reads the CSV, ``summary.json`` and the plot; :mod:`.pacing`
 releases steps on the wall clock; :mod:`.run` ties them together in :func:`run_structure`.
+:mod:`.ssp_archive` packs SSP archives and :mod:`.ssp_schema` checks them against the SSP 1.0
+schemas; :mod:`.libcosim` runs an archive in OSP libcosim; :mod:`.sweep_spec` and :mod:`.sweep` run
+many runs on Dask.
 """
 
 from .errors import (AlgebraicLoopError, CausalityError, FmuCallError, MissingFmuError, OrchestrationError,
