@@ -51,6 +51,15 @@ class Staircase:
         """Times [s] of the steps (one fewer than the levels)."""
         return self.lead_s + self.hold_s * np.arange(len(self.levels_m) - 1)
 
+    def completed_by(self, stop_time_s: float | None) -> "Staircase | None":
+        """The staircase cut to the steps whose holds end by ``stop_time_s`` [s] (None: no step does)."""
+        if stop_time_s is None or stop_time_s >= self.duration_s - 1e-9:
+            return self
+        levels = int((stop_time_s - self.lead_s) / self.hold_s + 1e-9) + 1
+        if levels < 2:
+            return None
+        return Staircase(self.levels_m[:levels], hold_s=self.hold_s, lead_s=self.lead_s)
+
     def samples(self, sample_rate_hz: float) -> int:
         """Number of controller samples in the run at ``sample_rate_hz`` [Hz]."""
         return int(round(self.duration_s * require_positive("sample_rate_hz", sample_rate_hz)))

@@ -142,18 +142,6 @@ def _staircase(reference):
     return Staircase(tuple(reference["levels_m"]), **{k: reference[k] for k in ("hold_s", "lead_s") if k in reference})
 
 
-def _completed(staircase, stop_time: float):
-    """The steps of ``staircase`` whose holds end by ``stop_time`` (None if none does)."""
-    from nfal.models.closed_loop import Staircase
-
-    if stop_time >= staircase.duration_s - 1e-9:
-        return staircase
-    levels = int((stop_time - staircase.lead_s) / staircase.hold_s + 1e-9) + 1
-    if levels < 2:
-        return None
-    return Staircase(staircase.levels_m[:levels], hold_s=staircase.hold_s, lead_s=staircase.lead_s)
-
-
 def loop_summary(table, staircase) -> dict:
     """The sweep's metrics of a Fig. 7 run: IAE, the worst step's rise/settling time and overshoot,
     the final hold's steady-state error |mean(height - reference)| over its last quarter, mean noise."""
@@ -196,7 +184,7 @@ def ssp_task(run: RunSpec, archive: bytes, sha256: str) -> dict:
     if staircase is not None:
         inputs.setdefault(settings["reference_input"], staircase)
     stop_time = settings["stop_time"] or (staircase.duration_s if staircase is not None else None)
-    completed = _completed(staircase, stop_time) if staircase is not None and stop_time else None
+    completed = staircase.completed_by(stop_time) if staircase is not None and stop_time else None
     with tempfile.TemporaryDirectory(prefix="nfal-sweep-run-") as out:
         result = run_structure(path, stop_time=stop_time, step_size=settings["step_size"], inputs=inputs,
                                parameters=parameters, algorithm=settings["algorithm"], out_dir=out, plot=False,

@@ -200,3 +200,10 @@ def test_fixed_step_advance_matches_adaptive_advance_over_random_states():
         state = PlantState(h, v)
         errors.append(abs(fast.advance(state, a, 5e-4).height - PLANT.advance(state, a, 5e-4).height))
     assert max(errors) < 1e-10
+
+
+@pytest.mark.parametrize("stop_s, levels", [(None, 7), (3.7, 7), (0.7, 2), (1.29, 2), (1.3, 3), (0.5, None), (0.05, None)])
+def test_staircase_completed_by(stop_s, levels):
+    """The steps whose holds end by the stop time: what a shortened run can report metrics for."""
+    cut = Staircase().completed_by(stop_s)
+    assert (cut is None) if levels is None else (len(cut.levels_m) == levels and cut.duration_s <= (stop_s or 3.7) + 1e-9)

@@ -129,7 +129,7 @@ def run_run(args: argparse.Namespace) -> int:
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
     fig7 = args.reference_input == REFERENCE_INPUT
-    completed = _completed_steps(reference, stop_time) if fig7 else None
+    completed = reference.completed_by(stop_time) if fig7 and isinstance(reference, Staircase) else None
     metrics = None if completed is None else (lambda table: loop_metrics(table, completed))
     try:
         result = run_structure(structure, stop_time=stop_time, step_size=args.step, inputs=inputs, parameters=parameters,
@@ -141,20 +141,6 @@ def run_run(args: argparse.Namespace) -> int:
         raise
     _report(result.summary, out, args.json)
     return 0
-
-
-def _completed_steps(reference, stop_time: float | None):
-    """The part of a staircase reference whose holds end by ``stop_time`` (None if no step completes)."""
-    from nfal.models.closed_loop import Staircase
-
-    if not isinstance(reference, Staircase):
-        return None
-    if stop_time is None or stop_time >= reference.duration_s - 1e-9:
-        return reference
-    levels = int((stop_time - reference.lead_s) / reference.hold_s + 1e-9) + 1
-    if levels < 2:
-        return None
-    return Staircase(reference.levels_m[:levels], hold_s=reference.hold_s, lead_s=reference.lead_s)
 
 
 def _report(summary: dict, out: Path, as_json: bool) -> None:
