@@ -388,7 +388,7 @@ class NfalSlave(Fmi2Slave):
         """Log why a call fails and keep the wrapper's reference counting from freeing the instance."""
         reason = str(exc) or type(exc).__name__
         message = f"{self.instance_name}: {what} failed: {reason}"
-        logger.info(message)
+        logger.error(message)
         self.log(message, Fmi2Status.error)
         if self._in_wrapper:
             # pythonfmu's handle_py_exception Py_XDECREFs pClass_, pInstance_ and pMessages_, which the
@@ -421,7 +421,7 @@ class NfalSlave(Fmi2Slave):
         self._guard("exit_initialization_mode (checking the parameters)", run)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        def run():
+        try:  # not through _guard: the hot path builds no closure and no message unless it fails
             if not self.initialized:
                 raise InvalidParameterError("doStep", current_time, "called after initialisation ends")
             if not (math.isfinite(step_size) and step_size > 0):
@@ -429,7 +429,9 @@ class NfalSlave(Fmi2Slave):
             self.step(float(current_time), float(step_size))
             self.time = float(current_time) + float(step_size)
             return True
-        return self._guard(f"doStep at t = {current_time:.9g} s", run)
+        except Exception as exc:  # noqa: BLE001 - every error must reach the master as a logged FMI status
+            self._fail(f"doStep at t = {current_time:.9g} s", exc)
+            raise
 
     def terminate(self) -> None:
         pass
@@ -473,10 +475,14 @@ class NfalSlave(Fmi2Slave):
                 raise FmuStateError(state.get("invalid") if isinstance(state, dict) else "not an FMU state")
             if state.get("model") != self.modelName:
                 raise FmuStateError(f"a state of {state.get('model')!r}, not of {self.modelName}")
-            for name, value in state["variables"].items():
-                if name in self._declarations:
-                    setattr(self, name, value)
+            variables = {name: value for name, value in state["variables"].items() if name in self._declarations}
+            for name, value in variables.items():
+                setattr(self, name, value)
             self.time, self.start_time = float(state["time"]), float(state["start_time"])
+            if state["initialized"] and not self.initialized:  # a fresh instance: build its models first
+                self.setup()
+                for name, value in variables.items():
+                    setattr(self, name, value)
             self.initialized = bool(state["initialized"])
             self.set_internal_state(copy.deepcopy(state["internal"]))
         self._guard("setFMUstate", run)
