@@ -63,6 +63,7 @@ class ResonanceTracker(NfalSlave):
         self._tracker: pll_model.ResonanceTracker | None = None
         self._clock: SampleClock | None = None
         self._state: pll_model.TrackerState | None = None
+        self._last_outputs: tuple | None = None  # ((state, inputs, time), outputs)
 
     # --- model ------------------------------------------------------------------------------------------
     def _build(self) -> None:
@@ -84,8 +85,13 @@ class ResonanceTracker(NfalSlave):
     def _outputs(self) -> pll_model.TrackerOutputs:
         if self._state is None:  # before initialisation ends: the start values
             return pll_model.TrackerOutputs(0.0, float(self.resonance_frequency), False, 0.0)
-        return self._tracker.outputs(self._state, self.drive_voltage, self.resonance_shift,
-                                     at_sample=self._clock.is_sample(self.time))
+        key = (self._state, self.drive_voltage, self.resonance_shift, self.time)
+        cached = self._last_outputs
+        if cached is None or cached[0][0] is not key[0] or cached[0][1:] != key[1:]:
+            # once per (state, inputs, time): a master reads the four outputs one by one
+            cached = self._last_outputs = (key, self._tracker.outputs(
+                self._state, self.drive_voltage, self.resonance_shift, at_sample=self._clock.is_sample(self.time)))
+        return cached[1]
 
     def step(self, current_time: float, step_size: float) -> None:
         self._clock.check_step(step_size)
