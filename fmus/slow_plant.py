@@ -10,6 +10,14 @@ from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE`` (f
 Outputs come from the state alone (no feedthrough). Lift-off from rest: when the held |a| already
 pushes harder than gravity at the rest gap at the start of a step, the object leaves the surface at
 that instant (:meth:`SimplifiedPlant.advance` decides rest and lift-off at the start of each step).
+
+``excess_damping_height`` > 0 scales eq. (6)'s damping by 1 + (h / excess_damping_height)^excess_damping_exponent
+(:class:`~nfal.models.plant.ExcessDamping`, Sec. 3.3): a "truth" plant damped like the rig at large gaps.
+The rig-like choice is 137e-6 m and 6; 0 (the default) leaves eq. (6) as it is.
+
+``near_surface`` = "fast" swaps the exact event-handling integrator near the surface (about 4 ms per step
+at lift-off) for the fast one of :mod:`nfal.models.fixed_step_plant` (a few us, within 1 % of the
+clearance): what the real-time rig emulator needs.
 """
 
 from __future__ import annotations
@@ -17,8 +25,9 @@ from __future__ import annotations
 import math
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
+from nfal.models.errors import InvalidParameterError, require_finite
 from nfal.models.fixed_step_plant import FixedStepPlant
-from nfal.models.plant import PlantState, SimplifiedPlant
+from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
 
 
 class SlowPlant(NfalSlave):
@@ -30,7 +39,15 @@ class SlowPlant(NfalSlave):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self.add_plant_interface()
+        self.add_parameter("excess_damping_height", 0.0, unit="m",
+                           description="empirical excess damping (Sec. 3.3): eq. (6)'s damping times 1 + (h / this)"
+                           "^excess_damping_exponent; 0 = none, rig-like 137e-6")
+        self.add_parameter("excess_damping_exponent", 6.0, unit="1",
+                           description="exponent (>= 1) of the excess damping; used when excess_damping_height > 0")
+        self.add_parameter("near_surface", "exact", description="integrator below 3 rest gaps: 'exact' (event "
+                           "handling, slow) or 'fast' (exponential Euler, real-time capable)")
         self._calibration = None
+        self._excess_damping: ExcessDamping | None = None
         self._plant: FixedStepPlant | None = None
         self._plant_frequency = math.nan
 
@@ -39,13 +56,27 @@ class SlowPlant(NfalSlave):
         _, height, velocity = self.checked_release()
         self.build_rig()  # checks the rig parameters under their FMU names
         self._calibration = self.build_calibration()
+        self._excess_damping = self.checked_excess_damping()
         self._rebuild(self.checked_frequency())
         self.height, self.velocity = height, velocity
         self.resting = self._plant.plant.rests(PlantState(self.height, self.velocity), self.checked_excitation())
 
+    def checked_excess_damping(self) -> ExcessDamping | None:
+        """The excess damping the parameters ask for (None when ``excess_damping_height`` is 0), checked."""
+        height = require_finite("excess_damping_height", self.excess_damping_height, "a finite height >= 0 m (0: none)")
+        if height < 0.0:
+            raise InvalidParameterError("excess_damping_height", height, "a finite height >= 0 m (0: none)")
+        if height == 0.0:
+            return None
+        exponent = require_finite("excess_damping_exponent", self.excess_damping_exponent, "a finite number >= 1")
+        if exponent < 1.0:
+            raise InvalidParameterError("excess_damping_exponent", exponent, "a finite number >= 1")
+        return ExcessDamping(height, exponent)
+
     def _rebuild(self, frequency: float) -> None:
-        plant = SimplifiedPlant(self.build_rig(frequency), self._calibration, rest_gap=self.rest_gap)
-        self._plant, self._plant_frequency = FixedStepPlant(plant), frequency
+        plant = SimplifiedPlant(self.build_rig(frequency), self._calibration, rest_gap=self.rest_gap,
+                                excess_damping=self._excess_damping)
+        self._plant, self._plant_frequency = FixedStepPlant(plant, near_surface=str(self.near_surface)), frequency
 
     def step(self, current_time: float, step_size: float) -> None:
         excitation = self.checked_excitation()

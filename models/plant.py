@@ -6,7 +6,8 @@ is eq. (13) multiplied by m omega^2 h0 (``rhs_nondimensional`` is eq. 13 itself)
 come closer to the driving surface than ``rest_gap``: it lands there (inelastically), rests while the
 levitation force is below its weight, and lifts off when the force returns. A state that rests, or that
 is at rest_gap with velocity <= 0, is on the surface: from it the object lifts off at once (from rest_gap,
-at rest) if the film force there beats its weight, and rests otherwise.
+at rest) if the film force there beats its weight, and rests otherwise. An optional :class:`ExcessDamping`
+scales the damping of eq. (6) up at large gaps, as the rig shows (Sec. 3.3).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from scipy import integrate, optimize
 
 from .calibration import CalibrationFunction
-from .errors import ConvergenceError, InvalidParameterError, require_positive
+from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .rig import RigParameters
 
 Excitation = float | Callable[[float], float]
@@ -32,6 +33,46 @@ MAX_EVENTS = 10_000
 #: 5 um) can turn the first step of a lift-off downwards, into a touchdown at the same instant, again and
 #: again; the creep it forgoes is ~ margin x m g / c (~3e-16 m/s at 5 um).
 LIFT_OFF_MARGIN = 1e-9
+#: The "rig-like" excess damping (:meth:`ExcessDamping.rig_like`): factor 1.007 at 60 um, 1.15 at 100 um,
+#: 8.1 at 190 um: the 10-90 % rise to 190 um is 7-9x slower (from 150-170 um, tests/test_excess_damping.py), near
+#: the ~9x of Sec. 3.3. Not in the paper.
+RIG_LIKE_EXCESS_HEIGHT = 137e-6
+RIG_LIKE_EXCESS_EXPONENT = 6.0
+
+
+@dataclasses.dataclass(frozen=True)
+class ExcessDamping:
+    """Empirical correction of eq. (6): the damping c(h) becomes c(h) (1 + (h / height)^exponent).
+
+    Sec. 3.3: the theoretical damping fits the rig at low gaps but underestimates it at large ones (near
+    190 um the predicted rise time is about 9x shorter than measured). The form and numbers are ours.
+
+    Parameters
+    ----------
+    height : float
+        Clearance [m] at which the damping is doubled (> 0).
+    exponent : float
+        How sharply the excess grows with the clearance (>= 1).
+    """
+
+    height: float
+    exponent: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "height", require_positive("excess damping height", self.height))
+        exponent = require_finite("excess damping exponent", self.exponent, "a finite number >= 1")
+        if exponent < 1.0:
+            raise InvalidParameterError("excess damping exponent", self.exponent, "a finite number >= 1")
+        object.__setattr__(self, "exponent", exponent)
+
+    @classmethod
+    def rig_like(cls) -> "ExcessDamping":
+        """The default rig-like correction: height 137 um, exponent 6."""
+        return cls(RIG_LIKE_EXCESS_HEIGHT, RIG_LIKE_EXCESS_EXPONENT)
+
+    def factor(self, height):
+        """1 + (h / height)^exponent at the clearance(s) ``height`` [m]."""
+        return 1.0 + (np.asarray(height, dtype=float) / self.height) ** self.exponent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,12 +104,18 @@ class SimplifiedPlant:
         Any K source: eq. (17), a table, or the perturbation route.
     rest_gap : float
         Closest approach to the driving surface [m].
+    excess_damping : ExcessDamping or None
+        Empirical scaling of eq. (6)'s damping at large gaps (Sec. 3.3); None: eq. (6) as it is.
     """
 
-    def __init__(self, rig: RigParameters, calibration: CalibrationFunction, rest_gap: float = DEFAULT_REST_GAP) -> None:
+    def __init__(self, rig: RigParameters, calibration: CalibrationFunction, rest_gap: float = DEFAULT_REST_GAP,
+                 *, excess_damping: ExcessDamping | None = None) -> None:
         self.rig, self.calibration = rig, calibration
         self.rest_gap = require_positive("rest_gap", rest_gap)
         self.weight = rig.mass * rig.gravity
+        if excess_damping is not None and not isinstance(excess_damping, ExcessDamping):
+            raise InvalidParameterError("excess_damping", excess_damping, "an ExcessDamping or None")
+        self.excess_damping = excess_damping
 
     # --- forces -------------------------------------------------------------------------------
     def levitation_force(self, height, excitation):
@@ -77,9 +124,16 @@ class SimplifiedPlant:
         delta = np.asarray(excitation, dtype=float) / height
         return self.rig.film_force_scale * delta**2 * self.calibration(self.rig.squeeze_number(height))
 
+    def squeeze_film_damping(self, height):
+        """Damping coefficient [N s/m] of eq. (6), times ``excess_damping.factor`` when one is given."""
+        damping = self.rig.squeeze_film_damping(height)
+        if self.excess_damping is not None:
+            damping = damping * self.excess_damping.factor(height)
+        return damping
+
     def damping_force(self, height, velocity):
-        """Squeeze-film damping force [N] of eq. (6)."""
-        return -self.rig.squeeze_film_damping(height) * np.asarray(velocity, dtype=float)
+        """Squeeze-film damping force [N] of eq. (6) (with the excess damping, if any)."""
+        return -self.squeeze_film_damping(height) * np.asarray(velocity, dtype=float)
 
     def acceleration(self, height, velocity, excitation):
         """h'' [m/s^2] in free flight."""
@@ -87,11 +141,16 @@ class SimplifiedPlant:
         return net / self.rig.mass
 
     def rhs_nondimensional(self, T: float, state, u: float):
-        """Eq. (13) in the paper's variables: state (Hbar, dHbar/dT), excitation u = |a| / h0."""
+        """Eq. (13) in the paper's variables: state (Hbar, dHbar/dT), excitation u = |a| / h0.
+
+        With ``excess_damping``, C_d is multiplied by its factor at h = Hbar h0."""
         rig = self.rig
         H, dH = state
         K = self.calibration(rig.squeeze_number(H * rig.reference_clearance))
-        return np.array([dH, rig.stiffness_coefficient * u**2 * K / H**2 - rig.damping_coefficient / H**3 * dH - rig.gravity_term])
+        damping = rig.damping_coefficient / H**3
+        if self.excess_damping is not None:
+            damping = damping * self.excess_damping.factor(H * rig.reference_clearance)
+        return np.array([dH, rig.stiffness_coefficient * u**2 * K / H**2 - damping * dH - rig.gravity_term])
 
     # --- equilibria (eq. 16) ---------------------------------------------------------------------
     def equilibrium_excitation(self, height):
