@@ -457,6 +457,16 @@ class Master:
             for transfer in self.sets:
                 transfer.load(row)
 
+    def refresh(self) -> None:
+        """Read the external inputs again at the current time and redo the exchange there (an input that
+        changed without time passing, e.g. a command from hardware); ``row`` then holds the new values."""
+        self._update_signals()
+        if self.algorithm == "causal":
+            self._run(self.sweep)
+        else:
+            for transfer in self.sets:
+                transfer.load(self.row)
+
     def _failure(self, slave: _Slave, exc: FMICallException, detail: str = "") -> FmuCallError:
         slave.state = "fatal" if exc.status >= 4 else "error"
         error = FmuCallError(slave.name, exc.function + detail, exc.status, self.time, list(slave.messages))

@@ -6,6 +6,7 @@ with status "running" before the first step, rewritten at the end) and ``respons
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import logging
@@ -21,7 +22,7 @@ from nfal.models.errors import InvalidParameterError, require_positive
 
 from .errors import SimulationError
 from .master import ALGORITHMS, Master
-from .pacing import RealTimePacer
+from .pacing import RealTimePacer, prompt_thread_switching
 from .resolve import resolve
 from .results import CsvWriter, PlotPanel, ResultTable, plot_response, read_results, write_summary
 from .signals import PiecewiseConstant
@@ -122,6 +123,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         (:mod:`nfal.orchestration.pacing`); a number: the same at that many simulated seconds per wall
         second. A release starts the step's doStep calls; the exchange at t_{k+1} (``causal``: the
         sweep; ``jacobi``: reading the outputs) follows them at once, within the same step's budget.
+        While paced, the thread switch interval is 50 us (:func:`~.pacing.prompt_thread_switching`).
     progress : bool, optional
         A tqdm bar on stderr; default: only when stderr is a terminal.
     plot : sequence of PlotPanel (or of column-name sequences), False, or None
@@ -202,20 +204,21 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                 init_time = time.perf_counter() - wall_start
                 loop_start = time.perf_counter()
                 row = master.row
-                if pacer is not None:
-                    pacer.start()
-                for k in range(steps):
+                with prompt_thread_switching() if pacer is not None else contextlib.nullcontext():
                     if pacer is not None:
-                        pacer.wait(k)
-                    master.step()
+                        pacer.start()
+                    for k in range(steps):
+                        if pacer is not None:
+                            pacer.wait(k)
+                        master.step()
+                        if pacer is not None:
+                            pacer.done(k)
+                        writer.write(row)
+                        completed = k + 1
+                        if completed % chunk == 0:
+                            bar.update(chunk)
                     if pacer is not None:
-                        pacer.done(k)
-                    writer.write(row)
-                    completed = k + 1
-                    if completed % chunk == 0:
-                        bar.update(chunk)
-                if pacer is not None:
-                    pacer.sleep_until(steps)
+                        pacer.sleep_until(steps)
                 loop_time = time.perf_counter() - loop_start
                 timing = master.timing()
         except BaseException as exc:  # noqa: BLE001 - recorded in the summary, then re-raised
