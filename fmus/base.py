@@ -339,6 +339,15 @@ class NfalSlave(Fmi2Slave):
         """True when a plant built for ``built_for`` [Hz] must be rebuilt for ``frequency``."""
         return abs(frequency - built_for) > FREQUENCY_TOLERANCE * built_for
 
+    # --- as a Python object (tests, the rig emulator) ------------------------------------------------
+    def value(self, name: str) -> Any:
+        """A declared variable's value as an FMI getter returns it (a computed output is computed now)."""
+        return self._declarations[name].variable.getter()
+
+    def set_value(self, name: str, value: Any) -> None:
+        """Set a declared variable as an FMI setter does (coerced and checked)."""
+        self._declarations[name].variable.setter(value)
+
     # --- shared model builders ---------------------------------------------------------------------
     def build_rig(self, frequency: float | None = None) -> RigParameters:
         """RigParameters from the rig parameters (the excitation at ``frequency`` [Hz], default nominal)."""

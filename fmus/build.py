@@ -11,9 +11,10 @@ everything the slave imports from nfal, under the same import names as in the in
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
         nfal/fmus/__init__.py   and nfal/fmus/base.py (the NfalSlave base class)
+        nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
     binaries/linux64/<Model>.so, binaries/win64/<Model>.dll   pythonfmu's FMI wrapper
 
-Third-party packages (numpy, scipy, numba, python-control) come from the Python environment that
+Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from the Python environment that
 runs the FMU, as with every pythonfmu FMU. If the host process has already imported ``nfal`` (for
 instance a test run under an editable install), that copy serves: Python keeps one module per name.
 
@@ -44,13 +45,20 @@ FMU_SCRIPTS: dict[str, str] = {
     "Controller": "controller.py",
     "ResonanceTracker": "resonance_tracker.py",
     "SensorChain": "sensor_chain.py",
+    "HardwareProxy": "hardware_proxy.py",
 }
 #: What every FMU copies from fmus/ beside its script.
 FMUS_SUPPORT = ("__init__.py", "base.py")
 #: Prefix of the slave module inside the FMU.
 MODULE_PREFIX = "nfal_"
-#: Capabilities written into modelDescription.xml (NfalSlave saves its whole state as JSON).
+#: Capabilities written into modelDescription.xml (NfalSlave saves its whole state as JSON) ...
 BUILD_OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
+#: ... except where an FMU says otherwise (hardware cannot be rewound).
+FMU_BUILD_OPTIONS: dict[str, dict[str, bool]] = {
+    "HardwareProxy": {"canGetAndSetFMUstate": False, "canSerializeFMUstate": False},
+}
+#: Modules of nfal.hil an FMU carries beside nfal.models (the host's side of the rig protocol).
+HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "protocol.py", "link.py")}
 
 FMUS_DIR = Path(__file__).resolve().parent
 
@@ -60,6 +68,13 @@ def _models_dir() -> Path:
     import nfal.models
 
     return Path(nfal.models.__file__).resolve().parent
+
+
+def _hil_files(name: str) -> list[Path]:
+    import nfal.hil
+
+    root = Path(nfal.hil.__file__).resolve().parent
+    return [root / module for module in HIL_MODULES.get(name, ())]
 
 
 def _model_files() -> list[Path]:
@@ -78,7 +93,8 @@ def script_path(name: str) -> Path:
 
 def sources(name: str) -> list[Path]:
     """Every file the FMU ``name`` is built from (its staleness is judged against these)."""
-    return [script_path(name), Path(__file__).resolve(), *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files()]
+    return [script_path(name), Path(__file__).resolve(), *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(),
+            *_hil_files(name)]
 
 
 def is_up_to_date(fmu: Path, name: str) -> bool:
@@ -112,6 +128,11 @@ def _stage(name: str, stage: Path) -> Path:
         shutil.copy2(source, target)
     for support in FMUS_SUPPORT:
         shutil.copy2(FMUS_DIR / support, package / "fmus" / support)
+    hil = _hil_files(name)
+    if hil:
+        (package / "hil").mkdir()
+        for source in hil:
+            shutil.copy2(source, package / "hil" / source.name)
     staged = stage / f"{MODULE_PREFIX}{script.stem}.py"
     shutil.copy2(script, staged)
     return staged
@@ -135,7 +156,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False) -> 
         sys.modules.pop(staged.stem, None)  # a slave module of a loaded FMU must not stand in for the new script
         try:
             built = FmuBuilder.build_FMU(staged, dest=Path(temp) / f"{name}.fmu", project_files=[stage / "nfal"],
-                                         **BUILD_OPTIONS)
+                                         **{**BUILD_OPTIONS, **FMU_BUILD_OPTIONS.get(name, {})})
         finally:
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)

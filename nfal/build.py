@@ -9,7 +9,9 @@ from pathlib import Path
 logger = logging.getLogger(__name__)
 
 #: The system structures shipped in ``ssp/``, the default first.
-STRUCTURES = ("fig7_slow", "fig7_reynolds")
+STRUCTURES = ("fig7_slow", "fig7_reynolds", "fig7_hil")
+#: The rig structures `nfal rig-emulator` plays (the rig's hardware, without the controller).
+RIG_STRUCTURES = ("rig_slow", "rig_reynolds")
 DEFAULT_BUILD_DIR = Path("build")
 
 
@@ -18,7 +20,7 @@ def structure_sources() -> Path:
     return Path(str(importlib.resources.files("nfal.ssp")))
 
 
-def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES) -> dict[str, Path]:
+def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES + RIG_STRUCTURES) -> dict[str, Path]:
     """Build the FMUs into ``out_dir`` (only those missing or older than their sources) and pack
     ``<structure>.ssp`` for each of ``structures``. Returns {structure name: archive path}."""
     from nfal.fmus.build import build_fmus

@@ -7,10 +7,10 @@ import logging
 import sys
 
 from nfal import __version__
-from nfal.commands import control, cosim, physics, sweep
+from nfal.commands import control, cosim, hil, physics, sweep
 from nfal.models.errors import NfalError
 
-COMMAND_GROUPS = (cosim, physics, control, sweep)
+COMMAND_GROUPS = (cosim, hil, physics, control, sweep)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -18,7 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nfal",
         description="Near-field acoustic levitation: squeeze-film physics (Reynolds and the simplified "
         "slow model), K(sigma) calibration, gain-scheduled control, and the closed loop of Fig. 7 as FMUs "
-        "wired by SSP. Every quantity is SI.",
+        "wired by SSP, and the same loop against the rig (hardware in the loop). Every quantity is SI.",
         epilog="Run 'nfal COMMAND --help' for a command's options.",
     )
     parser.add_argument("--version", action="version", version=f"nfal {__version__}")

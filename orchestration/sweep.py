@@ -145,7 +145,7 @@ def _staircase(reference):
 def loop_summary(table, staircase) -> dict:
     """The sweep's metrics of a Fig. 7 run: IAE, the worst step's rise/settling time and overshoot,
     the final hold's steady-state error |mean(height - reference)| over its last quarter, mean noise."""
-    from nfal.fig7 import HEIGHT, REFERENCE, loop_metrics
+    from nfal.fig7 import REFERENCE, SIMULATED, loop_metrics
 
     metrics = loop_metrics(table, staircase)
     steps = metrics["steps"]
@@ -157,7 +157,7 @@ def loop_summary(table, staircase) -> dict:
     time_s = np.asarray(table.time)
     tail_start = time_s[-1] - 0.25 * (time_s[-1] - float(staircase.step_times_s[-1]))
     tail = time_s >= tail_start
-    error = np.asarray(table[HEIGHT])[tail] - np.asarray(table[REFERENCE])[tail]
+    error = np.asarray(table[SIMULATED.height])[tail] - np.asarray(table[REFERENCE])[tail]
     return {"iae_m_s": float(metrics["iae"]), "rise_time_s": worst("rise_time_s"),
             "overshoot_percent": worst("overshoot_percent"), "settling_time_s": worst("settling_time_s"),
             "steady_state_error_m": float(abs(np.mean(error))),

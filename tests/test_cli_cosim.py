@@ -9,12 +9,13 @@ from nfal.commands.cosim import parse_parameter
 from nfal.models.errors import InvalidParameterError
 
 
-def test_build_packs_both_structures(capsys, tmp_path):
+def test_build_packs_every_structure(capsys, tmp_path):
     assert main(["build", "--out", str(tmp_path), "--json"]) == 0
     archives = json.loads(capsys.readouterr().out)
-    assert set(archives) == {"fig7_slow", "fig7_reynolds"}
+    assert set(archives) == {"fig7_slow", "fig7_reynolds", "fig7_hil", "rig_slow", "rig_reynolds"}
     assert sorted(p.name for p in tmp_path.glob("*.fmu")) == [
-        "Controller.fmu", "ResonanceTracker.fmu", "ReynoldsPlant.fmu", "SensorChain.fmu", "SlowPlant.fmu"]
+        "Controller.fmu", "HardwareProxy.fmu", "ResonanceTracker.fmu", "ReynoldsPlant.fmu", "SensorChain.fmu",
+        "SlowPlant.fmu"]
 
 
 def test_run_writes_results_summary_and_plot(capsys, tmp_path, fig7_archives):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nfal.fig7 import HEIGHT, loop_metrics
+from nfal.fig7 import SIMULATED, loop_metrics
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
@@ -40,14 +40,14 @@ def test_fmu_loop_reproduces_the_pure_python_loop(fig7_archives, tmp_path, seed)
     parameters = {**AS_PURE_LOOP, "SensorChain.seed": seed}
     result = run_fig7(fig7_archives["fig7_slow"], tmp_path, parameters=parameters)
     reference = pure_loop(ONE_STEP, seed)
-    fmu = result[HEIGHT][: reference.height_m.size]
+    fmu = result[SIMULATED.height][: reference.height_m.size]
     assert np.max(np.abs(fmu - reference.height_m)) < 1e-12
 
 
 def test_default_loop_starts_bumpless_and_tracks(fig7_archives, tmp_path):
     """All blocks on (transducer lag, PLL, 2 kHz analog filter): no start transient, every hold reached."""
     result = run_fig7(fig7_archives["fig7_slow"], tmp_path)
-    time, height = result.table().time, result[HEIGHT]
+    time, height = result.table().time, result[SIMULATED.height]
     lead = time < ONE_STEP.lead_s
     assert np.max(np.abs(height[lead] - 60e-6)) < 1e-6
     steady = time > ONE_STEP.duration_s - 0.2
@@ -60,5 +60,5 @@ def test_jacobi_adds_delay_but_still_tracks(fig7_archives, tmp_path):
     """libcosim's scheme (one step of delay per feedthrough block) differs from causal, but not by much."""
     causal = run_fig7(fig7_archives["fig7_slow"], tmp_path / "causal")
     jacobi = run_fig7(fig7_archives["fig7_slow"], tmp_path / "jacobi", algorithm="jacobi")
-    difference = np.max(np.abs(causal[HEIGHT] - jacobi[HEIGHT]))
+    difference = np.max(np.abs(causal[SIMULATED.height] - jacobi[SIMULATED.height]))
     assert 1e-9 < difference < 10e-6

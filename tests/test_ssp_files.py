@@ -21,7 +21,8 @@ from nfal.orchestration.ssp_schema import (SSC_NS, SSD_NS, SSV_NS, libcosim_port
 SSP_DIR = structure_sources()
 SSP_FILES = sorted(p.name for p in SSP_DIR.iterdir() if p.suffix in (".ssd", ".ssv"))
 STRUCTURES = {"fig7_slow.ssd": "SlowPlant.fmu", "fig7_reynolds.ssd": "ReynoldsPlant.fmu"}
-FMU_NAMES = ("SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain")
+FMU_NAMES = ("SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain", "HardwareProxy")
+RIG_STRUCTURES = {"rig_slow.ssd": "SlowPlant.fmu", "rig_reynolds.ssd": "ReynoldsPlant.fmu"}
 D, C, V = f"{{{SSD_NS}}}", f"{{{SSC_NS}}}", f"{{{SSV_NS}}}"
 
 FIG7_CONNECTIONS = {
@@ -49,7 +50,8 @@ def _parameters(name: str) -> dict:
     for parameter in _root(name).iterfind(f"{V}Parameters/{V}Parameter"):
         typed = parameter[0]
         kind, text = etree.QName(typed).localname, typed.get("value")
-        values[parameter.get("name")] = {"Real": float, "String": str, "Boolean": lambda s: s == "true"}[kind](text)
+        values[parameter.get("name")] = {"Real": float, "Integer": int, "String": str,
+                                         "Boolean": lambda s: s == "true"}[kind](text)
     return values
 
 
@@ -72,7 +74,8 @@ def archives(fmu_dir, tmp_path_factory) -> dict[str, Path]:
 # --- the shipped files --------------------------------------------------------------------------------
 
 def test_the_shipped_files_are_the_expected_ones():
-    assert SSP_FILES == ["fig7_reynolds.ssd", "fig7_slow.ssd", "paper_rig.ssv", "table2.ssv"]
+    assert SSP_FILES == ["fig7_hil.ssd", "fig7_reynolds.ssd", "fig7_slow.ssd", "paper_rig.ssv", "rig_reynolds.ssd",
+                         "rig_slow.ssd", "rig_truth.ssv", "table2.ssv"]
     assert sorted(p.name for p in schema_dir().glob("*.xsd")) == [
         "SystemStructureCommon.xsd", "SystemStructureDescription.xsd", "SystemStructureParameterMapping.xsd",
         "SystemStructureParameterValues.xsd", "SystemStructureSignalDictionary.xsd"]
@@ -150,6 +153,47 @@ def test_swapping_the_plant_is_one_element():
         reynolds.find(f".//{D}Component[@name='Plant']").get("source")
 
 
+def _component(name: str, element: str) -> etree._Element:
+    return _root(name).find(f"{D}System/{D}Elements/{D}Component[@name='{element}']")
+
+
+def _connections(name: str) -> set:
+    return {(c.get("startElement"), c.get("startConnector"), c.get("endElement"), c.get("endConnector"))
+            for c in _root(name).iterfind(f"{D}System/{D}Connections/{D}Connection")}
+
+
+def test_hil_structure_keeps_the_controller_and_experiment_exactly():
+    """The HIL variant swaps the rig's blocks for the proxy; the Controller element is byte for byte the same."""
+    canonical = lambda e: etree.tostring(e, method="c14n", with_comments=False)  # noqa: E731
+    assert canonical(_component("fig7_hil.ssd", "Controller")) == canonical(_component("fig7_slow.ssd", "Controller"))
+    assert canonical(_root("fig7_hil.ssd").find(f"{D}DefaultExperiment")) == \
+        canonical(_root("fig7_slow.ssd").find(f"{D}DefaultExperiment"))
+
+
+def test_hil_structure_wires_the_proxy():
+    components = {c.get("name"): c.get("source") for c in _root("fig7_hil.ssd").iter(f"{D}Component")}
+    assert components == {"Controller": "resources/Controller.fmu", "proxy": "resources/HardwareProxy.fmu"}
+    assert _connections("fig7_hil.ssd") == {("Controller", "drive_voltage", "proxy", "drive_voltage"),
+                                            ("proxy", "measured_height", "Controller", "measured_height")}
+
+
+@pytest.mark.parametrize("name", RIG_STRUCTURES)
+def test_rig_structure_is_the_loop_without_the_controller(name):
+    components = {c.get("name"): c.get("source") for c in _root(name).iter(f"{D}Component")}
+    assert components == {"Plant": f"resources/{RIG_STRUCTURES[name]}", "ResonanceTracker": "resources/ResonanceTracker.fmu",
+                          "SensorChain": "resources/SensorChain.fmu"}
+    assert _connections(name) == {c for c in FIG7_CONNECTIONS if "Controller" not in (c[0], c[2])}
+    plant_sets = [b.get("source") for b in _component(name, "Plant").iter(f"{D}ParameterBinding")]
+    assert plant_sets == ["resources/paper_rig.ssv", "resources/rig_truth.ssv"]
+
+
+def test_rig_truth_parameter_set():
+    assert _parameters("rig_truth.ssv") == {
+        "excess_damping_height": pytest.approx(137e-6), "excess_damping_exponent": 6.0, "near_surface": "fast",
+        "initial_height": pytest.approx(5e-6), "rest_gap": pytest.approx(5e-6), "shape": "piston",
+        "radial_nodes": 21, "steps_per_period": 32}
+
+
 def test_paper_rig_parameter_set():
     assert _parameters("paper_rig.ssv") == pytest.approx(PAPER_RIG)
 
@@ -158,7 +202,7 @@ def test_table2_parameter_set():
     assert _parameters("table2.ssv") == pytest.approx(TABLE2)
 
 
-@pytest.mark.parametrize("name", STRUCTURES)
+@pytest.mark.parametrize("name", [*STRUCTURES, "fig7_hil.ssd"])
 def test_libcosim_loads_the_structures_as_written(name):
     """Only the note on the Controller's two bindings (libcosim applies the first; run_ssp both)."""
     problems = libcosim_portability(SSP_DIR / name)

@@ -15,9 +15,9 @@ REFERENCE_INPUT = "Controller.reference"
 def register(commands) -> None:
     build = commands.add_parser(
         "build", help="build the FMUs and pack the SSP archives of the Fig. 7 loop",
-        description="Build every FMU (SlowPlant, ReynoldsPlant, Controller, ResonanceTracker, SensorChain) with "
-        "pythonfmu, self-contained, and pack fig7_slow.ssp and fig7_reynolds.ssp (SSP 1.0). FMUs newer than "
-        "their sources are kept.")
+        description="Build every FMU (SlowPlant, ReynoldsPlant, Controller, ResonanceTracker, SensorChain, "
+        "HardwareProxy) with pythonfmu, self-contained, and pack fig7_slow.ssp, fig7_reynolds.ssp, fig7_hil.ssp and the "
+        "rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
     build.add_argument("--out", default="build", metavar="DIR", help="output folder (default build/)")
     build.add_argument("--json", action="store_true", help="print the built archives as JSON")
     build.set_defaults(handler=run_build)
@@ -30,9 +30,10 @@ def register(commands) -> None:
         "step metrics.",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
-        "nfal run --reference my_reference.csv --realtime")
+        "nfal run --reference my_reference.csv --realtime; hardware in the loop against `nfal rig-emulator` or the rig: "
+        "nfal run fig7_hil --param proxy.port=/dev/ttyACM0 --realtime")
     run.add_argument("structure", nargs="?", default="fig7_slow",
-                     help="a built-in structure (fig7_slow, fig7_reynolds) or an .ssp archive, .ssd file or SSP folder "
+                     help="a built-in structure (fig7_slow, fig7_reynolds, fig7_hil) or an .ssp archive, .ssd file or SSP folder "
                      "(default fig7_slow)")
     run.add_argument("--stop-time", type=float, metavar="S", help="stop time [s] (default: the structure's, 3.7 s for Fig. 7)")
     run.add_argument("--step", type=float, default=5e-4, metavar="S", help="communication step [s] (default 5e-4: 2 kHz)")
@@ -50,7 +51,8 @@ def register(commands) -> None:
     run.add_argument("--algorithm", choices=("causal", "jacobi"), default="causal",
                      help="causal: outputs propagated in feedthrough order at each step, then all FMUs step (default); "
                      "jacobi: all step, then outputs move to inputs (as OSP libcosim does)")
-    run.add_argument("--realtime", action="store_true", help="release steps on the wall clock; report overruns and jitter")
+    run.add_argument("--realtime", action="store_true", help="release steps on the wall clock; report overruns and "
+                     "step-start jitter (p50/p99/max) in summary.json (on by itself for a structure with the hardware proxy)")
     run.add_argument("--out", metavar="DIR", help="result folder (default runs/<structure>-<date-time>)")
     run.add_argument("--build-dir", default="build", metavar="DIR", help="where built-in structures are built (default build/)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -113,13 +115,26 @@ def _reference(args: argparse.Namespace):
     return csv_signal(args.reference)
 
 
+def _element_names(structure: Path) -> list[str]:
+    from nfal.orchestration import read_ssp
+
+    with read_ssp(structure) as read:
+        return [element.name for element in read.system.elements]
+
+
 def run_run(args: argparse.Namespace) -> int:
-    from nfal.fig7 import loop_metrics, response_panels
+    import sys
+
+    from nfal.fig7 import HARDWARE, loop_columns, loop_metrics, response_panels
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration import SimulationError, run_structure
 
     parameters = dict(parse_parameter(text) for text in args.param)
     structure = _structure_path(args)
+    columns = loop_columns(_element_names(structure))
+    if columns is HARDWARE and not args.realtime:
+        print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)", file=sys.stderr)
+        args.realtime = True
     reference = _reference(args)
     inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
@@ -130,17 +145,26 @@ def run_run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
     fig7 = args.reference_input == REFERENCE_INPUT
     completed = reference.completed_by(stop_time) if fig7 and isinstance(reference, Staircase) else None
-    metrics = None if completed is None else (lambda table: loop_metrics(table, completed))
+    metrics = None if completed is None else (lambda table: loop_metrics(table, completed, columns))
     try:
         result = run_structure(structure, stop_time=stop_time, step_size=args.step, inputs=inputs, parameters=parameters,
                                algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
-                               plot=response_panels() if fig7 else None, metrics=metrics)
+                               plot=response_panels(columns) if fig7 else None, metrics=metrics)
     except SimulationError as exc:
         if exc.result is not None:
+            _add_link_summary(exc.result, columns)
             _report(exc.result.summary, out, args.json)
         raise
+    _add_link_summary(result, columns)
     _report(result.summary, out, args.json)
     return 0
+
+
+def _add_link_summary(result, columns) -> None:
+    from nfal.fig7 import HARDWARE, link_summary
+
+    if columns is HARDWARE and result.csv_path.is_file() and result.summary.get("steps_completed"):
+        result.update_summary(link=link_summary(result.table()))
 
 
 def _report(summary: dict, out: Path, as_json: bool) -> None:
@@ -161,6 +185,13 @@ def _print_summary(summary: dict, out: Path) -> None:
     if metrics:
         print(f"IAE {metrics['iae'] * 1e6:.3f} um s")
         print_step_table(metrics["steps"])
+    link = summary.get("link")
+    if link:
+        print(f"link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} rig "
+              f"faults, {link['reconnects']} reconnects; at most {link['samples_missed_max']} samples missed in a row, "
+              f"sample age mean {link['measurement_age_mean_s'] * 1e6:.0f} us, max {link['measurement_age_max_s'] * 1e6:.0f} us")
     realtime = summary.get("realtime")
     if realtime:
-        print(f"real time: {realtime.get('overruns')} overruns, jitter max {realtime.get('jitter_max_s', 0) * 1e3:.3f} ms")
+        print(f"real time: {realtime.get('overruns')} overruns in {realtime.get('steps')} steps; step-start jitter "
+              f"p50 {realtime.get('jitter_p50_s', 0) * 1e6:.0f} us, p99 {realtime.get('jitter_p99_s', 0) * 1e6:.0f} us, "
+              f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us")

@@ -1,0 +1,162 @@
+"""HardwareProxy FMU: the rig itself in the loop, over a serial port (docs/hil.md, docs/protocol.md).
+
+It stands where fig7_slow has the ResonanceTracker, the Plant and the SensorChain: the rig does their
+work in hardware. A thin adapter over :class:`nfal.hil.link.RigLink`:
+
+* At the end of initialisation it opens ``port`` (any pyserial URL), says HELLO and waits for the rig's
+  HELLO_ACK and a first measurement (``connect_timeout``), so its first outputs are measured ones.
+  The rig's sample period must match ``sample_rate`` (1 %).
+* ``doStep(t, dt)`` writes DRIVE(``drive_voltage``) for [t, t + dt], takes in what the port holds
+  without waiting (:meth:`RigLink.poll`) and publishes the newest measurement: the step never waits for
+  one. Outputs come from that measurement alone: no dependencies on the input.
+* A step that finds no new measurement since the previous one counts a missed sample; after more than
+  ``max_missed_samples`` in a row the step fails with the reason logged (the link's last error): the
+  proxy never makes a measurement up, and a held value is flagged by ``fresh`` = false and a growing
+  ``samples_missed``. pythonfmu reports a failing step as fmi2Fatal (docs/cosimulation.md).
+* ``terminate`` sends STOP (the rig ramps the drive down) and closes the port; a failing step closes it
+  too, and the rig's watchdog ramps the drive down by itself.
+
+The rig cannot be rewound: the FMU cannot restore an FMU state (built with canGetAndSetFMUstate false).
+"""
+
+from __future__ import annotations
+
+import time
+
+from nfal.fmus.base import DefaultExperiment, FmuStateError, NfalSlave
+from nfal.hil.link import LinkError, RigLink
+from nfal.hil.protocol import StatusFlags
+from nfal.models.errors import InvalidParameterError, require_positive
+
+_LOCKED, _RESTING, _TRIPPED = int(StatusFlags.PLL_LOCKED), int(StatusFlags.RESTING), int(StatusFlags.WATCHDOG_TRIPPED)
+#: Relative mismatch allowed between ``sample_rate`` and the rig's announced sample period.
+RATE_TOLERANCE = 0.01
+
+
+class HardwareProxy(NfalSlave):
+    """Drive voltage out to the rig, the rig's measurements in, over the nfal rig protocol."""
+
+    description = ("Hardware proxy: sends the drive voltage to the levitation rig over a serial port and outputs its "
+                   "measured height, drive frequency, lock and the link's health (nfal rig protocol v1)")
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=5e-4)
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_input("drive_voltage", 0.0, unit="V", description="drive voltage amplitude V for the rig (>= 0)")
+        self.add_output("measured_height", unit="m", description="the rig's measured clearance (newest sample)")
+        self.add_output("drive_frequency", unit="Hz", description="drive frequency set by the rig's PLL")
+        self.add_output("applied_voltage", unit="V", description="voltage the rig applied (after its limit and watchdog)")
+        self.add_output("locked", kind=bool, description="the rig's PLL is locked")
+        self.add_output("resting", kind=bool, description="the object rests on the driving surface")
+        self.add_output("watchdog_tripped", kind=bool, description="the rig's watchdog has ramped the drive down")
+        self.add_output("rig_time", unit="s", description="the rig's clock at the sample")
+        self.add_output("measurement_age", unit="s", description="host time since the sample arrived, at the step's end")
+        self.add_output("fresh", kind=bool, description="a new sample arrived during the last step")
+        self.add_output("link_ok", kind=bool, description="the session with the rig is up")
+        self.add_output("samples_missed", kind=int, description="steps in a row without a new sample")
+        self.add_output("frames_dropped", kind=int, description="frames received and dropped (corrupt, truncated, "
+                        "oversized, unknown, out of order)")
+        self.add_output("frames_lost", kind=int, description="frames missing from the rig's sequence")
+        self.add_output("rig_faults", kind=int, description="FAULT reports received from the rig")
+        self.add_output("reconnects", kind=int, description="sessions re-established after a lost link")
+        self.add_parameter("port", "", description="the rig's serial port: a device path, a pty, socket://host:port, "
+                           "or any pyserial URL")
+        self.add_parameter("baud_rate", 2_000_000, description="line rate [baud] (ignored by ptys and sockets)")
+        self.add_parameter("connect_timeout", 2.0, unit="s", description="wait for the rig's HELLO_ACK and first sample")
+        self.add_parameter("max_missed_samples", 20, description="steps in a row without a new sample before the "
+                           "step fails (20 = 10 ms at 2 kHz)")
+        self.add_parameter("reconnect", True, description="reopen the port and say HELLO again after a lost link")
+        self.add_parameter("sample_rate", 2000.0, unit="Hz", description="the rig's sample rate, checked at connection")
+        self._link: RigLink | None = None
+        self._settings: tuple | None = None
+        self._seen = 0
+
+    # --- the session ------------------------------------------------------------------------------
+    def setup(self) -> None:
+        settings = (str(self.port), int(self.baud_rate), float(self.connect_timeout), bool(self.reconnect),
+                    float(self.sample_rate))
+        if int(self.max_missed_samples) < 1:
+            raise InvalidParameterError("max_missed_samples", self.max_missed_samples, "a whole number >= 1")
+        if self._link is not None and settings == self._settings:
+            return  # a provisional setup in initialisation mode already opened it
+        self._close()
+        require_positive("sample_rate", self.sample_rate)
+        link = RigLink(settings[0], baudrate=settings[1], connect_timeout_s=settings[2], reconnect=settings[3],
+                       reader_thread=False)
+        ack = link.open()
+        try:
+            period = ack.sample_period_us * 1e-6
+            if abs(period * self.sample_rate - 1.0) > RATE_TOLERANCE:
+                raise LinkError(f"{link.url}: the rig samples every {period * 1e6:g} us, not at sample_rate = "
+                                f"{self.sample_rate:g} Hz")
+            deadline = time.perf_counter() + self.connect_timeout
+            while link.latest() is None:
+                link.poll(block=True)
+                if time.perf_counter() > deadline:
+                    raise LinkError(f"{link.url}: the rig answered HELLO but sent no measurement within "
+                                    f"{self.connect_timeout:g} s")
+        except BaseException:
+            link.close()
+            raise
+        self._link, self._settings = link, settings
+        self._publish(link.latest(), fresh=True)
+        self.samples_missed = 0
+
+    def _publish(self, sample, *, fresh: bool) -> None:
+        link = self._link
+        measurement = sample.measurement
+        self.measured_height = measurement.height
+        self.drive_frequency = measurement.drive_frequency
+        self.applied_voltage = measurement.drive_voltage
+        status = measurement.status  # plain int tests: enum flag arithmetic costs microseconds per step
+        self.locked = bool(status & _LOCKED)
+        self.resting = bool(status & _RESTING)
+        self.watchdog_tripped = bool(status & _TRIPPED)
+        self.rig_time = measurement.timestamp_us * 1e-6
+        self.measurement_age = link.clock() - sample.arrival_s
+        self.fresh = fresh
+        self.link_ok = link.connected
+        counters = link.decoder.counters
+        self.frames_dropped, self.frames_lost = counters.dropped, counters.lost
+        self.rig_faults, self.reconnects = link.counters.faults, link.counters.reconnects
+        self._seen = sample.count
+
+    def step(self, current_time: float, step_size: float) -> None:
+        link = self._link
+        voltage = float(self.drive_voltage)
+        if not voltage >= 0.0:
+            raise InvalidParameterError("drive_voltage", voltage, "a voltage >= 0 V")
+        link.send_drive(voltage)
+        link.poll()  # what has arrived, without waiting
+        sample = link.latest()
+        fresh = sample.count != self._seen
+        self.samples_missed = 0 if fresh else self.samples_missed + 1
+        self._publish(sample, fresh=fresh)
+        if self.samples_missed > self.max_missed_samples:
+            reason = link.last_error or "no error on the port: the rig went silent"
+            self._close(stop=False)
+            raise LinkError(f"{self.port}: no measurement from the rig for {self.samples_missed} steps "
+                            f"({self.samples_missed * step_size * 1e3:.1f} ms, limit max_missed_samples = "
+                            f"{self.max_missed_samples}): link lost ({reason}); the last sample is from rig time "
+                            f"{self.rig_time:.4f} s")
+
+    def terminate(self) -> None:
+        self._close()
+
+    def _close(self, *, stop: bool = True) -> None:
+        link, self._link, self._settings = self._link, None, None
+        if link is not None:
+            link.close(stop=stop)
+            self.link_ok = False
+
+    def __del__(self) -> None:
+        link = getattr(self, "_link", None)
+        if link is not None:
+            link.close(stop=False)
+
+    # --- FMU state: hardware cannot be rewound --------------------------------------------------------
+    def get_internal_state(self) -> dict:
+        raise FmuStateError("the HardwareProxy cannot save an FMU state: the rig cannot be rewound")
+
+    def set_internal_state(self, state: dict) -> None:
+        raise FmuStateError("the HardwareProxy cannot restore an FMU state: the rig cannot be rewound")

@@ -1,0 +1,341 @@
+"""The host's side of the rig protocol: :class:`RigLink`, a session over any pyserial URL.
+
+``serial.serial_for_url`` opens the port, so a device path (``/dev/ttyACM0``), a pty (the emulator's
+path), ``loop://`` and ``socket://host:port`` are one code path. :meth:`RigLink.poll` takes in what the
+port holds without waiting: it decodes the frames (:class:`~nfal.hil.protocol.FrameDecoder`), keeps
+the newest measurement, the rig's faults and heartbeat, and reconnects when the port fails. Either a
+daemon reader thread polls (blocking up to READ_TIMEOUT_S for the first byte; the default), or the
+owner polls when it wants the news (``reader_thread=False``: the HardwareProxy polls at each step,
+which costs less CPU than a thread woken 2000 times a second, and no GIL hand-overs). DRIVE frames
+are written without blocking (``write_timeout=0``: a frame the port cannot take is counted, never
+waited for), so nothing the link does can stall a co-simulation step.
+
+Reconnection: when a read or write fails (the device is unplugged, the emulator drops the pty) the
+reader closes the port and, if ``reconnect``, reopens the URL every ``reconnect_interval_s`` and says
+HELLO again; measurements resume after the rig's HELLO_ACK. Whoever uses the link decides how long
+it may go without measurements (the HardwareProxy FMU: ``max_missed_samples``).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import serial
+
+from nfal.models.errors import NfalError, require_positive
+
+from .protocol import (PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello,
+                       HelloAck, Measurement, RigHeartbeat, Stop)
+
+logger = logging.getLogger(__name__)
+
+#: Longest wait of one read [s]: how quickly the reader notices close().
+READ_TIMEOUT_S = 0.01
+#: Faults kept for :attr:`RigLink.faults`.
+FAULT_HISTORY = 100
+
+
+class LinkError(NfalError, RuntimeError):
+    """The rig cannot be reached, or it does not speak this protocol."""
+
+
+@dataclasses.dataclass
+class LinkCounters:
+    """What happened on the link (the decoder's drops are in :attr:`RigLink.decoder`)."""
+
+    measurements: int = 0       #: MEASUREMENT frames accepted
+    heartbeats: int = 0         #: RIG_HEARTBEAT frames accepted
+    faults: int = 0             #: FAULT frames accepted
+    drives_sent: int = 0        #: DRIVE frames written in full
+    write_errors: int = 0       #: frames the port did not take in full (the rig drops the remainder)
+    disconnects: int = 0        #: the port failed or closed under us
+    reconnects: int = 0         #: sessions re-established after a disconnect
+    handshake_failures: int = 0  #: HELLO without a HELLO_ACK in time, or a version the rig refused
+
+
+@dataclasses.dataclass(frozen=True)
+class Sample:
+    """The newest measurement: the message, its frame seq, the host's clock at arrival [s] and a
+    running count of measurements received (to tell a new sample from the one seen before)."""
+
+    measurement: Measurement
+    seq: int
+    arrival_s: float
+    count: int
+
+
+class RigLink:
+    """A session with the rig over ``url`` (see the module docstring).
+
+    Parameters
+    ----------
+    url : str
+        Anything ``serial.serial_for_url`` opens: a device or pty path, ``socket://host:port``, ``loop://``.
+    baudrate : int
+        Line rate (ignored by ptys and sockets).
+    connect_timeout_s : float
+        How long :meth:`open` (and each reconnection) waits for the rig's HELLO_ACK [s].
+    reconnect : bool
+        Reopen the port after a failure.
+    reconnect_interval_s : float
+        Time between reconnection attempts [s].
+    reader_thread : bool
+        Poll from a daemon thread (True), or leave :meth:`poll` to the owner (False).
+    clock : callable
+        The host clock for arrival times (default ``time.perf_counter``).
+    """
+
+    def __init__(self, url: str, *, baudrate: int = 2_000_000, connect_timeout_s: float = 2.0, reconnect: bool = True,
+                 reconnect_interval_s: float = 0.05, reader_thread: bool = True,
+                 clock: Callable[[], float] = time.perf_counter) -> None:
+        if not isinstance(url, str) or not url.strip():
+            raise LinkError("no port given: set the URL of the rig's serial port (a device path, a pty, socket://...)")
+        self.url = url.strip()
+        self.baudrate = int(require_positive("baudrate", baudrate))
+        self.connect_timeout_s = require_positive("connect_timeout_s", connect_timeout_s)
+        self.reconnect = bool(reconnect)
+        self.reconnect_interval_s = require_positive("reconnect_interval_s", reconnect_interval_s)
+        self.reader_thread = bool(reader_thread)
+        self.clock = clock
+        self.decoder = FrameDecoder(RIG_TO_HOST)
+        self.counters = LinkCounters()
+        self.faults: collections.deque[Fault] = collections.deque(maxlen=FAULT_HISTORY)
+        self.rig: HelloAck | None = None
+        self.rig_status = 0
+        self.rig_frames_dropped = 0
+        self.last_error = ""
+        self._encoder = FrameEncoder()
+        self._port: serial.SerialBase | None = None
+        self._latest: Sample | None = None
+        self._lock = threading.Lock()      # guards _latest
+        self._write_lock = threading.Lock()  # guards _port writes and the encoder
+        self._acknowledged = threading.Event()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._refused: Fault | None = None
+        self._hello_at = 0.0
+        self._reconnect_at = 0.0
+
+    # --- the session -------------------------------------------------------------------------------
+    def open(self) -> HelloAck:
+        """Open the port, say HELLO and wait for the rig's HELLO_ACK (and start the reader thread, if
+        ``reader_thread``). Raises LinkError."""
+        if self._port is not None or self._thread is not None:
+            raise LinkError(f"{self.url}: the link is already open")
+        self._stopping.clear()
+        self._connect()  # raises on failure: nothing is left running
+        if self.reader_thread:
+            self._thread = threading.Thread(target=self._read_loop, name=f"nfal-rig-link {self.url}", daemon=True)
+            self._thread.start()
+            acknowledged = self._acknowledged.wait(self.connect_timeout_s)
+        else:
+            deadline = self.clock() + self.connect_timeout_s
+            while not self._acknowledged.is_set() and self._port is not None and self.clock() < deadline:
+                self.poll(block=True)
+            acknowledged = self._acknowledged.is_set()
+        if not acknowledged:
+            refused = self._refused
+            self.close()
+            self.counters.handshake_failures += 1
+            if refused is not None:
+                raise LinkError(f"{self.url}: the rig refused protocol version {PROTOCOL_VERSION} "
+                                f"(FAULT VERSION_MISMATCH, detail {refused.detail:g})")
+            raise LinkError(f"{self.url}: no HELLO_ACK from the rig within {self.connect_timeout_s:g} s "
+                            "(is the rig or `nfal rig-emulator` running on this port, speaking nfal protocol "
+                            f"{PROTOCOL_VERSION}?)")
+        return self.rig
+
+    @property
+    def connected(self) -> bool:
+        """A session is up: the port is open and the rig has answered HELLO."""
+        return self._port is not None and self._acknowledged.is_set()
+
+    def latest(self) -> Sample | None:
+        """The newest measurement (None before the first)."""
+        with self._lock:
+            return self._latest
+
+    def send_drive(self, voltage: float) -> bool:
+        """Write DRIVE(voltage) without waiting; False if the port is down or did not take the whole frame."""
+        if self._send(Drive(float(voltage))):
+            self.counters.drives_sent += 1
+            return True
+        return False
+
+    def close(self, *, stop: bool = True) -> None:
+        """Send STOP (if ``stop`` and connected), stop the reader and close the port."""
+        if stop and self.connected:
+            self._send(Stop())
+        self._stopping.set()
+        port = self._port
+        if port is not None:
+            try:
+                port.cancel_read()
+            except Exception:  # noqa: BLE001 - not every port type can cancel; the read times out anyway
+                pass
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
+        self._thread = None
+        self._close_port()
+
+    def health(self) -> dict:
+        """Every counter (link and decoder), the rig's dropped-frame count and the last error, for reports."""
+        return {**dataclasses.asdict(self.counters), **self.decoder.counters.as_dict(),
+                "rig_frames_dropped": self.rig_frames_dropped, "connected": self.connected,
+                "last_error": self.last_error}
+
+    def __enter__(self) -> "RigLink":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- the port ----------------------------------------------------------------------------------
+    def _connect(self) -> None:
+        """Open the port and say HELLO (the reader takes the HELLO_ACK)."""
+        try:
+            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=READ_TIMEOUT_S, write_timeout=0)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise LinkError(f"cannot open {self.url}: {exc}") from None
+        self._acknowledged.clear()
+        self._refused = None
+        self.decoder.reset_sequence()
+        with self._write_lock:
+            self._port = port
+            self._encoder.restart()
+        self._hello_at = self.clock()
+        if not self._send(Hello(PROTOCOL_VERSION)):
+            self._close_port()
+            raise LinkError(f"{self.url}: could not write HELLO")
+
+    def _send(self, message) -> bool:
+        with self._write_lock:
+            port = self._port
+            if port is None:
+                return False
+            frame = self._encoder(message)
+            try:
+                written = port.write(frame)
+            except (serial.SerialException, OSError) as exc:
+                self._lost(f"write failed: {exc}")
+                return False
+        if written is not None and written != len(frame):
+            self.counters.write_errors += 1
+            return False
+        return True
+
+    def _close_port(self) -> None:
+        with self._write_lock:
+            port, self._port = self._port, None
+        self._acknowledged.clear()
+        if port is not None:
+            try:
+                port.close()
+            except Exception:  # noqa: BLE001 - closing a port that already failed
+                pass
+
+    def _lost(self, reason: str) -> None:
+        """The port failed: record why; the reader reconnects (if allowed)."""
+        if self._stopping.is_set():
+            return
+        self.last_error = reason
+        self.counters.disconnects += 1
+        logger.warning("%s: link lost: %s", self.url, reason)
+        port, self._port = self._port, None  # the write lock is held by _send, or not needed by the reader
+        self._acknowledged.clear()
+        if port is not None:
+            try:
+                port.close()
+            except Exception:  # noqa: BLE001
+                pass
+
+    # --- reading --------------------------------------------------------------------------------------
+    def poll(self, *, block: bool = False) -> None:
+        """Take in what the port holds: decode it, keep the newest measurement, the faults and the rig's
+        status; reconnect when due. ``block``: wait up to READ_TIMEOUT_S for the first byte (the reader
+        thread); otherwise return at once. Only one thread may poll (the reader, when it runs)."""
+        port = self._port
+        if port is None:
+            self._reconnect_if_due()
+            return
+        if not self._acknowledged.is_set() and self.clock() - self._hello_at > self.connect_timeout_s:
+            self.counters.handshake_failures += 1
+            self._lost(f"no HELLO_ACK within {self.connect_timeout_s:g} s")
+            return
+        try:
+            waiting = port.in_waiting
+            data = port.read(max(1, waiting)) if block else (port.read(waiting) if waiting else b"")
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            # pyserial raises TypeError/AttributeError when the port is closed under a read
+            self._lost(f"read failed: {exc}")
+            return
+        if data:
+            self._handle(data)
+
+    def _reconnect_if_due(self) -> None:
+        now = self.clock()
+        if not self.reconnect or self._stopping.is_set() or now < self._reconnect_at:
+            return
+        self._reconnect_at = now + self.reconnect_interval_s
+        try:
+            self._connect()
+        except LinkError as exc:
+            self.last_error = str(exc)
+
+    def _read_loop(self) -> None:
+        while not self._stopping.is_set():
+            if self._port is None and not self.reconnect:
+                return
+            if self._port is None:
+                self._stopping.wait(max(0.0, min(self.reconnect_interval_s, self._reconnect_at - self.clock())))
+            self.poll(block=True)
+
+    def _handle(self, data: bytes) -> None:
+        now = self.clock()
+        for received in self.decoder.feed(data):
+            message = received.message
+            if isinstance(message, Measurement):
+                self.counters.measurements += 1
+                self.rig_status = message.status
+                sample = Sample(message, received.seq, now, self.counters.measurements)
+                with self._lock:
+                    self._latest = sample
+            elif isinstance(message, RigHeartbeat):
+                self.counters.heartbeats += 1
+                self.rig_status, self.rig_frames_dropped = message.status, message.frames_dropped
+            elif isinstance(message, HelloAck):
+                self._hello_ack(message)
+            elif isinstance(message, Fault):
+                self.counters.faults += 1
+                self.faults.append(message)
+                logger.warning("%s: rig fault %s (detail %g) at rig time %.6f s", self.url,
+                               _fault_name(message.code), message.detail, message.timestamp_us * 1e-6)
+                if message.code == FaultCode.VERSION_MISMATCH:
+                    self._refused = message
+
+    def _hello_ack(self, ack: HelloAck) -> None:
+        if self._acknowledged.is_set():
+            return  # a repeated HELLO_ACK (duplicated on the wire) opens nothing new
+        if ack.protocol_version != PROTOCOL_VERSION:
+            self.counters.handshake_failures += 1
+            self.last_error = f"the rig speaks protocol version {ack.protocol_version}, not {PROTOCOL_VERSION}"
+            self._refused = Fault(0, FaultCode.VERSION_MISMATCH, float(ack.protocol_version))
+            return
+        if self.rig is not None:
+            self.counters.reconnects += 1
+            logger.warning("%s: session re-established", self.url)
+        self.rig = ack
+        self._acknowledged.set()
+
+
+def _fault_name(code: int) -> str:
+    try:
+        return FaultCode(code).name
+    except ValueError:
+        return f"code {code}"

@@ -1,0 +1,120 @@
+"""The emulator's end of the wire: a pseudo-terminal (:class:`PtyPort`) or any pyserial URL (:class:`UrlPort`).
+
+Both read and write without blocking (a byte the host has no room for is dropped and counted: a rig
+does not wait for its host) and can be disconnected and reconnected, as a USB cable is pulled and
+plugged back. A pty is reached through a stable symlink (like ``/dev/serial/by-id/...``) that points
+at a new pty after each reconnection, so the host reopens the same path.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tty
+from pathlib import Path
+
+import serial
+
+
+class PtyPort:
+    """A pty whose other end the host opens at :attr:`path` (a symlink to the current ``/dev/pts/N``).
+
+    Parameters
+    ----------
+    path : path-like, optional
+        Where to put the symlink; default a new name in the temporary folder.
+    """
+
+    def __init__(self, path: str | os.PathLike | None = None) -> None:
+        if path is None:
+            handle, name = tempfile.mkstemp(prefix="nfal-rig-")
+            os.close(handle)
+            os.unlink(name)
+            path = name
+        self.path = Path(path)
+        self.bytes_dropped = 0
+        self._master = self._slave = None
+        self.connect()
+
+    @property
+    def connected(self) -> bool:
+        return self._master is not None
+
+    def connect(self) -> None:
+        """Open a new pty (raw, non-blocking) and point :attr:`path` at it."""
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line editing: a byte pipe, as pyserial would set it anyway
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave  # the slave stays open here too: writes never fail for want of a reader
+        temporary = self.path.with_name(self.path.name + ".new")
+        temporary.unlink(missing_ok=True)
+        os.symlink(os.ttyname(slave), temporary)
+        os.replace(temporary, self.path)
+
+    def disconnect(self) -> None:
+        """Close the pty (the host's reads fail) and remove the symlink (its reopen attempts fail)."""
+        self.path.unlink(missing_ok=True)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                os.close(fd)
+        self._master = self._slave = None
+
+    def read(self) -> bytes:
+        if self._master is None:
+            return b""
+        try:
+            return os.read(self._master, 65536)
+        except (BlockingIOError, InterruptedError):
+            return b""
+
+    def write(self, data: bytes) -> None:
+        if self._master is None or not data:
+            return
+        try:
+            written = os.write(self._master, data)
+        except (BlockingIOError, InterruptedError):
+            written = 0
+        self.bytes_dropped += len(data) - written
+
+    def close(self) -> None:
+        self.disconnect()
+
+
+class UrlPort:
+    """Any ``serial.serial_for_url`` URL (a device wired to the host's, ``socket://host:port``, ...)."""
+
+    def __init__(self, url: str, baudrate: int = 2_000_000) -> None:
+        self.path, self.baudrate = url, baudrate
+        self.bytes_dropped = 0
+        self._port: serial.SerialBase | None = None
+        self.connect()
+
+    @property
+    def connected(self) -> bool:
+        return self._port is not None
+
+    def connect(self) -> None:
+        self._port = serial.serial_for_url(self.path, baudrate=self.baudrate, timeout=0, write_timeout=0)
+
+    def disconnect(self) -> None:
+        if self._port is not None:
+            self._port.close()
+        self._port = None
+
+    def read(self) -> bytes:
+        if self._port is None:
+            return b""
+        waiting = self._port.in_waiting
+        return self._port.read(waiting) if waiting else b""
+
+    def write(self, data: bytes) -> None:
+        if self._port is None or not data:
+            return
+        try:
+            written = self._port.write(data) or 0
+        except serial.SerialTimeoutException:
+            written = 0
+        self.bytes_dropped += len(data) - written
+
+    def close(self) -> None:
+        self.disconnect()

@@ -1,0 +1,142 @@
+"""``nfal rig-emulator``: the rig, played in real time on a pty or a port, for hardware-in-the-loop runs."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+
+from nfal.commands.common import print_json
+
+
+def register(commands) -> None:
+    emulator = commands.add_parser(
+        "rig-emulator", help="play the levitation rig in real time on a pty (or a port) for hardware-in-the-loop runs",
+        description="Play the rig on a serial port in real time, speaking the nfal rig protocol (docs/protocol.md): "
+        "its firmware (session, 2 kHz measurement stream, heartbeat, drive limit, watchdog that ramps the drive down "
+        "when commands stop) and its hardware, the rig structure's FMUs: resonance tracker (transducer + PLL), the "
+        "levitated object (the 'truth' plant, with more damping at large gaps than the design model, as the paper "
+        "reports) and the height sensor with its noise. The first line of output is the port to give the "
+        "HardwareProxy (proxy.port); then one line per event. Runs until Ctrl-C or --duration.",
+        epilog="Examples: nfal rig-emulator; then in another terminal: nfal run fig7_hil --param proxy.port=PATH "
+        "--realtime. Faults: nfal rig-emulator --corrupt 0.01 --drop 0.01; nfal rig-emulator --disconnect-at 2 "
+        "--reconnect-after 1. Another truth: nfal rig-emulator --truth reynolds; --param Plant.mass=0.15.")
+    emulator.add_argument("--port", default="pty", metavar="pty|URL",
+                          help="'pty': a new pseudo-terminal, reached at a stable symlink printed first (default); "
+                          "or a pyserial URL to open (a device wired to the host's, socket://host:port)")
+    emulator.add_argument("--link", metavar="PATH", help="with --port pty: where to put the symlink (default: a new "
+                          "name in the temporary folder)")
+    emulator.add_argument("--truth", default="slow", metavar="slow|reynolds|FILE",
+                          help="the rig's hardware: rig_slow (slow model with the large-gap damping correction, "
+                          "default), rig_reynolds (the full Reynolds model, piston form, coarse grid: may not keep "
+                          "real time), or an SSP of your own with the same element names")
+    emulator.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
+                          help="override a parameter of the truth (repeatable), e.g. Plant.mass=0.15, "
+                          "SensorChain.noise_peak=0")
+    emulator.add_argument("--drop", type=float, default=0.0, metavar="RATE", help="drop this share of outgoing frames")
+    emulator.add_argument("--corrupt", type=float, default=0.0, metavar="RATE",
+                          help="flip one bit in this share of outgoing frames")
+    emulator.add_argument("--duplicate", type=float, default=0.0, metavar="RATE",
+                          help="send this share of outgoing frames twice")
+    emulator.add_argument("--delay", type=float, default=0.0, metavar="SECONDS", help="hold every outgoing frame this long")
+    emulator.add_argument("--disconnect-at", type=float, metavar="SECONDS",
+                          help="drop the port this long after the start (the host's reads fail)")
+    emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
+                          help="reconnect the port this long after --disconnect-at (default 1.0)")
+    emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
+    emulator.add_argument("--watchdog", type=float, default=0.02, metavar="SECONDS",
+                          help="no DRIVE for this long trips the watchdog (default 0.02)")
+    emulator.add_argument("--ramp-down", type=float, default=0.05, metavar="SECONDS",
+                          help="the watchdog's ramp of the drive to 0 V (default 0.05)")
+    emulator.add_argument("--max-voltage", type=float, default=150.0, metavar="V",
+                          help="drive commands above this are clamped (default 150)")
+    emulator.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this long (default: run until "
+                          "Ctrl-C or SIGTERM)")
+    emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
+                          "(default build/)")
+    emulator.add_argument("--json", action="store_true", help="print the exit summary as JSON")
+    emulator.set_defaults(handler=run_emulator)
+
+
+def _truth_path(truth: str, build_dir: str) -> Path:
+    from nfal.build import build_all
+    from nfal.models.errors import InvalidParameterError
+
+    if truth in ("slow", "reynolds"):
+        name = f"rig_{truth}"
+        return build_all(build_dir, structures=(name,))[name]
+    path = Path(truth)
+    if not path.exists():
+        raise InvalidParameterError("--truth", truth, "slow, reynolds, or an existing .ssp/.ssd/folder")
+    return path
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
+
+
+def run_emulator(args: argparse.Namespace) -> int:
+    from nfal.commands.cosim import parse_parameter
+    from nfal.hil.emulator import Disconnection, Emulator
+    from nfal.hil.faults import FaultSettings
+    from nfal.hil.firmware import RigTiming
+    from nfal.hil.ports import PtyPort, UrlPort
+    from nfal.hil.rig_model import open_rig
+    from nfal.models.errors import InvalidParameterError
+
+    timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
+    faults = FaultSettings(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate, delay_s=args.delay,
+                           seed=args.seed)
+    disconnection = None
+    if args.disconnect_at is not None:
+        after = None if args.reconnect_after == "never" else _seconds(args.reconnect_after)
+        disconnection = Disconnection(args.disconnect_at, after)
+    if args.link and args.port != "pty":
+        raise InvalidParameterError("--link", args.link, "used with --port pty only")
+    parameters = dict(parse_parameter(text) for text in args.param)
+    with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
+        port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
+        try:
+            _say(str(port.path))
+            emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say)
+            previous = signal.signal(signal.SIGTERM, lambda *_: emulator.stop())
+            try:
+                _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "
+                     f"{timing.watchdog_timeout_s * 1e3:g} ms; Ctrl-C to stop")
+                report = emulator.run(args.duration)
+            except KeyboardInterrupt:
+                report = emulator.report
+            finally:
+                signal.signal(signal.SIGTERM, previous)
+        finally:
+            port.close()
+    _print_report(report, args.json)
+    return 0
+
+
+def _seconds(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        from nfal.models.errors import InvalidParameterError
+
+        raise InvalidParameterError("--reconnect-after", text, "a number of seconds or 'never'") from None
+
+
+def _print_report(report, as_json: bool) -> None:
+    import dataclasses
+
+    if as_json:
+        print_json(dataclasses.asdict(report))
+        return
+    pacing = report.pacing
+    print(f"rig emulator: {report.ticks} ticks, {report.frames_sent} frames sent, final drive "
+          f"{report.final_voltage:.3g} V", flush=True)
+    if pacing:
+        print(f"pacing: {pacing['overruns']} overruns; tick-start jitter p50 {pacing['jitter_p50_s'] * 1e6:.0f} us, "
+              f"p99 {pacing['jitter_p99_s'] * 1e6:.0f} us, max {pacing['jitter_max_s'] * 1e6:.0f} us; tick "
+              f"{pacing['step_duration_mean_s'] * 1e6:.0f} us mean; {pacing.get('resyncs', 0)} stalls "
+              f"({pacing.get('time_given_up_s', 0.0) * 1e3:.1f} ms given up)", flush=True)
+    print(f"faults injected: {report.faults}; frames dropped by the rig: {report.decoder.get('dropped', 0)}", file=sys.stdout,
+          flush=True)
