@@ -9,10 +9,12 @@ work in hardware. A thin adapter over :class:`nfal.hil.link.RigLink`:
 * ``doStep(t, dt)`` writes DRIVE(``drive_voltage``) for [t, t + dt], takes in what the port holds
   without waiting (:meth:`RigLink.poll`) and publishes the newest measurement: the step never waits for
   one. Outputs come from that measurement alone: no dependencies on the input.
-* A step that finds no new measurement since the previous one counts a missed sample; after more than
-  ``max_missed_samples`` in a row the step fails with the reason logged (the link's last error): the
-  proxy never makes a measurement up, and a held value is flagged by ``fresh`` = false and a growing
-  ``samples_missed``. pythonfmu reports a failing step as fmi2Fatal (docs/cosimulation.md).
+* Missed samples are counted by the wall clock: ``samples_missed`` = the age of the newest sample times
+  ``sample_rate`` (a master catching up after a stall of its own steps in a burst that finds nothing new,
+  without the rig having missed anything). Above ``max_missed_samples`` the step fails with the reason
+  logged (the link's last error): the proxy never makes a measurement up; a held value is flagged by
+  ``fresh`` = false and a growing ``samples_missed``. pythonfmu reports a failing step as fmi2Fatal
+  (docs/cosimulation.md).
 * ``terminate`` sends STOP (the rig ramps the drive down) and closes the port; a failing step closes it
   too, and the rig's watchdog ramps the drive down by itself.
 
@@ -53,7 +55,8 @@ class HardwareProxy(NfalSlave):
         self.add_output("measurement_age", unit="s", description="host time since the sample arrived, at the step's end")
         self.add_output("fresh", kind=bool, description="a new sample arrived during the last step")
         self.add_output("link_ok", kind=bool, description="the session with the rig is up")
-        self.add_output("samples_missed", kind=int, description="steps in a row without a new sample")
+        self.add_output("samples_missed", kind=int, description="rig samples due since the newest one arrived "
+                        "(measurement_age x sample_rate, rounded down)")
         self.add_output("frames_dropped", kind=int, description="frames received and dropped (corrupt, truncated, "
                         "oversized, unknown, out of order)")
         self.add_output("frames_lost", kind=int, description="frames missing from the rig's sequence")
@@ -63,8 +66,8 @@ class HardwareProxy(NfalSlave):
                            "or any pyserial URL")
         self.add_parameter("baud_rate", 2_000_000, description="line rate [baud] (ignored by ptys and sockets)")
         self.add_parameter("connect_timeout", 2.0, unit="s", description="wait for the rig's HELLO_ACK and first sample")
-        self.add_parameter("max_missed_samples", 20, description="steps in a row without a new sample before the "
-                           "step fails (20 = 10 ms at 2 kHz)")
+        self.add_parameter("max_missed_samples", 20, description="samples the rig may miss in a row (by the wall "
+                           "clock) before the step fails (20 = 10 ms at 2 kHz)")
         self.add_parameter("reconnect", True, description="reopen the port and say HELLO again after a lost link")
         self.add_parameter("sample_rate", 2000.0, unit="Hz", description="the rig's sample rate, checked at connection")
         self._link: RigLink | None = None
@@ -129,14 +132,15 @@ class HardwareProxy(NfalSlave):
         link.send_drive(voltage)
         link.poll()  # what has arrived, without waiting
         sample = link.latest()
-        fresh = sample.count != self._seen
-        self.samples_missed = 0 if fresh else self.samples_missed + 1
-        self._publish(sample, fresh=fresh)
+        self._publish(sample, fresh=sample.count != self._seen)
+        # by the wall clock, not by steps: a master catching up after a stall of its own steps in a burst,
+        # and those steps find nothing new although the rig has not missed a sample
+        self.samples_missed = int(self.measurement_age * self.sample_rate)
         if self.samples_missed > self.max_missed_samples:
             reason = link.last_error or "no error on the port: the rig went silent"
             self._close(stop=False)
-            raise LinkError(f"{self.port}: no measurement from the rig for {self.samples_missed} steps "
-                            f"({self.samples_missed * step_size * 1e3:.1f} ms, limit max_missed_samples = "
+            raise LinkError(f"{self.port}: no measurement from the rig for {self.measurement_age * 1e3:.1f} ms "
+                            f"({self.samples_missed} samples, limit max_missed_samples = "
                             f"{self.max_missed_samples}): link lost ({reason}); the last sample is from rig time "
                             f"{self.rig_time:.4f} s")
 

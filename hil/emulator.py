@@ -12,9 +12,9 @@ than real time: the host sees the stall as samples that did not come):
    :class:`~nfal.hil.faults.FaultInjector`;
 5. the rig model advances one period.
 
-``disconnect_at_s`` drops the port at that wall time after the start (the host's reads fail) and
-reconnects it ``reconnect_after_s`` later; the rig keeps running meanwhile, so its watchdog ramps the
-drive down if the host stops commanding.
+:class:`Disconnection` drops the port that long after the first session opened (the host's reads fail)
+and reconnects it ``after_s`` later (rig time); the rig keeps running meanwhile, so its watchdog ramps
+the drive down when the host stops commanding.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable
+from typing import TextIO
 
 from nfal.models.errors import InvalidParameterError
 
@@ -30,13 +31,15 @@ from .firmware import Firmware, RigTiming
 
 logger = logging.getLogger(__name__)
 
+#: The columns of the emulator's record (``--record``): what the rig measured and applied, and the truth.
+RECORD_HEADER = "timestamp_us,height_m,drive_frequency_hz,applied_voltage_v,true_height_m"
 #: A tick later than this [s] restarts the rig's schedule from now (RealTimePacer's resync_after_s).
 RESYNC_AFTER_S = 0.002
 
 
 @dataclasses.dataclass(frozen=True)
 class Disconnection:
-    """Drop the port ``at_s`` seconds of wall time after the start, reconnect ``after_s`` later (None: never)."""
+    """Drop the port ``at_s`` seconds after the first session opened, reconnect ``after_s`` later (None: never)."""
 
     at_s: float
     after_s: float | None = 1.0
@@ -76,10 +79,13 @@ class Emulator:
     disconnection : Disconnection, optional
     on_event : callable, optional
         ``on_event(text)`` for a line of the emulator's log (session, watchdog, link events).
+    record : text file, optional
+        Gets one CSV line per MEASUREMENT the rig takes in a session (before fault injection): :data:`RECORD_HEADER`.
     """
 
     def __init__(self, port, model, *, timing: RigTiming = RigTiming(), faults: FaultSettings = FaultSettings(),
-                 disconnection: Disconnection | None = None, on_event: Callable[[str], None] | None = None) -> None:
+                 disconnection: Disconnection | None = None, on_event: Callable[[str], None] | None = None,
+                 record: TextIO | None = None) -> None:
         self.port, self.model, self.timing = port, model, timing
         self.on_event = on_event or (lambda text: logger.info("%s", text))
         self.firmware = Firmware(timing, on_event=lambda t, text: self.on_event(f"t = {t:.4f} s: {text}"))
@@ -87,39 +93,52 @@ class Emulator:
         self.disconnection = disconnection
         self.report = EmulatorReport()
         self._stop = False
+        self._opened_at: float | None = None  # rig time of the first HELLO
+        self._dropped_at: float | None = None
+        self._record = record
+        if record is not None:
+            record.write(RECORD_HEADER + "\n")
 
     def stop(self) -> None:
         """Ask :meth:`run` to return after the current tick (from a signal handler or another thread)."""
         self._stop = True
 
-    def tick(self, k: int, wall_s: float) -> None:
+    def tick(self, k: int) -> None:
         """One sample period of the rig (see the module docstring)."""
         firmware, port = self.firmware, self.port
+        now = k * self.timing.sample_period_s
         out = firmware.receive(port.read(), k)
+        if firmware.session and self._opened_at is None:
+            self._opened_at = now
         voltage, faults = firmware.voltage(k)
         out += faults
         self.model.apply(voltage)
-        out += firmware.report(k, self.model.reading())
-        frames = self.inject(out, wall_s)
+        reading = self.model.reading()
+        out += firmware.report(k, reading)
+        if self._record is not None and firmware.session:
+            self._record.write(f"{firmware.last_measurement.timestamp_us},{reading.height!r},"
+                               f"{reading.drive_frequency!r},{voltage!r},{self.model.true_height!r}\n")
+        frames = self.inject(out, now)
         if frames:
             port.write(b"".join(frames))
             self.report.frames_sent += len(frames)
         self.model.advance()
+        self._link_events(now)
 
-    def _link_events(self, elapsed_s: float, dropped_at: float | None) -> float | None:
-        plan = self.disconnection
-        if plan is None:
-            return dropped_at
-        if dropped_at is None and self.port.connected and elapsed_s >= plan.at_s and not self.report.disconnects:
+    def _link_events(self, now_s: float) -> None:
+        """Drop or restore the port as ``disconnection`` says (rig time since the first session opened)."""
+        plan, opened = self.disconnection, self._opened_at
+        if plan is None or opened is None:
+            return
+        if self._dropped_at is None and not self.report.disconnects and now_s - opened >= plan.at_s:
             self.port.disconnect()
             self.report.disconnects += 1
-            self.on_event(f"wall {elapsed_s:.3f} s: port disconnected (rig time {self.model.time:.4f} s)")
-            return elapsed_s
-        if dropped_at is not None and plan.after_s is not None and elapsed_s >= dropped_at + plan.after_s:
+            self._dropped_at = now_s
+            self.on_event(f"t = {now_s:.4f} s: port disconnected")
+        elif self._dropped_at is not None and plan.after_s is not None and now_s >= self._dropped_at + plan.after_s:
             self.port.connect()
-            self.on_event(f"wall {elapsed_s:.3f} s: port reconnected at {self.port.path}")
-            return None
-        return dropped_at
+            self._dropped_at = None
+            self.on_event(f"t = {now_s:.4f} s: port reconnected at {self.port.path}")
 
     def run(self, duration_s: float | None = None) -> EmulatorReport:
         """Tick in real time until ``duration_s`` of wall time (None: until :meth:`stop`)."""
@@ -130,16 +149,15 @@ class Emulator:
         # after a stall the rig's clock goes on from now (a burst of ticks would run its physics too fast)
         pacer = RealTimePacer(period, spin_s=0.0, history=int(60 / period), resync_after_s=RESYNC_AFTER_S)
         ticks = None if duration_s is None else max(1, round(duration_s / period))
-        dropped_at = None
         pacer.start()
         k = 0
         while not self._stop and (ticks is None or k < ticks):
             pacer.wait(k)
-            elapsed = k * period
-            dropped_at = self._link_events(elapsed, dropped_at)
-            self.tick(k, elapsed)
+            self.tick(k)
             pacer.done(k)
             k += 1
+        if self._record is not None:
+            self._record.flush()
         report = self.report
         report.ticks, report.final_voltage = k, self.firmware.applied
         report.pacing = pacer.report()

@@ -80,6 +80,7 @@ class Firmware:
         self.commanded = 0.0        # [V], after the clamp
         self.applied = 0.0          # [V] over the current period
         self.command_seq = 0
+        self.last_measurement: Measurement | None = None
         self._last_drive_tick = 0
         self._ramp: tuple[int, float] | None = None  # (start tick, start voltage)
         self._watchdog_ticks = math.ceil(timing.watchdog_timeout_s / timing.sample_period_s - 1e-9)
@@ -188,8 +189,9 @@ class Firmware:
         """The frames for the host at ``tick``: MEASUREMENT in a session, RIG_HEARTBEAT when due."""
         out = []
         if self.session:
-            out.append(self.encoder(Measurement(self._us(tick), reading.height, reading.drive_frequency, self.applied,
-                                                self.status(reading), self.command_seq)))
+            self.last_measurement = Measurement(self._us(tick), reading.height, reading.drive_frequency, self.applied,
+                                                self.status(reading), self.command_seq)
+            out.append(self.encoder(self.last_measurement))
         if tick % self._heartbeat_ticks == 0:
             counters = self.decoder.counters
             out.append(self.encoder(RigHeartbeat(self._us(tick), self.status(reading), counters.frames_ok,

@@ -41,7 +41,7 @@ def register(commands) -> None:
                           help="send this share of outgoing frames twice")
     emulator.add_argument("--delay", type=float, default=0.0, metavar="SECONDS", help="hold every outgoing frame this long")
     emulator.add_argument("--disconnect-at", type=float, metavar="SECONDS",
-                          help="drop the port this long after the start (the host's reads fail)")
+                          help="drop the port this long after the first session opened (the host's reads fail)")
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
                           help="reconnect the port this long after --disconnect-at (default 1.0)")
     emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
@@ -55,6 +55,8 @@ def register(commands) -> None:
                           "Ctrl-C or SIGTERM)")
     emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
                           "(default build/)")
+    emulator.add_argument("--record", metavar="FILE.csv", help="write every measurement the rig takes in a session "
+                          "(before fault injection), with the applied voltage and the true height")
     emulator.add_argument("--json", action="store_true", help="print the exit summary as JSON")
     emulator.set_defaults(handler=run_emulator)
 
@@ -97,9 +99,11 @@ def run_emulator(args: argparse.Namespace) -> int:
     parameters = dict(parse_parameter(text) for text in args.param)
     with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
         port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
+        record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
             _say(str(port.path))
-            emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say)
+            emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
+                                record=record)
             previous = signal.signal(signal.SIGTERM, lambda *_: emulator.stop())
             try:
                 _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "
@@ -111,6 +115,8 @@ def run_emulator(args: argparse.Namespace) -> int:
                 signal.signal(signal.SIGTERM, previous)
         finally:
             port.close()
+            if record is not None:
+                record.close()
     _print_report(report, args.json)
     return 0
 
