@@ -256,7 +256,7 @@ def _convert(value: object, variable_type: int, name: str):
 def run_ssp(archive: str | Path, stop_time: float | None = None, *, step_size: float | None = None,
             inputs: Mapping[str, InputSignal] | None = None, observe: Sequence[str] | None = None,
             parameters: Mapping[str, object] | None = None, apply_all_bindings: bool = True,
-            log_level: str = "error") -> LibcosimRun:
+            log_level: str = "error", realtime: bool = False) -> LibcosimRun:
     """Run ``archive`` in OSP libcosim with a fixed step, driving ``inputs`` and recording ``observe``.
 
     Parameters
@@ -284,6 +284,9 @@ def run_ssp(archive: str | Path, stop_time: float | None = None, *, step_size: f
     log_level : str
         libcosim's console log level, one of :data:`LOG_LEVELS` (default ``"error"``; ``"warning"``
         shows, among others, every binding parameter an element does not have).
+    realtime : bool
+        Let libcosim pace the steps on the wall clock (its real-time mode, factor 1): for an FMU that
+        talks to hardware, such as the HardwareProxy.
 
     Returns
     -------
@@ -373,6 +376,8 @@ def run_ssp(archive: str | Path, stop_time: float | None = None, *, step_size: f
             raise InvalidParameterError(f"observed variable {name}", "String", "a Real, Integer or Boolean variable")
         watched.append((name, variable))
 
+    if realtime and not execution.real_time_simulation_enabled(True):
+        raise SimulationError(f"libcosim: cannot enable real-time simulation: {last_error()}")
     observer = CosimObserver.create_last_value()
     manipulator = CosimManipulator.create_override()
     execution.add_observer(observer)
