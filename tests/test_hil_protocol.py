@@ -310,6 +310,13 @@ def test_a_non_finite_real_in_an_intact_frame_is_invalid(cls, offset, accepts, b
     assert decoder.counters.invalid_value == decoder.counters.dropped == 1
 
 
+@pytest.mark.parametrize("voltage", [-1e-6, -5.0, -150.0])
+def test_a_negative_drive_voltage_is_invalid(voltage):
+    decoder = FrameDecoder(HOST_TO_RIG)
+    assert decoder.feed(encode(Drive(voltage), 1)) == []
+    assert decoder.counters.invalid_value == decoder.counters.dropped == 1 and decoder.counters.frames_ok == 0
+
+
 @pytest.mark.parametrize("cls, size, counter", [
     (Drive, 3, "truncated"), (Drive, 5, "oversized"), (Stop, 1, "oversized"), (Hello, 0, "truncated"),
 ])

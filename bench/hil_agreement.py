@@ -1,0 +1,62 @@
+"""HIL against simulation: the numbers docs/hil.md quotes. Prints a markdown table.
+
+    python bench/hil_agreement.py
+
+Runs `nfal rig-emulator` (rig_slow truth, sensor noise off) in a child process and fig7_hil in real time
+tracking 100 -> 140 um, then the simulated loop fig7_slow with the truth's parameters, and compares (the
+same settings as tests/test_hil_end_to_end.py::test_hil_tracks_a_step_like_the_simulation_of_the_truth).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from machine import describe
+
+from nfal.build import build_all
+from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
+from nfal.models.closed_loop import Staircase
+from nfal.orchestration import run_structure
+
+TRUTH = {"Plant.initial_height": 5e-6, "Plant.excess_damping_height": 137e-6, "Plant.excess_damping_exponent": 6.0,
+         "Plant.near_surface": "fast", "SensorChain.noise_peak": 0.0}
+STEP = Staircase((100e-6, 140e-6), hold_s=1.0, lead_s=1.0)
+
+
+def main() -> int:
+    print(f"machine: {describe()}\n")
+    with tempfile.TemporaryDirectory(prefix="nfal-hil-agreement-") as temp:
+        archives = build_all(Path(temp) / "build", structures=("fig7_slow", "fig7_hil", "rig_slow"))
+        emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--truth", str(archives["rig_slow"]),
+                                     "--param", "SensorChain.noise_peak=0"], stdout=subprocess.PIPE, text=True)
+        try:
+            port = emulator.stdout.readline().strip()
+            hil = run_structure(archives["fig7_hil"], stop_time=STEP.duration_s, inputs={"Controller.reference": STEP},
+                                parameters={"proxy.port": port}, realtime=True, plot=False, out_dir=Path(temp) / "hil")
+        finally:
+            emulator.terminate()
+            emulator.communicate(timeout=30)
+        simulated = run_structure(archives["fig7_slow"], stop_time=STEP.duration_s, inputs={"Controller.reference": STEP},
+                                  parameters=TRUTH, plot=False, out_dir=Path(temp) / "sim")
+        t = hil.table().time
+        difference = np.abs(np.asarray(hil[HARDWARE.measured]) - np.asarray(simulated[SIMULATED.measured]))
+        [ours] = loop_metrics(hil.table(), STEP, HARDWARE)["steps"]
+        [theirs] = loop_metrics(simulated.table(), STEP, SIMULATED)["steps"]
+    print("| | HIL | simulated |\n|---|---:|---:|")
+    print(f"| rise time 100 → 140 µm | {ours['rise_time_s'] * 1e3:.1f} ms | {theirs['rise_time_s'] * 1e3:.1f} ms |")
+    print(f"| overshoot | {ours['overshoot_percent']:.1f} % | {theirs['overshoot_percent']:.1f} % |")
+    print(f"| settling time | {ours['settling_time_s'] * 1e3:.1f} ms | {theirs['settling_time_s'] * 1e3:.1f} ms |")
+    transient = np.max(difference[(t >= 1.0) & (t < 1.2)])
+    holds = max(np.max(difference[(t >= a) & (t < b)]) for a, b in ((0.5, 1.0), (1.5, 2.0)))
+    print(f"| largest height difference in the step's first 0.2 s | {transient * 1e6:.2f} µm | |")
+    print(f"| largest difference over the last half of each hold | {holds * 1e6:.3f} µm | |")
+    print(f"| lift-off, first 0.2 s (not compared) | {np.max(difference[t < 0.2]) * 1e6:.1f} µm | |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
