@@ -223,7 +223,7 @@ class RigLink:
             try:
                 written = port.write(frame)
             except (serial.SerialException, OSError) as exc:
-                self._lost(f"write failed: {exc}")
+                self._lost(port, f"write failed: {exc}")
                 return False
         if written is not None and written != len(frame):
             self.counters.write_errors += 1
@@ -240,14 +240,14 @@ class RigLink:
             except Exception:  # noqa: BLE001 - closing a port that already failed
                 pass
 
-    def _lost(self, reason: str) -> None:
-        """The port failed: record why; the reader reconnects (if allowed)."""
-        if self._stopping.is_set():
-            return
+    def _lost(self, port, reason: str) -> None:
+        """``port`` failed: record why, once; the reader reconnects (if allowed)."""
+        if self._stopping.is_set() or port is not self._port:
+            return  # closing, or already handled (a write and a read failed on the same port)
         self.last_error = reason
         self.counters.disconnects += 1
         logger.warning("%s: link lost: %s", self.url, reason)
-        port, self._port = self._port, None  # the write lock is held by _send, or not needed by the reader
+        self._port = None
         self._acknowledged.clear()
         if port is not None:
             try:
@@ -266,14 +266,14 @@ class RigLink:
             return
         if not self._acknowledged.is_set() and self.clock() - self._hello_at > self.connect_timeout_s:
             self.counters.handshake_failures += 1
-            self._lost(f"no HELLO_ACK within {self.connect_timeout_s:g} s")
+            self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
             return
         try:
             waiting = port.in_waiting
             data = port.read(max(1, waiting)) if block else (port.read(waiting) if waiting else b"")
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # pyserial raises TypeError/AttributeError when the port is closed under a read
-            self._lost(f"read failed: {exc}")
+            self._lost(port, f"read failed: {exc}")
             return
         if data:
             self._handle(data)

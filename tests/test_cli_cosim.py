@@ -92,3 +92,8 @@ def test_bad_input_signal_is_a_clear_error(capsys, tmp_path, fig7_archives, text
     assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.01", "--out", str(tmp_path / "r"),
                  "--input", text]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_run_of_the_hil_structure_asks_for_the_port_before_anything_runs(capsys, tmp_path, fig7_archives):
+    assert main(["run", str(fig7_archives["fig7_hil"]), "--out", str(tmp_path / "run")]) == 2
+    assert "--param proxy.port=PORT" in capsys.readouterr().err and not (tmp_path / "run").exists()

@@ -132,6 +132,10 @@ def run_run(args: argparse.Namespace) -> int:
     parameters = dict(parse_parameter(text) for text in args.param)
     structure = _structure_path(args)
     columns = loop_columns(_element_names(structure))
+    if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
+        raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a device "
+                                    "path or socket://host:port); no rig? start `nfal rig-emulator` and give the path "
+                                    "it prints first")
     if columns is HARDWARE and not args.realtime:
         print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)", file=sys.stderr)
         args.realtime = True
