@@ -29,7 +29,7 @@ import serial
 
 from nfal.models.errors import NfalError, require_positive
 
-from .protocol import (PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello,
+from .protocol import (DELIMITER, PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello,
                        HelloAck, Measurement, RigHeartbeat, Stop)
 
 logger = logging.getLogger(__name__)
@@ -38,6 +38,14 @@ logger = logging.getLogger(__name__)
 READ_TIMEOUT_S = 0.01
 #: Faults kept for :attr:`RigLink.faults`.
 FAULT_HISTORY = 100
+#: Most bytes one non-blocking read takes (about 100 measurement frames).
+READ_CHUNK = 4096
+
+
+def write_timeout(url: str) -> float | None:
+    """The pyserial write timeout that never waits: 0, except for ``loop://``, which raises on any write
+    longer than its timeout at the baud rate (it never blocks anyway: None)."""
+    return None if url.startswith("loop://") else 0
 
 
 class LinkError(NfalError, RuntimeError):
@@ -120,6 +128,7 @@ class RigLink:
         self._refused: Fault | None = None
         self._hello_at = 0.0
         self._reconnect_at = 0.0
+        self._lost_reason = ""
 
     # --- the session -------------------------------------------------------------------------------
     def open(self) -> HelloAck:
@@ -128,6 +137,7 @@ class RigLink:
         if self._port is not None or self._thread is not None:
             raise LinkError(f"{self.url}: the link is already open")
         self._stopping.clear()
+        self._refused = None  # kept across the reader's reconnections while open() waits
         self._connect()  # raises on failure: nothing is left running
         if self.reader_thread:
             self._thread = threading.Thread(target=self._read_loop, name=f"nfal-rig-link {self.url}", daemon=True)
@@ -200,31 +210,43 @@ class RigLink:
     def _connect(self) -> None:
         """Open the port and say HELLO (the reader takes the HELLO_ACK)."""
         try:
-            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=READ_TIMEOUT_S, write_timeout=0)
+            # the reader thread waits for the first byte; an owner that polls never waits (timeout 0)
+            port = serial.serial_for_url(self.url, baudrate=self.baudrate,
+                                         timeout=READ_TIMEOUT_S if self.reader_thread else 0,
+                                         write_timeout=write_timeout(self.url))
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkError(f"cannot open {self.url}: {exc}") from None
         self._acknowledged.clear()
-        self._refused = None
         self.decoder.reset_sequence()
         with self._write_lock:
             self._port = port
             self._encoder.restart()
         self._hello_at = self.clock()
-        if not self._send(Hello(PROTOCOL_VERSION)):
+        # a 0x00 first ends whatever partial frame the rig may hold, so the HELLO is not glued to it (spec 2.1)
+        if not (self._send_bytes(DELIMITER) and self._send(Hello(PROTOCOL_VERSION))):
             self._close_port()
             raise LinkError(f"{self.url}: could not write HELLO")
 
     def _send(self, message) -> bool:
         with self._write_lock:
-            port = self._port
-            if port is None:
-                return False
-            frame = self._encoder(message)
-            try:
-                written = port.write(frame)
-            except (serial.SerialException, OSError) as exc:
-                self._lost(port, f"write failed: {exc}")
-                return False
+            return self._write(self._encoder(message))
+
+    def _send_bytes(self, data: bytes) -> bool:
+        with self._write_lock:
+            return self._write(data)
+
+    def _write(self, frame: bytes) -> bool:
+        """Write ``frame`` without waiting (the write lock held); False if the port did not take all of it."""
+        port = self._port
+        if port is None:
+            return False
+        try:
+            written = port.write(frame)
+        except serial.SerialTimeoutException:
+            written = 0  # the port took none of it in time
+        except (serial.SerialException, OSError) as exc:
+            self._lost(port, f"write failed: {exc}")
+            return False
         if written is not None and written != len(frame):
             self.counters.write_errors += 1
             return False
@@ -244,7 +266,7 @@ class RigLink:
         """``port`` failed: record why, once; the reader reconnects (if allowed)."""
         if self._stopping.is_set() or port is not self._port:
             return  # closing, or already handled (a write and a read failed on the same port)
-        self.last_error = reason
+        self.last_error = self._lost_reason = reason
         self.counters.disconnects += 1
         logger.warning("%s: link lost: %s", self.url, reason)
         self._port = None
@@ -269,8 +291,9 @@ class RigLink:
             self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
             return
         try:
-            waiting = port.in_waiting
-            data = port.read(max(1, waiting)) if block else (port.read(waiting) if waiting else b"")
+            # blocking: up to READ_TIMEOUT_S for the first byte, then what is waiting; not blocking: the port was
+            # opened with timeout 0, so read(READ_CHUNK) returns what has arrived (a socket's in_waiting says 1)
+            data = port.read(max(1, port.in_waiting)) if block else port.read(READ_CHUNK)
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # pyserial raises TypeError/AttributeError when the port is closed under a read
             self._lost(port, f"read failed: {exc}")
@@ -286,7 +309,7 @@ class RigLink:
         try:
             self._connect()
         except LinkError as exc:
-            self.last_error = str(exc)
+            self.last_error = f"{self._lost_reason}; reopening: {exc}"
 
     def _read_loop(self) -> None:
         while not self._stopping.is_set():

@@ -15,6 +15,9 @@ from pathlib import Path
 
 import serial
 
+#: Most bytes one read takes.
+READ_CHUNK = 65536
+
 
 class PtyPort:
     """A pty whose other end the host opens at :attr:`path` (a symlink to the current ``/dev/pts/N``).
@@ -94,7 +97,10 @@ class UrlPort:
         return self._port is not None
 
     def connect(self) -> None:
-        self._port = serial.serial_for_url(self.path, baudrate=self.baudrate, timeout=0, write_timeout=0)
+        from .link import write_timeout
+
+        self._port = serial.serial_for_url(self.path, baudrate=self.baudrate, timeout=0,
+                                           write_timeout=write_timeout(self.path))
 
     def disconnect(self) -> None:
         if self._port is not None:
@@ -104,8 +110,7 @@ class UrlPort:
     def read(self) -> bytes:
         if self._port is None:
             return b""
-        waiting = self._port.in_waiting
-        return self._port.read(waiting) if waiting else b""
+        return self._port.read(READ_CHUNK)  # timeout 0: what has arrived (a socket's in_waiting says 1)
 
     def write(self, data: bytes) -> None:
         if self._port is None or not data:

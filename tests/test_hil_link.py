@@ -1,0 +1,403 @@
+"""The host's link to the rig (nfal.hil.link.RigLink) against a real rig side on a pty.
+
+The rig is a :class:`Firmware` ticked at 1 kHz by a background thread on a :class:`PtyPort` (receive,
+voltage, report with a per-tick :class:`RigReading`, write through a :class:`FaultInjector`), so each
+test runs the host's code path as it runs against the emulator. Every test is run with the link's reader
+thread and with the owner polling (``reader_thread=False``, as the HardwareProxy does).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+import threading
+import time
+from collections.abc import Callable
+
+import pytest
+
+from nfal.hil import link as link_module
+from nfal.hil.faults import FaultInjector, FaultSettings
+from nfal.hil.firmware import Firmware, RigReading, RigTiming
+from nfal.hil.link import LinkCounters, LinkError, RigLink
+from nfal.hil.ports import PtyPort
+from nfal.hil.protocol import (HOST_TO_RIG, PROTOCOL_VERSION, DecoderCounters, FaultCode, FrameDecoder, Hello,
+                               HelloAck, Measurement, StatusFlags)
+
+#: 1 kHz rig; a long watchdog so that a busy machine never trips it in a test that drives.
+TIMING = RigTiming(sample_period_s=1e-3, watchdog_timeout_s=0.5, ramp_down_s=0.05, max_drive_voltage=150.0,
+                   heartbeat_period_s=0.02)
+ACK = HelloAck(1, 1000, 500_000, 50_000, 150.0)
+#: Generous bound on waits for something the rig does within a few ms [s].
+WAIT_S = 3.0
+
+def f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+def height_at(tick: int) -> float:
+    """The rig's measured height at ``tick``: different every tick, so a damaged frame cannot pass as another."""
+    return 1e-4 + (tick % 100_000) * 1e-10
+
+
+class FakeRig:
+    """A :class:`Firmware` on a :class:`PtyPort`, ticked by a thread at ``timing.sample_period_s``.
+
+    Port and firmware are used under :attr:`lock`, so the test may disconnect the port or look at the firmware
+    between ticks. ``inject`` may be swapped in (fault injection on what the rig sends).
+    """
+
+    def __init__(self, path, timing: RigTiming = TIMING) -> None:
+        self.timing = timing
+        self.port = PtyPort(path)
+        self.firmware = Firmware(timing)
+        self.inject = FaultInjector(FaultSettings())
+        self.lock = threading.Lock()
+        self.sent: dict[int, Measurement] = {}  # timestamp_us -> the MEASUREMENT the rig sent
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="fake rig", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return str(self.port.path)
+
+    def _run(self) -> None:
+        period, k = self.timing.sample_period_s, 0
+        start = time.perf_counter()
+        while not self._stop.is_set():
+            with self.lock:
+                firmware = self.firmware
+                out = firmware.receive(self.port.read(), k)
+                _, faults = firmware.voltage(k)
+                out += faults
+                out += firmware.report(k, RigReading(height_at(k), 28_500.0, True, False))
+                if firmware.session:
+                    self.sent[firmware.last_measurement.timestamp_us] = firmware.last_measurement
+                frames = self.inject(out, k * period)
+                if frames:
+                    self.port.write(b"".join(frames))
+            k += 1
+            delay = start + k * period - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -0.05:  # stalled (a busy machine): go on from now, like the emulator
+                start = time.perf_counter() - k * period
+
+    def state(self) -> tuple[bool, float, int]:
+        """(session open, applied voltage, command_seq), between two ticks."""
+        with self.lock:
+            return self.firmware.session, self.firmware.applied, self.firmware.command_seq
+
+    def disconnect(self) -> None:
+        with self.lock:
+            self.port.disconnect()
+
+    def connect(self) -> None:
+        with self.lock:
+            self.port.connect()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.port.close()
+
+
+@pytest.fixture
+def rig(tmp_path):
+    started: list[FakeRig] = []
+
+    def start(timing: RigTiming = TIMING) -> FakeRig:
+        started.append(FakeRig(tmp_path / f"rig{len(started)}", timing))
+        return started[-1]
+
+    yield start
+    for fake in started:
+        fake.stop()
+
+
+@pytest.fixture(params=[True, False], ids=["reader thread", "owner polls"])
+def links(request):
+    """Makes RigLinks with and without a reader thread; closes them all afterwards."""
+    made: list[RigLink] = []
+
+    def make(url: str, **options) -> RigLink:
+        made.append(RigLink(url, reader_thread=request.param, **options))
+        return made[-1]
+
+    yield make
+    for link in made:
+        link.close()
+
+def wait_for(link: RigLink, condition: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
+    """Poll (if the link has no reader thread) until ``condition()`` or the timeout; returns the last value."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if not link.reader_thread:
+            link.poll()
+        if condition():
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.001)
+
+def keep_polling(link: RigLink, seconds: float) -> None:
+    """Let ``seconds`` pass with the link taking in what comes (polling it, if it has no reader thread)."""
+    wait_for(link, lambda: False, timeout_s=seconds)
+
+def count(link: RigLink) -> int:
+    sample = link.latest()
+    return 0 if sample is None else sample.count
+
+
+# --- session ---------------------------------------------------------------------------------------
+
+
+def test_open_returns_the_rigs_hello_ack_and_measurements_arrive(rig, links):
+    fake = rig()
+    link = links(fake.url)
+    assert link.open() == ACK == link.rig and link.connected
+    assert wait_for(link, lambda: count(link) >= 20)
+    seqs, heights = [], []
+    for _ in range(5):
+        first = link.latest().count
+        assert wait_for(link, lambda: link.latest().count > first)
+        sample = link.latest()
+        seqs.append(sample.seq)
+        heights.append((sample.measurement.timestamp_us, sample.measurement.height))
+    assert seqs == sorted(set(seqs))
+    for timestamp_us, height in heights:  # the exact height the rig measured at that tick, as binary32
+        assert height == f32(height_at(timestamp_us // 1000)) == f32(fake.sent[timestamp_us].height)
+    measurement = link.latest().measurement
+    assert measurement.status & StatusFlags.SESSION_ACTIVE and measurement.status & StatusFlags.PLL_LOCKED
+    assert measurement.drive_frequency == 28_500.0 and measurement.drive_voltage == 0.0
+    assert link.counters.measurements >= 25 and link.decoder.counters.dropped == 0
+
+
+def test_send_drive_reaches_the_firmware(rig, links):
+    fake = rig()
+    link = links(fake.url)
+    link.open()
+    assert link.send_drive(42.5) and link.counters.drives_sent == 1
+    assert wait_for(link, lambda: fake.state()[2] == 1)  # HELLO is seq 0, this DRIVE seq 1
+    assert fake.state() == (True, 42.5, 1)
+    assert wait_for(link, lambda: link.latest().measurement.command_seq == 1)
+    assert link.latest().measurement.drive_voltage == 42.5
+    assert link.send_drive(7) and wait_for(link, lambda: fake.state() == (True, 7.0, 2))
+
+
+def test_close_sends_stop_and_is_idempotent(rig, links):
+    fake = rig()
+    link = links(fake.url)
+    link.open()
+    link.send_drive(30.0)
+    assert wait_for(link, lambda: fake.state()[2] == 1)
+    link.close()
+    assert not link.connected
+    assert wait_for(link, lambda: not fake.state()[0], timeout_s=1.0)  # the firmware's session ended
+    link.close()
+    link.close(stop=False)
+    assert not link.send_drive(1.0) and link.counters.drives_sent == 1
+
+
+def test_health_has_every_counter(rig, links):
+    fake = rig()
+    link = links(fake.url)
+    link.open()
+    assert wait_for(link, lambda: link.counters.heartbeats >= 2)
+    health = link.health()
+    names = {f.name for f in dataclasses.fields(LinkCounters)} | {f.name for f in dataclasses.fields(DecoderCounters)}
+    assert set(health) == names | {"dropped", "rig_frames_dropped", "connected", "last_error"}
+    assert health["connected"] is True and health["last_error"] == "" and health["heartbeats"] >= 2
+    assert health["frames_ok"] >= health["measurements"] + health["heartbeats"] and health["dropped"] == 0
+    link.close()
+    assert link.health()["connected"] is False
+
+
+def test_a_second_open_is_refused(rig, links):
+    link = links(rig().url)
+    link.open()
+    with pytest.raises(LinkError, match="already open"):
+        link.open()
+
+
+# --- failures to connect -----------------------------------------------------------------------------
+
+
+def test_a_port_where_nothing_answers_fails_within_the_connect_timeout(tmp_path, links):
+    silent = PtyPort(tmp_path / "silent")  # a pty with no firmware behind it
+    try:
+        link = links(str(silent.path), connect_timeout_s=0.3)
+        started = time.monotonic()
+        with pytest.raises(LinkError, match="HELLO_ACK") as failure:
+            link.open()
+        elapsed = time.monotonic() - started
+        assert str(silent.path) in str(failure.value)
+        assert 0.3 <= elapsed < 1.0  # measured: 0.30-0.31 s
+        assert link.counters.handshake_failures >= 1 and not link.connected
+        [hello] = FrameDecoder(HOST_TO_RIG).feed(silent.read())  # the HELLO went out, and waited in the pty
+        assert hello.message == Hello(PROTOCOL_VERSION) and hello.seq == 0
+    finally:
+        silent.close()
+
+
+@pytest.mark.parametrize("url", ["", "   "])
+
+
+def test_an_empty_url_is_refused(url):
+    with pytest.raises(LinkError, match="no port given"):
+        RigLink(url)
+
+
+def test_a_path_that_does_not_exist_cannot_be_opened(tmp_path, links):
+    link = links(str(tmp_path / "no-such-port"), connect_timeout_s=0.3)
+    with pytest.raises(LinkError, match="cannot open") as failure:
+        link.open()
+    assert "no-such-port" in str(failure.value) and not link.connected
+
+
+@pytest.mark.parametrize("side", ["host", "rig"])
+
+
+def test_a_rig_that_refuses_the_version_fails_naming_it(rig, links, monkeypatch, side):
+    """The host asks for version 2 (its PROTOCOL_VERSION patched), or the rig speaks only version 2."""
+    fake = rig()
+    if side == "host":
+        monkeypatch.setattr(link_module, "PROTOCOL_VERSION", 2)
+        asked = 2
+    else:
+        monkeypatch.setattr("nfal.hil.firmware.PROTOCOL_VERSION", 2)
+        asked = 1
+    link = links(fake.url, connect_timeout_s=0.3, reconnect=False)
+    with pytest.raises(LinkError, match=rf"refused protocol version {asked}\b.*VERSION_MISMATCH.*detail {asked}\b"):
+        link.open()
+    assert link.counters.handshake_failures >= 1 and not link.connected
+    assert link.faults and {f.code for f in link.faults} == {FaultCode.VERSION_MISMATCH}
+    assert {f.detail for f in link.faults} == {asked} and not fake.state()[0]
+
+
+def test_a_refusal_is_reported_even_if_the_reader_reconnects_during_open(rig, monkeypatch):
+    monkeypatch.setattr("nfal.hil.firmware.PROTOCOL_VERSION", 2)
+    fake = rig()
+    answered: list[bytes] = []
+    receive = fake.firmware.receive
+
+    def receive_once(data: bytes, tick: int) -> list[bytes]:
+        out = receive(data, tick)
+        if answered:
+            return []  # busy after its first answer
+        answered.extend(out)
+        return out
+
+    with fake.lock:
+        fake.firmware.receive = receive_once
+    calls = []
+
+    def clock() -> float:  # the first call stamps the HELLO; after it, the reader's deadline comes at 0.25 s
+        calls.append(None)
+        return time.perf_counter() + (0.25 if len(calls) > 1 else 0.0)
+
+    link = RigLink(fake.url, connect_timeout_s=0.5, clock=clock)  # open() waits 0.5 s of wall time
+    try:
+        with pytest.raises(LinkError, match="refused protocol version 1"):
+            link.open()
+    finally:
+        link.close()
+    assert answered  # the rig did refuse
+
+
+def test_a_loop_url_gets_as_far_as_waiting_for_the_hello_ack(links):
+    """loop:// echoes the HELLO (the host drops it: a host -> rig type), and nothing answers."""
+    link = links("loop://", connect_timeout_s=0.2)
+    with pytest.raises(LinkError, match="HELLO_ACK"):
+        link.open()
+
+
+# --- disconnection -----------------------------------------------------------------------------------
+
+
+def test_a_disconnect_is_counted_and_the_link_reconnects(rig, links):
+    fake = rig()
+    link = links(fake.url, reconnect_interval_s=0.02)
+    link.open()
+    assert wait_for(link, lambda: count(link) >= 10)
+    fake.disconnect()
+    assert wait_for(link, lambda: link.counters.disconnects == 1)
+    assert not link.connected and link.last_error  # why: the read failed, then the reopening did
+    assert "failed" in link.last_error or "cannot open" in link.last_error
+    keep_polling(link, 0.2)  # reopening fails meanwhile (the path is gone); that is no new disconnect
+    assert link.counters.disconnects == 1 and not link.connected and "cannot open" in link.last_error
+    before = count(link)
+    fake.connect()
+    assert wait_for(link, lambda: link.connected and count(link) > before + 10)
+    assert (link.counters.disconnects, link.counters.reconnects) == (1, 1)
+    assert link.latest().measurement.status & StatusFlags.SESSION_ACTIVE
+    assert link.send_drive(12.0) and wait_for(link, lambda: fake.state()[1] == 12.0)
+
+
+def test_the_reason_for_a_disconnect_is_kept(rig, links):
+    fake = rig()
+    link = links(fake.url, reconnect=False)
+    link.open()
+    assert wait_for(link, lambda: count(link) >= 5)
+    fake.disconnect()
+    assert wait_for(link, lambda: link.counters.disconnects == 1)
+    assert link.last_error.startswith(("read failed", "write failed"))
+    assert link.health()["last_error"] == link.last_error
+
+
+def test_without_reconnect_the_link_stays_down(rig, links):
+    fake = rig()
+    link = links(fake.url, reconnect=False, reconnect_interval_s=0.02)
+    link.open()
+    assert wait_for(link, lambda: count(link) >= 5)
+    fake.disconnect()
+    assert wait_for(link, lambda: link.counters.disconnects == 1)
+    fake.connect()
+    stuck = count(link)
+    assert not wait_for(link, lambda: link.connected or count(link) > stuck, timeout_s=0.3)
+    assert (link.counters.disconnects, link.counters.reconnects) == (1, 0) and not link.send_drive(1.0)
+
+
+# --- damaged frames ----------------------------------------------------------------------------------
+
+
+def test_corrupted_frames_are_counted_and_never_used(rig, links):
+    """20 % of the rig's frames get one bit flipped (after the handshake). Every MEASUREMENT the host accepts
+    is one the rig sent, bit for bit; the damaged ones are in the decoder's counters."""
+    fake = rig()
+    link = links(fake.url)
+    link.open()
+    with fake.lock:
+        fake.inject = FaultInjector(FaultSettings(corrupt=0.2, seed=5))
+    accepted: list[Measurement] = []
+    feed = link.decoder.feed
+
+    def recording_feed(data):
+        received = feed(data)
+        accepted.extend(r.message for r in received if isinstance(r.message, Measurement))
+        return received
+
+    link.decoder.feed = recording_feed
+    assert wait_for(link, lambda: fake.inject.counts.corrupted >= 60)
+    with fake.lock:
+        corrupted, fake.inject = fake.inject.counts.corrupted, FaultInjector(FaultSettings())
+    after = count(link)
+    assert wait_for(link, lambda: count(link) > after + 20)  # frames come in order: every damaged one is in
+    counters = link.decoder.counters
+    damage = counters.crc_errors + counters.cobs_errors + counters.truncated + counters.oversized
+    assert damage >= corrupted >= 60  # a bit flipped to 0x00 splits a frame into two drops
+    assert counters.lost > 0 and counters.invalid_value == 0 and counters.unknown_type == 0
+    assert len(accepted) > 100
+    for measurement in accepted:
+        sent = fake.sent[measurement.timestamp_us]
+        assert measurement.height == f32(sent.height) == f32(height_at(measurement.timestamp_us // 1000))
+        assert (measurement.drive_frequency, measurement.drive_voltage, measurement.status, measurement.command_seq) \
+            == (sent.drive_frequency, sent.drive_voltage, sent.status, sent.command_seq)
+
+
+def test_a_partial_frame_left_in_the_rig_does_not_spoil_the_hello(rig, links):
+    fake = rig()
+    with fake.lock:
+        fake.firmware.receive(b"\x03\x02\x07\x01", 0)  # the start of a DRIVE frame, the rest never came
+    link = links(fake.url, connect_timeout_s=0.3, reconnect=False)
+    assert link.open() == ACK
