@@ -68,7 +68,9 @@ class RealTimePacer:
     speed : float
         Simulated seconds per wall second (1: real time).
     spin_s : float
-        How long before a release to stop sleeping and busy-wait [s] (0: sleep only).
+        How long before a release to stop sleeping and busy-wait [s] (0: sleep only). Default 100 us: with
+        the 1 ns timer slack, sleeps overshoot by 34 us median, 79 us p99 here; a longer busy wait costs a
+        2-core machine the CPU a second real-time process needs (docs/benchmarks.md, "Hardware in the loop").
     clock, sleep : callables
         Injected for tests; default ``time.perf_counter`` and ``time.sleep``.
     history : int, optional
@@ -80,7 +82,7 @@ class RealTimePacer:
         faster than real time to make up for a stall.
     """
 
-    def __init__(self, step_size: float, *, speed: float = 1.0, spin_s: float = 2e-4,
+    def __init__(self, step_size: float, *, speed: float = 1.0, spin_s: float = 1e-4,
                  clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep,
                  history: int | None = None, resync_after_s: float | None = None) -> None:
         self.period = require_positive("step_size", step_size) / require_positive("speed", speed)
