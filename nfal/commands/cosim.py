@@ -40,8 +40,9 @@ def register(commands) -> None:
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                      help="override a parameter or start value (repeatable)")
     run.add_argument("--reference", default="staircase", metavar="staircase|FILE.csv",
-                     help="reference on Controller.reference: the built-in staircase of Figs. 9-10 (60-180 um) or a CSV "
-                     "of time_s,reference_m (held between rows) (default staircase)")
+                     help="reference on Controller.reference: the built-in staircase of Figs. 9-10 (60-180 um; against "
+                     "hardware its first level is held 1 s, for lift-off from rest) or a CSV of time_s,reference_m (held "
+                     "between rows) (default staircase)")
     run.add_argument("--reference-input", default=REFERENCE_INPUT, metavar="ELEMENT.VAR",
                      help=f"the input the reference drives (default {REFERENCE_INPUT}; 'none' for no external input)")
     run.add_argument("--input", action="append", default=[], metavar="ELEMENT.VAR=SIGNAL",
@@ -106,12 +107,17 @@ def _structure_path(args: argparse.Namespace) -> Path:
     return path
 
 
-def _reference(args: argparse.Namespace):
+#: The staircase's first hold against hardware [s]: the rig starts with the object at rest, and lift-off to
+#: the first level takes about half a second (the simulated loops start at 60 um: 0.1 s, as in Figs. 9-10).
+HARDWARE_LEAD_S = 1.0
+
+
+def _reference(args: argparse.Namespace, hardware: bool):
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration.signals import csv_signal
 
     if args.reference == "staircase":
-        return Staircase()
+        return Staircase(lead_s=HARDWARE_LEAD_S) if hardware else Staircase()
     return csv_signal(args.reference)
 
 
@@ -139,7 +145,7 @@ def run_run(args: argparse.Namespace) -> int:
     if columns is HARDWARE and not args.realtime:
         print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)", file=sys.stderr)
         args.realtime = True
-    reference = _reference(args)
+    reference = _reference(args, columns is HARDWARE)
     inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
     stop_time = args.stop_time
