@@ -15,19 +15,26 @@ from __future__ import annotations
 import collections
 import contextlib
 import ctypes
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.models.errors import InvalidParameterError, NfalError, require_positive
 
 #: Overruns listed one by one in the report (all are counted).
 FIRST_OVERRUNS = 10
 _PR_SET_TIMERSLACK = 29
 #: The interpreter's thread switch interval while paced [s] (Python's default is 5 ms).
 SWITCH_INTERVAL_S = 5e-5
+#: Real-time priorities SCHED_FIFO takes on Linux (``chrt -m`` lists them).
+RT_PRIORITIES = range(1, 100)
+
+
+class RealtimePriorityError(NfalError, PermissionError):
+    """The operating system refused a real-time scheduling priority (the message says how to get one)."""
 
 
 def fine_timer_slack() -> None:
@@ -56,6 +63,38 @@ def prompt_thread_switching(interval_s: float = SWITCH_INTERVAL_S) -> Iterator[N
         yield
     finally:
         sys.setswitchinterval(previous)
+
+
+@contextlib.contextmanager
+def realtime_priority(priority: int | None) -> Iterator[None]:
+    """Run the calling thread (and threads it starts) under Linux's SCHED_FIFO at ``priority`` (1-99), then
+    restore its policy; None: leave the scheduling alone.
+
+    A SCHED_FIFO thread is not preempted by ordinary processes, so a paced loop's release is not delayed by
+    whatever else the machine runs (measured in docs/benchmarks.md, "Hardware in the loop"). The kernel's
+    real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % of a CPU by default) keeps a
+    runaway loop from freezing the machine. Raises :class:`RealtimePriorityError` if the process may not
+    have it (it needs root, CAP_SYS_NICE or an ``rtprio`` limit), before anything runs.
+    """
+    if priority is None:
+        yield
+        return
+    if isinstance(priority, bool) or not isinstance(priority, int) or priority not in RT_PRIORITIES:
+        raise InvalidParameterError("rt_priority", priority, "a whole number from 1 to 99, or None")
+    if not hasattr(os, "sched_setscheduler"):
+        raise RealtimePriorityError(f"rt_priority = {priority}: this platform has no SCHED_FIFO (Linux has)")
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        raise RealtimePriorityError(
+            f"rt_priority = {priority}: the system refused SCHED_FIFO to this process; run as root, give python "
+            f"CAP_SYS_NICE (setcap cap_sys_nice+ep), or allow your user an rtprio in "
+            f"/etc/security/limits.conf - or leave the priority out") from None
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
 
 
 class RealTimePacer:

@@ -22,7 +22,7 @@ from nfal.models.errors import InvalidParameterError, require_positive
 
 from .errors import SimulationError
 from .master import ALGORITHMS, Master
-from .pacing import RealTimePacer, prompt_thread_switching
+from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority
 from .resolve import resolve
 from .results import CsvWriter, PlotPanel, ResultTable, plot_response, read_results, write_summary
 from .signals import PiecewiseConstant
@@ -98,7 +98,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                   out_dir: str | os.PathLike | None = None, realtime: bool | float = False,
                   progress: bool | None = None, plot: Sequence | bool | None = None,
                   metrics: Callable[[ResultTable], Mapping] | None = None, undeclared_dependencies: str = "none",
-                  fmu_logging: str = "on", flush_interval_s: float = 0.25) -> RunResult:
+                  fmu_logging: str = "on", flush_interval_s: float = 0.25, rt_priority: int | None = None) -> RunResult:
     """Run an SSP 1.0 system structure of FMI 2.0 co-simulation FMUs with a fixed step.
 
     Parameters
@@ -124,6 +124,10 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         second. A release starts the step's doStep calls; the exchange at t_{k+1} (``causal``: the
         sweep; ``jacobi``: reading the outputs) follows them at once, within the same step's budget.
         While paced, the thread switch interval is 50 us (:func:`~.pacing.prompt_thread_switching`).
+    rt_priority : int, optional
+        With ``realtime``: run the paced loop under SCHED_FIFO at this priority (1-99,
+        :func:`~.pacing.realtime_priority`), so that other processes do not delay its releases. Refused
+        (:class:`~.pacing.RealtimePriorityError`) before anything runs if the system does not allow it.
     progress : bool, optional
         A tqdm bar on stderr; default: only when stderr is a terminal.
     plot : sequence of PlotPanel (or of column-name sequences), False, or None
@@ -157,6 +161,11 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         speed = 1.0
     elif realtime is not False and realtime is not None:
         speed = require_positive("realtime", realtime)
+    if rt_priority is not None:
+        if not speed:
+            raise InvalidParameterError("rt_priority", rt_priority, "given only with realtime (a paced run)")
+        with realtime_priority(rt_priority):  # refused now, before anything is written, rather than mid-run
+            pass
     started_at = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
     with read_ssp(path) as structure:
         system = resolve(structure, parameters, undeclared_dependencies=undeclared_dependencies)
@@ -180,7 +189,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
             "elements": {e.name: {"fmu": str(e.source), "start_values": dict(e.start_values)} for e in system.elements},
             "connections": [f"{l.source.path} -> {l.target.path}" for l in system.links],
             "exchange_order": master.order, "inputs": {k: _describe(v) for k, v in dict(inputs or {}).items()},
-            "parameters": dict(parameters or {}), "unmatched_parameters": list(system.unmatched_parameters),
+            "rt_priority": rt_priority, "parameters": dict(parameters or {}),
+            "unmatched_parameters": list(system.unmatched_parameters),
             "columns": [c.header for c in master.columns], "results_csv": RESULTS_CSV,
         }
         summary_path = write_summary(out / SUMMARY_JSON, summary)
@@ -204,7 +214,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                 init_time = time.perf_counter() - wall_start
                 loop_start = time.perf_counter()
                 row = master.row
-                with prompt_thread_switching() if pacer is not None else contextlib.nullcontext():
+                with (prompt_thread_switching() if pacer is not None else contextlib.nullcontext(),
+                      realtime_priority(rt_priority)):
                     if pacer is not None:
                         pacer.start()
                     for k in range(steps):

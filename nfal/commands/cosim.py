@@ -54,6 +54,9 @@ def register(commands) -> None:
                      "jacobi: all step, then outputs move to inputs (as OSP libcosim does)")
     run.add_argument("--realtime", action="store_true", help="release steps on the wall clock; report overruns and "
                      "step-start jitter (p50/p99/max) in summary.json (on by itself for a structure with the hardware proxy)")
+    run.add_argument("--rt-priority", type=int, metavar="1-99", help="with --realtime (on by itself against hardware): "
+                     "run the paced loop under SCHED_FIFO at this priority, so other processes cannot delay its steps "
+                     "(Linux; needs root, CAP_SYS_NICE or an rtprio limit; e.g. 50)")
     run.add_argument("--out", metavar="DIR", help="result folder (default runs/<structure>-<date-time>)")
     run.add_argument("--build-dir", default="build", metavar="DIR", help="where built-in structures are built (default build/)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -145,6 +148,8 @@ def run_run(args: argparse.Namespace) -> int:
     if columns is HARDWARE and not args.realtime:
         print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)", file=sys.stderr)
         args.realtime = True
+    if args.rt_priority is not None and not args.realtime:
+        raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
     reference = _reference(args, columns is HARDWARE)
     inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
@@ -159,6 +164,7 @@ def run_run(args: argparse.Namespace) -> int:
     try:
         result = run_structure(structure, stop_time=stop_time, step_size=args.step, inputs=inputs, parameters=parameters,
                                algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
+                               rt_priority=args.rt_priority,
                                plot=response_panels(columns) if fig7 else None, metrics=metrics)
     except SimulationError as exc:
         if exc.result is not None:
@@ -204,4 +210,8 @@ def _print_summary(summary: dict, out: Path) -> None:
     if realtime:
         print(f"real time: {realtime.get('overruns')} overruns in {realtime.get('steps')} steps; step-start jitter "
               f"p50 {realtime.get('jitter_p50_s', 0) * 1e6:.0f} us, p99 {realtime.get('jitter_p99_s', 0) * 1e6:.0f} us, "
-              f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us")
+              f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us"
+              + (f" (SCHED_FIFO priority {summary['rt_priority']})" if summary.get("rt_priority") else ""))
+        if realtime.get("overruns") and not summary.get("rt_priority"):
+            print("hint: --rt-priority 50 runs the loop under SCHED_FIFO, so other processes cannot delay it "
+                  "(docs/hil.md, \"Real time\")")

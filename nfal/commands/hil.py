@@ -59,6 +59,9 @@ def register(commands) -> None:
                           "(default build/)")
     emulator.add_argument("--record", metavar="FILE.csv", help="write every measurement the rig takes in a session "
                           "(before fault injection), with the applied voltage and the true height")
+    emulator.add_argument("--rt-priority", type=int, metavar="1-99", help="run the rig under SCHED_FIFO at this "
+                          "priority, so the host's busy loop beside it cannot delay its ticks (Linux; needs root, "
+                          "CAP_SYS_NICE or an rtprio limit; e.g. 50)")
     emulator.add_argument("--json", action="store_true", help="print the exit summary as JSON")
     emulator.set_defaults(handler=run_emulator)
 
@@ -88,6 +91,7 @@ def run_emulator(args: argparse.Namespace) -> int:
     from nfal.hil.ports import PtyPort, UrlPort
     from nfal.hil.rig_model import open_rig
     from nfal.models.errors import InvalidParameterError
+    from nfal.orchestration.pacing import realtime_priority
 
     timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
     faults = FaultSettings(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate, delay_s=args.delay,
@@ -99,7 +103,8 @@ def run_emulator(args: argparse.Namespace) -> int:
     if args.link and args.port != "pty":
         raise InvalidParameterError("--link", args.link, "used with --port pty only")
     parameters = dict(parse_parameter(text) for text in args.param)
-    with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
+    with realtime_priority(args.rt_priority), \
+            open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
         port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
@@ -109,7 +114,7 @@ def run_emulator(args: argparse.Namespace) -> int:
             previous = signal.signal(signal.SIGTERM, lambda *_: emulator.stop())
             try:
                 _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "
-                     f"{timing.watchdog_timeout_s * 1e3:g} ms; Ctrl-C to stop")
+                     f"{timing.watchdog_timeout_s * 1e3:g} ms{_scheduling(args.rt_priority)}; Ctrl-C to stop")
                 report = emulator.run(args.duration)
             except KeyboardInterrupt:
                 report = emulator.report
@@ -121,6 +126,10 @@ def run_emulator(args: argparse.Namespace) -> int:
                 record.close()
     _print_report(report, args.json)
     return 0
+
+
+def _scheduling(priority: int | None) -> str:
+    return "" if priority is None else f", SCHED_FIFO priority {priority}"
 
 
 def _seconds(text: str) -> float:
