@@ -30,7 +30,7 @@ from machine import describe
 from nfal.build import build_all
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
-from nfal.orchestration.pacing import RealTimePacer, RealtimePriorityError, realtime_priority
+from nfal.orchestration.pacing import RealTimePacer, realtime_priority, realtime_priority_refusal
 
 #: The reference: the staircase of Figs. 9-10, its levels repeated to fill the run.
 LEVELS = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6)
@@ -166,13 +166,10 @@ def main() -> int:
     parser.add_argument("--round-seconds", type=float, default=10.0, help="length of each A/B run (default 10)")
     args = parser.parse_args()
     fifo = args.rt_priority or None
-    if fifo:
-        try:
-            with realtime_priority(fifo):
-                pass
-        except RealtimePriorityError as exc:
-            print(f"no SCHED_FIFO comparison: {exc}\n")
-            fifo = None
+    refusal = fifo and realtime_priority_refusal(fifo)
+    if refusal:
+        print(f"no SCHED_FIFO comparison: {refusal}\n")
+        fifo = None
     print(f"machine: {describe()}; load average {os.getloadavg()[0]:.2f}\n")
     with tempfile.TemporaryDirectory(prefix="nfal-bench-hil-") as temp:
         folder = Path(temp)

@@ -97,6 +97,15 @@ def realtime_priority(priority: int | None) -> Iterator[None]:
         os.sched_setscheduler(0, policy, param)
 
 
+def realtime_priority_refusal(priority: int) -> str | None:
+    """Why this process may not run at ``priority`` under SCHED_FIFO, or None if it may (tried, then undone)."""
+    try:
+        with realtime_priority(priority):
+            return None
+    except RealtimePriorityError as exc:
+        return str(exc)
+
+
 class RealTimePacer:
     """Release fixed steps on the wall clock and measure how well that went.
 

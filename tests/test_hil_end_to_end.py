@@ -17,15 +17,20 @@ import numpy as np
 import pytest
 
 from nfal.cli import main
-from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
+from nfal.fig7 import HARDWARE, PROXY, SIMULATED, loop_metrics
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import SimulationError, run_structure
+from nfal.orchestration.pacing import realtime_priority_refusal
 
 #: The truth of rig_truth.ssv, as parameters of fig7_slow's Plant: the same model, simulated.
 TRUTH = {"Plant.initial_height": 5e-6, "Plant.excess_damping_height": 137e-6, "Plant.excess_damping_exponent": 6.0,
          "Plant.near_surface": "fast"}
 #: A step from 100 um to 140 um after 1 s of lift-off and hold.
 STEP = Staircase((100e-6, 140e-6), hold_s=1.0, lead_s=1.0)
+#: Where the step's transient is compared [s].
+TRANSIENT = (1.0, 1.2)
+#: SCHED_FIFO priority of the agreement run, where the system allows it.
+RT_PRIORITY = 50
 
 
 class Emulator:
@@ -61,10 +66,21 @@ def emulator(fig7_archives):
         process.stop()
 
 
-def _hil(fig7_archives, port: str, out, reference=STEP, **parameters):
+def _hil(fig7_archives, port: str, out, reference=STEP, rt_priority=None, **parameters):
     return run_structure(fig7_archives["fig7_hil"], stop_time=reference.duration_s,
                          inputs={"Controller.reference": reference}, parameters={"proxy.port": port, **parameters},
-                         realtime=True, plot=False, out_dir=out)
+                         realtime=True, plot=False, out_dir=out, rt_priority=rt_priority)
+
+
+def _kept_up(result, start: float, end: float, samples: int = 4) -> bool:
+    """Over [start, end): no gap of more than ``samples`` rig samples, and the rig's clock in step with the host's
+    (its lag behind the host's time varies by at most as long). Not so when the machine stalled one of the two
+    processes (the rig gives up the time it stalled; the host catches up in a burst)."""
+    t = result.table().time
+    window = (t >= start) & (t < end)
+    lag = (t - np.asarray(result[f"{PROXY}.rig_time"]))[window]
+    return bool(np.max(np.asarray(result[f"{PROXY}.samples_missed"])[window]) <= samples
+                and np.ptp(lag) <= samples * 5e-4)
 
 
 @pytest.mark.slow
@@ -72,15 +88,29 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
     """Noise off on both sides. The HIL loop has the link's delay (up to a sample or two) that the simulated loop
     has not, and lifts off from rest at a different phase, so the comparison starts after lift-off (0.5 s).
     Tolerances (measured: 1.6 um, 0 um, 2 ms, 0.4 points): the step's transient within 5 um; the last half of
-    each hold within 0.05 um; rise time within 5 ms; overshoot within 3 percentage points."""
-    rig = emulator("--param", "SensorChain.noise_peak=0")
-    hil = _hil(fig7_archives, rig.port, tmp_path / "hil")
+    each hold within 0.05 um; rise time within 5 ms; overshoot within 3 percentage points.
+
+    This shared 2-core virtual machine now and then stalls a process for milliseconds, and a stall during the
+    step changes the loop's transient (5.08 um once) as it would on a real rig. So both processes run under
+    SCHED_FIFO where the system allows it (fewer stalls: docs/hil.md, "Real time"), and a run whose link did not
+    keep real time during the step (:func:`_kept_up`) is not judged but repeated, up to three times (the proxy's
+    limit is raised to 1 s, so that a stall does not end the run: link loss has its own test below)."""
+    priority = None if realtime_priority_refusal(RT_PRIORITY) else RT_PRIORITY
+    options = ("--rt-priority", str(priority)) if priority else ()
+    for attempt in range(3):
+        rig = emulator("--param", "SensorChain.noise_peak=0", *options)
+        hil = _hil(fig7_archives, rig.port, tmp_path / f"hil{attempt}", rt_priority=priority,
+                   **{"proxy.max_missed_samples": 2000})
+        assert "HELLO: session open" in rig.stop()
+        if _kept_up(hil, *TRANSIENT):
+            break
+    else:
+        pytest.fail("the link did not keep real time during the step in any of 3 runs (the machine stalled)")
     simulated = run_structure(fig7_archives["fig7_slow"], stop_time=STEP.duration_s, inputs={"Controller.reference": STEP},
                               parameters={**TRUTH, "SensorChain.noise_peak": 0.0}, plot=False, out_dir=tmp_path / "sim")
-    assert "HELLO: session open" in rig.stop()
     t = hil.table().time
     difference = np.abs(np.asarray(hil[HARDWARE.measured]) - np.asarray(simulated[SIMULATED.measured]))
-    assert np.max(difference[(t >= 1.0) & (t < 1.2)]) < 5e-6
+    assert np.max(difference[(t >= TRANSIENT[0]) & (t < TRANSIENT[1])]) < 5e-6
     for start, end in ((0.5, 1.0), (1.5, 2.0)):
         assert np.max(difference[(t >= start) & (t < end)]) < 0.05e-6
     [hil_step] = loop_metrics(hil.table(), STEP, HARDWARE)["steps"]

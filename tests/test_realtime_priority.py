@@ -9,17 +9,9 @@ import pytest
 from nfal.cli import main
 from nfal.models.errors import InvalidParameterError
 from nfal.orchestration import run_structure
-from nfal.orchestration.pacing import RealtimePriorityError, realtime_priority
+from nfal.orchestration.pacing import RealtimePriorityError, realtime_priority, realtime_priority_refusal
 
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="SCHED_FIFO is Linux's")
-
-
-def fifo_allowed() -> bool:
-    try:
-        with realtime_priority(1):
-            return True
-    except RealtimePriorityError:
-        return False
 
 
 @pytest.fixture
@@ -47,7 +39,7 @@ def test_none_leaves_the_scheduling_alone():
 
 @linux_only
 def test_the_thread_runs_fifo_inside_and_gets_its_policy_back_after():
-    if not fifo_allowed():
+    if realtime_priority_refusal(1):
         pytest.skip("this process may not use SCHED_FIFO")
     before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
     seen = {}
@@ -61,6 +53,11 @@ def test_the_thread_runs_fifo_inside_and_gets_its_policy_back_after():
     with pytest.raises(RuntimeError), realtime_priority(7):
         raise RuntimeError("restored on errors too")
     assert os.sched_getscheduler(0) == before[0]
+
+
+@linux_only
+def test_realtime_priority_refusal_says_why(refused):
+    assert "CAP_SYS_NICE" in realtime_priority_refusal(50)
 
 
 @linux_only
@@ -92,7 +89,7 @@ def test_a_refused_priority_stops_the_emulator_before_it_opens_a_port(capsys, re
 
 @linux_only
 def test_nfal_run_under_fifo_records_the_priority(capsys, tmp_path, fig7_archives):
-    if not fifo_allowed():
+    if realtime_priority_refusal(1):
         pytest.skip("this process may not use SCHED_FIFO")
     policy = os.sched_getscheduler(0)
     assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.05", "--realtime", "--rt-priority", "20",
