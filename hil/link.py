@@ -10,15 +10,21 @@ which costs less CPU than a thread woken 2000 times a second, and no GIL hand-ov
 are written without blocking (``write_timeout=0``: a frame the port cannot take is counted, never
 waited for), so nothing the link does can stall a co-simulation step.
 
+A non-blocking poll drains the port (up to DRAIN_LIMIT bytes), so after a stall of the host the newest
+sample is the newest the rig sent, not one of a backlog.
+
 Reconnection: when a read or write fails (the device is unplugged, the emulator drops the pty) the
 reader closes the port and, if ``reconnect``, reopens the URL every ``reconnect_interval_s`` and says
-HELLO again; measurements resume after the rig's HELLO_ACK. Whoever uses the link decides how long
-it may go without measurements (the HardwareProxy FMU: ``max_missed_samples``).
+HELLO again; measurements resume after the rig's HELLO_ACK. An owner that polls never waits for the
+port to open (a ``socket://`` connect can take seconds): a daemon thread opens it, and a later poll
+says HELLO. Whoever uses the link decides how long it may go without measurements (the HardwareProxy
+FMU: ``max_missed_samples``).
 """
 
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import dataclasses
 import logging
 import threading
@@ -40,6 +46,12 @@ READ_TIMEOUT_S = 0.01
 FAULT_HISTORY = 100
 #: Most bytes one non-blocking read takes (about 100 measurement frames).
 READ_CHUNK = 4096
+#: Most bytes one non-blocking poll takes in (about 1700 measurement frames, 0.9 s of the stream at 2 kHz).
+DRAIN_LIMIT = 16 * READ_CHUNK
+#: A read this large (about 14 ms of the stream) means a backlog: the poll reads on until the port runs dry.
+BACKLOG_BYTES = 1024
+#: Pause between two polls while an owner that polls waits for the rig [s] (not a busy spin).
+WAIT_PAUSE_S = 2e-4
 
 
 def write_timeout(url: str) -> float | None:
@@ -57,6 +69,7 @@ class LinkCounters:
     """What happened on the link (the decoder's drops are in :attr:`RigLink.decoder`)."""
 
     measurements: int = 0       #: MEASUREMENT frames accepted
+    measurements_before_session: int = 0  #: MEASUREMENT frames ignored because they came before our HELLO_ACK
     heartbeats: int = 0         #: RIG_HEARTBEAT frames accepted
     faults: int = 0             #: FAULT frames accepted
     drives_sent: int = 0        #: DRIVE frames written in full
@@ -129,6 +142,7 @@ class RigLink:
         self._hello_at = 0.0
         self._reconnect_at = 0.0
         self._lost_reason = ""
+        self._opening: concurrent.futures.Future | None = None  # a port being opened for a polling owner
 
     # --- the session -------------------------------------------------------------------------------
     def open(self) -> HelloAck:
@@ -144,10 +158,8 @@ class RigLink:
             self._thread.start()
             acknowledged = self._acknowledged.wait(self.connect_timeout_s)
         else:
-            deadline = self.clock() + self.connect_timeout_s
-            while not self._acknowledged.is_set() and self._port is not None and self.clock() < deadline:
-                self.poll(block=True)
-            acknowledged = self._acknowledged.is_set()
+            acknowledged = self.wait_until(lambda: self._acknowledged.is_set() or self._port is None,
+                                           self.connect_timeout_s) and self._acknowledged.is_set()
         if not acknowledged:
             refused = self._refused
             self.close()
@@ -164,6 +176,19 @@ class RigLink:
     def connected(self) -> bool:
         """A session is up: the port is open and the rig has answered HELLO."""
         return self._port is not None and self._acknowledged.is_set()
+
+    def wait_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for ``condition()``, polling every WAIT_PAUSE_S if there is no reader
+        thread (for set-up: a co-simulation step never waits). Returns ``condition()``'s last value."""
+        deadline = self.clock() + timeout_s
+        while True:
+            if not self.reader_thread:
+                self.poll()
+            if condition():
+                return True
+            if self.clock() >= deadline:
+                return False
+            time.sleep(WAIT_PAUSE_S)
 
     def latest(self) -> Sample | None:
         """The newest measurement (None before the first)."""
@@ -191,6 +216,9 @@ class RigLink:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
         self._thread = None
+        opening, self._opening = self._opening, None
+        if opening is not None:  # a port opened after close() is closed at once
+            opening.add_done_callback(lambda done: done.exception() is None and done.result().close())
         self._close_port()
 
     def health(self) -> dict:
@@ -209,16 +237,25 @@ class RigLink:
     # --- the port ----------------------------------------------------------------------------------
     def _connect(self) -> None:
         """Open the port and say HELLO (the reader takes the HELLO_ACK)."""
+        self._start_session(self._open_port())
+
+    def _open_port(self) -> serial.SerialBase:
         try:
             # the reader thread waits for the first byte; an owner that polls never waits (timeout 0)
-            port = serial.serial_for_url(self.url, baudrate=self.baudrate,
+            return serial.serial_for_url(self.url, baudrate=self.baudrate,
                                          timeout=READ_TIMEOUT_S if self.reader_thread else 0,
                                          write_timeout=write_timeout(self.url))
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkError(f"cannot open {self.url}: {exc}") from None
+
+    def _start_session(self, port: serial.SerialBase) -> None:
+        """Make ``port`` the link's and say HELLO on it (unless the link is closing: then close it)."""
         self._acknowledged.clear()
         self.decoder.reset_sequence()
         with self._write_lock:
+            if self._stopping.is_set():  # close() came while the port was being opened
+                port.close()
+                raise LinkError(f"{self.url}: the link was closed")
             self._port = port
             self._encoder.restart()
         self._hello_at = self.clock()
@@ -291,9 +328,15 @@ class RigLink:
             self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
             return
         try:
-            # blocking: up to READ_TIMEOUT_S for the first byte, then what is waiting; not blocking: the port was
-            # opened with timeout 0, so read(READ_CHUNK) returns what has arrived (a socket's in_waiting says 1)
-            data = port.read(max(1, port.in_waiting)) if block else port.read(READ_CHUNK)
+            if block:  # up to READ_TIMEOUT_S for the first byte, then what is waiting
+                data = port.read(max(1, port.in_waiting))
+            else:  # the port was opened with timeout 0: what has arrived
+                data = chunk = port.read(READ_CHUNK)
+                # a large chunk is a backlog (the host stalled): read on until the port runs dry, so that the newest
+                # sample is the newest sent (a tty hands over at most 4095 bytes a read; in_waiting lags behind)
+                while len(chunk) >= BACKLOG_BYTES and len(data) < DRAIN_LIMIT:
+                    chunk = port.read(READ_CHUNK)
+                    data += chunk
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # pyserial raises TypeError/AttributeError when the port is closed under a read
             self._lost(port, f"read failed: {exc}")
@@ -302,12 +345,31 @@ class RigLink:
             self._handle(data)
 
     def _reconnect_if_due(self) -> None:
+        if self._opening is not None:
+            self._finish_opening()
+            return
         now = self.clock()
         if not self.reconnect or self._stopping.is_set() or now < self._reconnect_at:
             return
         self._reconnect_at = now + self.reconnect_interval_s
+        if self.reader_thread:  # the reader may wait for the port
+            try:
+                self._connect()
+            except LinkError as exc:
+                self.last_error = f"{self._lost_reason}; reopening: {exc}"
+            return
+        self._opening = concurrent.futures.Future()  # an owner's poll may not: a daemon thread opens it
+        threading.Thread(target=_resolve, args=(self._opening, self._open_port), daemon=True,
+                         name=f"nfal-rig-open {self.url}").start()
+
+    def _finish_opening(self) -> None:
+        """Say HELLO on the port the opener thread opened, once it has (or note why it could not)."""
+        opening = self._opening
+        if not opening.done():
+            return
+        self._opening = None
         try:
-            self._connect()
+            self._start_session(opening.result())
         except LinkError as exc:
             self.last_error = f"{self._lost_reason}; reopening: {exc}"
 
@@ -324,6 +386,9 @@ class RigLink:
         for received in self.decoder.feed(data):
             message = received.message
             if isinstance(message, Measurement):
+                if not self._acknowledged.is_set():  # still the session before ours (a reconnection's HELLO in flight)
+                    self.counters.measurements_before_session += 1
+                    continue
                 self.counters.measurements += 1
                 self.rig_status = message.status
                 sample = Sample(message, received.seq, now, self.counters.measurements)
@@ -355,6 +420,14 @@ class RigLink:
             logger.warning("%s: session re-established", self.url)
         self.rig = ack
         self._acknowledged.set()
+
+
+def _resolve(future: concurrent.futures.Future, function: Callable) -> None:
+    """Run ``function`` and put its result or its exception in ``future`` (on a helper thread)."""
+    try:
+        future.set_result(function())
+    except Exception as exc:  # noqa: BLE001 - handed to the poll that takes the result
+        future.set_exception(exc)
 
 
 def _fault_name(code: int) -> str:
