@@ -15,6 +15,10 @@ work in hardware. A thin adapter over :class:`nfal.hil.link.RigLink`:
   logged (the link's last error): the proxy never makes a measurement up; a held value is flagged by
   ``fresh`` = false and a growing ``samples_missed``. pythonfmu reports a failing step as fmi2Fatal
   (docs/cosimulation.md).
+* A sample flagged WATCHDOG_TRIPPED fails the step too: the rig had no DRIVE for its watchdog time (the
+  host stalled), ramps the drive down and ignores DRIVE until a new session, so the loop is open and the
+  run can no longer mean anything. (A reconnection's HELLO clears the trip, so a link that comes back
+  within ``max_missed_samples`` resumes.)
 * ``terminate`` sends STOP (the rig ramps the drive down) and closes the port; a failing step closes it
   too, and the rig's watchdog ramps the drive down by itself.
 
@@ -23,14 +27,13 @@ The rig cannot be rewound: the FMU cannot restore an FMU state (built with canGe
 
 from __future__ import annotations
 
-import time
-
 from nfal.fmus.base import DefaultExperiment, FmuStateError, NfalSlave
 from nfal.hil.link import LinkError, RigLink
 from nfal.hil.protocol import StatusFlags
 from nfal.models.errors import InvalidParameterError, require_positive
 
-_LOCKED, _RESTING, _TRIPPED = int(StatusFlags.PLL_LOCKED), int(StatusFlags.RESTING), int(StatusFlags.WATCHDOG_TRIPPED)
+_LOCKED, _RESTING, _TRIPPED, _OUT_OF_RANGE = (int(flag) for flag in (
+    StatusFlags.PLL_LOCKED, StatusFlags.RESTING, StatusFlags.WATCHDOG_TRIPPED, StatusFlags.SENSOR_OUT_OF_RANGE))
 #: Relative mismatch allowed between ``sample_rate`` and the rig's announced sample period.
 RATE_TOLERANCE = 0.01
 
@@ -51,6 +54,8 @@ class HardwareProxy(NfalSlave):
         self.add_output("locked", kind=bool, description="the rig's PLL is locked")
         self.add_output("resting", kind=bool, description="the object rests on the driving surface")
         self.add_output("watchdog_tripped", kind=bool, description="the rig's watchdog has ramped the drive down")
+        self.add_output("sensor_out_of_range", kind=bool, description="the rig's height sensor is saturated: "
+                        "measured_height is its range limit")
         self.add_output("rig_time", unit="s", description="the rig's clock at the sample")
         self.add_output("measurement_age", unit="s", description="host time since the sample arrived, at the step's end")
         self.add_output("fresh", kind=bool, description="a new sample arrived during the last step")
@@ -92,12 +97,9 @@ class HardwareProxy(NfalSlave):
             if abs(period * self.sample_rate - 1.0) > RATE_TOLERANCE:
                 raise LinkError(f"{link.url}: the rig samples every {period * 1e6:g} us, not at sample_rate = "
                                 f"{self.sample_rate:g} Hz")
-            deadline = time.perf_counter() + self.connect_timeout
-            while link.latest() is None:
-                link.poll(block=True)
-                if time.perf_counter() > deadline:
-                    raise LinkError(f"{link.url}: the rig answered HELLO but sent no measurement within "
-                                    f"{self.connect_timeout:g} s")
+            if not link.wait_until(lambda: link.latest() is not None, self.connect_timeout):
+                raise LinkError(f"{link.url}: the rig answered HELLO but sent no measurement within "
+                                f"{self.connect_timeout:g} s")
         except BaseException:
             link.close()
             raise
@@ -115,6 +117,7 @@ class HardwareProxy(NfalSlave):
         self.locked = bool(status & _LOCKED)
         self.resting = bool(status & _RESTING)
         self.watchdog_tripped = bool(status & _TRIPPED)
+        self.sensor_out_of_range = bool(status & _OUT_OF_RANGE)
         self.rig_time = measurement.timestamp_us * 1e-6
         self.measurement_age = link.clock() - sample.arrival_s
         self.fresh = fresh
@@ -136,6 +139,12 @@ class HardwareProxy(NfalSlave):
         # by the wall clock, not by steps: a master catching up after a stall of its own steps in a burst,
         # and those steps find nothing new although the rig has not missed a sample
         self.samples_missed = int(self.measurement_age * self.sample_rate)
+        if self.watchdog_tripped:
+            self._close(stop=False)
+            raise LinkError(f"{self.port}: the rig's watchdog has tripped (sample at rig time {self.rig_time:.4f} s): "
+                            f"no DRIVE reached it for {link.rig.watchdog_timeout_us * 1e-3:g} ms, as when the host "
+                            "stalls; the rig ramps the drive down and ignores DRIVE until a new session: the loop is "
+                            "open")
         if self.samples_missed > self.max_missed_samples:
             reason = link.last_error or "no error on the port: the rig went silent"
             self._close(stop=False)
