@@ -24,6 +24,8 @@ import logging
 from collections.abc import Callable
 from typing import TextIO
 
+import serial
+
 from nfal.models.errors import InvalidParameterError
 
 from .faults import FaultInjector, FaultSettings
@@ -35,6 +37,8 @@ logger = logging.getLogger(__name__)
 RECORD_HEADER = "timestamp_us,height_m,drive_frequency_hz,applied_voltage_v,true_height_m"
 #: A tick later than this [s] restarts the rig's schedule from now (RealTimePacer's resync_after_s).
 RESYNC_AFTER_S = 0.002
+#: Rig time between attempts to reopen a port that failed under the emulator (an unplugged device) [s].
+REOPEN_INTERVAL_S = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +99,9 @@ class Emulator:
         self._stop = False
         self._opened_at: float | None = None  # rig time of the first HELLO
         self._dropped_at: float | None = None
+        self._planned_done = False  # the planned disconnection has happened
+        self._failures_seen = 0
+        self._reopen_at = 0.0
         self._record = record
         if record is not None:
             record.write(RECORD_HEADER + "\n")
@@ -126,14 +133,27 @@ class Emulator:
         self._link_events(now)
 
     def _link_events(self, now_s: float) -> None:
-        """Drop or restore the port as ``disconnection`` says (rig time since the first session opened)."""
+        """Drop or restore the port as ``disconnection`` says (rig time since the first session opened); reopen
+        one that failed under us every REOPEN_INTERVAL_S."""
+        port = self.port
+        if port.failures != self._failures_seen:
+            self._failures_seen = port.failures
+            self.report.disconnects += 1
+            self.on_event(f"t = {now_s:.4f} s: port failed: {port.last_error}")
+        if not port.connected and self._dropped_at is None and now_s >= self._reopen_at:
+            self._reopen_at = now_s + REOPEN_INTERVAL_S
+            try:
+                port.connect()
+                self.on_event(f"t = {now_s:.4f} s: port reopened at {port.path}")
+            except (serial.SerialException, OSError, ValueError) as exc:
+                port.last_error = str(exc)
         plan, opened = self.disconnection, self._opened_at
         if plan is None or opened is None:
             return
-        if self._dropped_at is None and not self.report.disconnects and now_s - opened >= plan.at_s:
+        if self._dropped_at is None and not self._planned_done and now_s - opened >= plan.at_s:
             self.port.disconnect()
             self.report.disconnects += 1
-            self._dropped_at = now_s
+            self._dropped_at, self._planned_done = now_s, True
             self.on_event(f"t = {now_s:.4f} s: port disconnected")
         elif self._dropped_at is not None and plan.after_s is not None and now_s >= self._dropped_at + plan.after_s:
             self.port.connect()

@@ -36,6 +36,7 @@ class PtyPort:
             path = name
         self.path = Path(path)
         self.bytes_dropped = 0
+        self.failures, self.last_error = 0, ""  # the master side of a pty does not fail (UrlPort's may)
         self._master = self._slave = None
         self.connect()
 
@@ -89,6 +90,8 @@ class UrlPort:
     def __init__(self, url: str, baudrate: int = 2_000_000) -> None:
         self.path, self.baudrate = url, baudrate
         self.bytes_dropped = 0
+        self.failures = 0
+        self.last_error = ""
         self._port: serial.SerialBase | None = None
         self.connect()
 
@@ -110,7 +113,11 @@ class UrlPort:
     def read(self) -> bytes:
         if self._port is None:
             return b""
-        return self._port.read(READ_CHUNK)  # timeout 0: what has arrived (a socket's in_waiting says 1)
+        try:
+            return self._port.read(READ_CHUNK)  # timeout 0: what has arrived (a socket's in_waiting says 1)
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            self._failed(exc)
+            return b""
 
     def write(self, data: bytes) -> None:
         if self._port is None or not data:
@@ -119,7 +126,16 @@ class UrlPort:
             written = self._port.write(data) or 0
         except serial.SerialTimeoutException:
             written = 0
+        except (serial.SerialException, OSError) as exc:
+            self._failed(exc)
+            written = 0
         self.bytes_dropped += len(data) - written
+
+    def _failed(self, exc: Exception) -> None:
+        """The far end went away (a socket closed, a device unplugged): the port is down until :meth:`reopen`."""
+        self.failures += 1
+        self.last_error = str(exc)
+        self.disconnect()
 
     def close(self) -> None:
         self.disconnect()

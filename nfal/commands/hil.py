@@ -103,23 +103,26 @@ def run_emulator(args: argparse.Namespace) -> int:
     if args.link and args.port != "pty":
         raise InvalidParameterError("--link", args.link, "used with --port pty only")
     parameters = dict(parse_parameter(text) for text in args.param)
-    with realtime_priority(args.rt_priority), \
-            open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
+    with realtime_priority(args.rt_priority):  # refused now, before anything is built or opened
+        pass
+    with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
         port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
             _say(str(port.path))
             emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
                                 record=record)
-            previous = signal.signal(signal.SIGTERM, lambda *_: emulator.stop())
+            # Ctrl-C and SIGTERM end the run after the current tick, so the report is complete
+            previous = {number: signal.signal(number, lambda *_: emulator.stop())
+                        for number in (signal.SIGINT, signal.SIGTERM)}
             try:
                 _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "
                      f"{timing.watchdog_timeout_s * 1e3:g} ms{_scheduling(args.rt_priority)}; Ctrl-C to stop")
-                report = emulator.run(args.duration)
-            except KeyboardInterrupt:
-                report = emulator.report
+                with realtime_priority(args.rt_priority):  # the paced ticks only
+                    report = emulator.run(args.duration)
             finally:
-                signal.signal(signal.SIGTERM, previous)
+                for number, handler in previous.items():
+                    signal.signal(number, handler)
         finally:
             port.close()
             if record is not None:
