@@ -159,7 +159,7 @@ class Measurement(Message):
     timestamp_us: int      #: the rig's clock at the sample [µs]
     height: float          #: measured clearance [m]
     drive_frequency: float  #: drive frequency set by the rig's PLL [Hz]
-    drive_voltage: float   #: voltage applied over the last period, after clamp and watchdog [V]
+    drive_voltage: float   #: voltage applied from this sample on (the period it starts), after clamp and watchdog [V]
     status: int            #: :class:`StatusFlags`
     command_seq: int       #: seq of the last DRIVE applied (0 before any)
 

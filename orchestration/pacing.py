@@ -140,6 +140,7 @@ class RealTimePacer:
         self.start_time: float | None = None
         if history is not None and history < 1:
             raise InvalidParameterError("history", history, "a whole number >= 1, or None")
+        self.released = 0  # steps released, all of them (the statistics cover the last ``history``)
         self.lateness: collections.deque[float] = collections.deque(maxlen=history)
         self.durations: collections.deque[float] = collections.deque(maxlen=history)
         self.overruns: list[tuple[int, float]] = []  # the first ones (at most FIRST_OVERRUNS)
@@ -173,6 +174,7 @@ class RealTimePacer:
             now = self.clock()
         self._started_at = now
         lateness = now - deadline
+        self.released += 1
         self.lateness.append(lateness)
         if self.resync_after_s is not None and lateness > self.resync_after_s:
             self.start_time += lateness
@@ -205,7 +207,8 @@ class RealTimePacer:
         durations = np.asarray(self.durations, dtype=float)
         stats = {
             "period_s": self.period,
-            "steps": int(lateness.size),
+            "steps": self.released,
+            "steps_in_statistics": int(lateness.size),
             "overruns": self.overrun_count,
             "overrun_max_s": self.overrun_max,
             "first_overruns": [{"step": k, "excess_s": e} for k, e in self.overruns],
