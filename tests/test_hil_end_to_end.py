@@ -191,3 +191,17 @@ def test_libcosim_runs_the_hil_structure_against_the_emulator(fig7_archives, emu
     t = run.time_s
     for start, end, level in ((0.4, 0.7, 60e-6), (1.2, 1.5, 100e-6)):
         assert np.all(np.abs(height[(t >= start) & (t < end)] - level) < 5e-6)
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"], ids=["Ctrl-C", "SIGTERM"])
+def test_the_emulator_stopped_by_a_signal_reports_the_whole_run(fig7_archives, signal_name):
+    import signal
+
+    rig = Emulator(fig7_archives["rig_slow"], "--json")
+    time.sleep(0.5)
+    rig.process.send_signal(getattr(signal, signal_name))
+    output = rig.stop()
+    report = json.loads(output[output.index("\n{") + 1:])  # after the event lines
+    assert rig.process.returncode == 0
+    assert report["ticks"] > 500 and report["pacing"]["steps"] == report["ticks"]  # 0.5 s at 2 kHz, less start-up
+    assert "dropped" in report["decoder"] and "dropped" in report["faults"]

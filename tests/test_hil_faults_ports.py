@@ -257,3 +257,67 @@ def test_a_url_port_on_a_socket_reads_what_has_arrived_in_one_call():
         finally:
             peer.close()
             port.close()
+
+
+def test_a_url_port_whose_peer_goes_away_is_down_not_broken():
+    """A socket closed by the far end (a serial server gone, a device unplugged) is a failure the port counts and
+    reports; it does not raise into the rig's tick."""
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = UrlPort(f"socket://127.0.0.1:{server.getsockname()[1]}")
+        peer, _ = server.accept()
+        peer.close()
+        try:
+            assert read_until(port.read, 1, timeout_s=0.3) == b""
+            assert (port.failures, port.connected) == (1, False) and "disconnected" in port.last_error
+            port.write(b"frame\x00")  # down: nothing is written, nothing raised
+            port.connect()  # the server is still there: a new connection
+            assert port.connected
+        finally:
+            port.close()
+
+
+# --- the emulator on a port that fails -----------------------------------------------------------------
+
+
+class StillRig:
+    """A rig model that holds the object at 100 um (the emulator's model interface)."""
+
+    true_height = 100e-6
+
+    def apply(self, voltage: float) -> None:
+        self.voltage = voltage
+
+    def reading(self):
+        from nfal.hil.firmware import RigReading
+
+        return RigReading(self.true_height, 28_500.0, True, False)
+
+    def advance(self) -> None:
+        pass
+
+
+def test_the_emulator_reports_a_failed_port_and_reopens_it():
+    import socket
+
+    from nfal.hil.emulator import REOPEN_INTERVAL_S, Emulator
+
+    events: list[str] = []
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        emulator = Emulator(UrlPort(f"socket://127.0.0.1:{server.getsockname()[1]}"), StillRig(),
+                            on_event=events.append)
+        peer, _ = server.accept()
+        peer.close()
+        ticks_per_reopen = round(REOPEN_INTERVAL_S / emulator.timing.sample_period_s)
+        k = 0
+        while emulator.report.disconnects == 0 and k < 200:
+            emulator.tick(k)
+            k += 1
+            time.sleep(0.001)
+        assert emulator.report.disconnects == 1 and any("port failed" in event for event in events)
+        for k in range(k, k + ticks_per_reopen + 2):
+            emulator.tick(k)
+        assert emulator.port.connected and any("port reopened" in event for event in events)
+        server.accept()[0].close()
+        emulator.port.close()

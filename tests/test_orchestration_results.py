@@ -104,6 +104,19 @@ def test_pacer_releases_on_the_grid_and_counts_overruns():
     assert clock.now == pytest.approx(100.04)
 
 
+def test_pacer_counts_every_step_and_keeps_statistics_of_the_last_history_steps():
+    clock = FakeClock()
+    pacer = RealTimePacer(0.01, spin_s=0.0, clock=clock, sleep=clock.sleep, history=3)
+    pacer.start()
+    for k, duration in enumerate([0.015, 0.001, 0.001, 0.001, 0.001]):  # the first step overruns
+        pacer.wait(k)
+        clock.now += duration
+        pacer.done(k)
+    report = pacer.report()
+    assert (report["steps"], report["steps_in_statistics"], report["overruns"]) == (5, 3, 1)
+    assert report["jitter_max_s"] < 1e-9  # the late step (5 ms) is out of the history
+
+
 def test_pacer_on_the_real_clock():
     import time
 
