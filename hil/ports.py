@@ -132,7 +132,7 @@ class UrlPort:
         self.bytes_dropped += len(data) - written
 
     def _failed(self, exc: Exception) -> None:
-        """The far end went away (a socket closed, a device unplugged): the port is down until :meth:`reopen`."""
+        """The far end went away (a socket closed, a device unplugged): the port is down until :meth:`connect`."""
         self.failures += 1
         self.last_error = str(exc)
         self.disconnect()

@@ -131,15 +131,7 @@ def links(request):
 
 def wait_for(link: RigLink, condition: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
     """Poll (if the link has no reader thread) until ``condition()`` or the timeout; returns the last value."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        if not link.reader_thread:
-            link.poll()
-        if condition():
-            return True
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.001)
+    return link.wait_until(condition, timeout_s)
 
 def keep_polling(link: RigLink, seconds: float) -> None:
     """Let ``seconds`` pass with the link taking in what comes (polling it, if it has no reader thread)."""
