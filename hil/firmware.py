@@ -107,7 +107,8 @@ class Firmware:
             elif isinstance(message, Stop):
                 if self.session:
                     self.on_event(self._time(tick), "STOP: session ended, drive ramping down")
-                    self._start_ramp(tick)
+                    if self._ramp is None:  # a ramp already running (a tripped watchdog's) runs on as it is
+                        self._start_ramp(tick)
                 self.session = self.armed = False
             elif isinstance(message, HostHeartbeat):
                 pass

@@ -320,6 +320,13 @@ def test_stop_keeps_a_trip_until_the_next_hello(session):
     assert not session.hello().measurement.status & TRIPPED
 
 
+def test_stop_during_a_watchdog_ramp_lets_the_ramp_run_on(session):
+    """STOP ramps down "exactly as the watchdog does": a ramp already running is not started over."""
+    session.ticks(WATCHDOG_TICKS, Drive(100.0))
+    during = [session.tick() for _ in range(3)] + [session.tick(Stop())] + session.ticks(RAMP_TICKS)
+    assert voltages(during) == ramp(100.0, then=3)
+
+
 def test_drive_after_stop_and_hello_drives_again(session):
     session.ticks(2, Drive(100.0))
     session.tick(Stop())
