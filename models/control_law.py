@@ -91,10 +91,12 @@ class DiscreteControlLaw:
         self.name = gains.name
 
     def initial_state(self, height_m: float, excitation_m: float) -> ControllerState:
-        """Bumpless start at an equilibrium: the integrator holds the excitation ``excitation_m`` [m]."""
+        """Bumpless start at an equilibrium: the integrator holds the excitation ``excitation_m`` [m] that holds
+        ``height_m`` [m], and the first sample's derivative update is zero whatever it measures, so a plant that
+        starts elsewhere (a rig's object at rest on the surface) gets no derivative kick."""
         height = self._check("height_m", height_m, MEASUREMENT_RANGE_M)
         excitation = self._check("excitation_m", excitation_m, (0.0, self.max_excitation_m))
-        return ControllerState(excitation, 0.0, height)
+        return ControllerState(excitation, 0.0, None)
 
     def step(self, state: ControllerState, reference_m: float, measured_m: float) -> tuple[float, ControllerState]:
         """One sample: ``(state, reference [m], measured clearance [m]) -> (excitation |a| [m], next state)``."""

@@ -86,6 +86,19 @@ def test_first_sample_without_previous_measurement_has_zero_derivative():
     assert state.derivative_m_per_s == 0.0 and command == pytest.approx(3e-6)
 
 
+def test_a_start_away_from_the_equilibrium_gets_no_derivative_kick():
+    """The object 10 um under the reference it was started for (as a rig's object starts at rest): the first command
+    is the proportional and integral terms alone, and the next ones follow on from it (no jump to 0)."""
+    state = LAW.initial_state(60e-6, 1.5e-6)
+    kp = LAW.gains.gains_si(50e-6)[0]
+    commands = []
+    for _ in range(3):
+        command, state = LAW.step(state, 60e-6, 50e-6)
+        commands.append(command)
+    assert commands[0] == pytest.approx(kp * 10e-6 + 1.5e-6, rel=1e-12) and commands[0] < LAW.max_excitation_m
+    assert commands[0] < commands[1] < commands[2]  # the integrator builds up while the object stays
+
+
 @pytest.mark.parametrize("reference, measured", [(math.nan, 1e-4), (1e-4, math.inf), (1e-4, -1e-6), (1e-4, 2e-3),
                                                  (10e-6, 1e-4), (500e-6, 1e-4), ("high", 1e-4), (None, 1e-4)])
 def test_bad_inputs_raise(reference, measured):
