@@ -50,6 +50,8 @@ READ_CHUNK = 4096
 DRAIN_LIMIT = 16 * READ_CHUNK
 #: A read this large (about 14 ms of the stream) means a backlog: the poll reads on until the port runs dry.
 BACKLOG_BYTES = 1024
+#: A HELLO without an answer this long is said again (spec 6: a frame lost on the wire) [s].
+HELLO_REPEAT_S = 0.5
 #: Pause between two polls while an owner that polls waits for the rig [s] (not a busy spin).
 WAIT_PAUSE_S = 2e-4
 
@@ -77,6 +79,7 @@ class LinkCounters:
     disconnects: int = 0        #: the port failed or closed under us
     reconnects: int = 0         #: sessions re-established after a disconnect
     handshake_failures: int = 0  #: HELLO without a HELLO_ACK in time, or a version the rig refused
+    hellos_repeated: int = 0    #: HELLOs said again after HELLO_REPEAT_S without an answer
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,7 +142,8 @@ class RigLink:
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
         self._refused: Fault | None = None
-        self._hello_at = 0.0
+        self._hello_at = 0.0      # when this session's first HELLO went out
+        self._hello_again_at = 0.0  # when to repeat it if no HELLO_ACK has come
         self._reconnect_at = 0.0
         self._lost_reason = ""
         self._opening: concurrent.futures.Future | None = None  # a port being opened for a polling owner
@@ -257,12 +261,17 @@ class RigLink:
                 port.close()
                 raise LinkError(f"{self.url}: the link was closed")
             self._port = port
-            self._encoder.restart()
         self._hello_at = self.clock()
-        # a 0x00 first ends whatever partial frame the rig may hold, so the HELLO is not glued to it (spec 2.1)
-        if not (self._send_bytes(DELIMITER) and self._send(Hello(PROTOCOL_VERSION))):
+        if not self._say_hello():
             self._close_port()
             raise LinkError(f"{self.url}: could not write HELLO")
+
+    def _say_hello(self) -> bool:
+        """HELLO at seq 0, after a 0x00 that ends whatever partial frame the rig may hold (spec 2.1)."""
+        self._hello_again_at = self.clock() + HELLO_REPEAT_S
+        with self._write_lock:
+            self._encoder.restart()
+        return self._send_bytes(DELIMITER) and self._send(Hello(PROTOCOL_VERSION))
 
     def _send(self, message) -> bool:
         with self._write_lock:
@@ -282,7 +291,7 @@ class RigLink:
         except serial.SerialTimeoutException:
             written = 0  # the port took none of it in time
         except (serial.SerialException, OSError) as exc:
-            self._lost(port, f"write failed: {exc}")
+            self._lost(port, _failed("write failed", exc))
             return False
         if written is not None and written != len(frame):
             self.counters.write_errors += 1
@@ -323,10 +332,15 @@ class RigLink:
         if port is None:
             self._reconnect_if_due()
             return
-        if not self._acknowledged.is_set() and self.clock() - self._hello_at > self.connect_timeout_s:
-            self.counters.handshake_failures += 1
-            self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
-            return
+        if not self._acknowledged.is_set():
+            now = self.clock()
+            if now - self._hello_at > self.connect_timeout_s:
+                self.counters.handshake_failures += 1
+                self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
+                return
+            if now >= self._hello_again_at:  # the HELLO or its answer may have been lost on the wire (spec 6)
+                self.counters.hellos_repeated += 1
+                self._say_hello()
         try:
             if block:  # up to READ_TIMEOUT_S for the first byte, then what is waiting
                 data = port.read(max(1, port.in_waiting))
@@ -339,7 +353,7 @@ class RigLink:
                     data += chunk
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # pyserial raises TypeError/AttributeError when the port is closed under a read
-            self._lost(port, f"read failed: {exc}")
+            self._lost(port, _failed("read failed", exc))
             return
         if data:
             self._handle(data)
@@ -420,6 +434,12 @@ class RigLink:
             logger.warning("%s: session re-established", self.url)
         self.rig = ack
         self._acknowledged.set()
+
+
+def _failed(what: str, exc: BaseException) -> str:
+    """``what: reason``, without saying ``what`` twice (pyserial's messages often start with it)."""
+    reason = str(exc) or type(exc).__name__
+    return reason if reason.startswith(what) else f"{what}: {reason}"
 
 
 def _resolve(future: concurrent.futures.Future, function: Callable) -> None:
