@@ -24,12 +24,11 @@ import logging
 from collections.abc import Callable
 from typing import TextIO
 
-import serial
-
 from nfal.models.errors import InvalidParameterError
 
 from .faults import FaultInjector, FaultSettings
 from .firmware import Firmware, RigTiming
+from .link import LinkError
 
 logger = logging.getLogger(__name__)
 
@@ -145,7 +144,7 @@ class Emulator:
             try:
                 port.connect()
                 self.on_event(f"t = {now_s:.4f} s: port reopened at {port.path}")
-            except (serial.SerialException, OSError, ValueError) as exc:
+            except LinkError as exc:
                 port.last_error = str(exc)
         plan, opened = self.disconnection, self._opened_at
         if plan is None or opened is None:
@@ -156,9 +155,13 @@ class Emulator:
             self._dropped_at, self._planned_done = now_s, True
             self.on_event(f"t = {now_s:.4f} s: port disconnected")
         elif self._dropped_at is not None and plan.after_s is not None and now_s >= self._dropped_at + plan.after_s:
-            self.port.connect()
-            self._dropped_at = None
-            self.on_event(f"t = {now_s:.4f} s: port reconnected at {self.port.path}")
+            self._dropped_at = None  # if this fails, the port is reopened as any failed one
+            try:
+                self.port.connect()
+                self.on_event(f"t = {now_s:.4f} s: port reconnected at {self.port.path}")
+            except LinkError as exc:
+                self.port.last_error = str(exc)
+                self._reopen_at = now_s + REOPEN_INTERVAL_S
 
     def run(self, duration_s: float | None = None) -> EmulatorReport:
         """Tick in real time until ``duration_s`` of wall time (None: until :meth:`stop`)."""

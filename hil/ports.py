@@ -15,6 +15,8 @@ from pathlib import Path
 
 import serial
 
+from .link import LinkError, write_timeout
+
 #: Most bytes one read takes.
 READ_CHUNK = 65536
 
@@ -45,15 +47,20 @@ class PtyPort:
         return self._master is not None
 
     def connect(self) -> None:
-        """Open a new pty (raw, non-blocking) and point :attr:`path` at it."""
+        """Open a new pty (raw, non-blocking) and point :attr:`path` at it. Raises LinkError."""
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line editing: a byte pipe, as pyserial would set it anyway
         os.set_blocking(master, False)
-        self._master, self._slave = master, slave  # the slave stays open here too: writes never fail for want of a reader
         temporary = self.path.with_name(self.path.name + ".new")
-        temporary.unlink(missing_ok=True)
-        os.symlink(os.ttyname(slave), temporary)
-        os.replace(temporary, self.path)
+        try:
+            temporary.unlink(missing_ok=True)
+            os.symlink(os.ttyname(slave), temporary)
+            os.replace(temporary, self.path)
+        except OSError as exc:
+            os.close(master)
+            os.close(slave)
+            raise LinkError(f"cannot make the port's link {self.path}: {exc.strerror or exc}") from None
+        self._master, self._slave = master, slave  # the slave stays open here too: writes never fail for want of a reader
 
     def disconnect(self) -> None:
         """Close the pty (the host's reads fail) and remove the symlink (its reopen attempts fail)."""
@@ -100,10 +107,12 @@ class UrlPort:
         return self._port is not None
 
     def connect(self) -> None:
-        from .link import write_timeout
-
-        self._port = serial.serial_for_url(self.path, baudrate=self.baudrate, timeout=0,
-                                           write_timeout=write_timeout(self.path))
+        """Open the URL. Raises LinkError."""
+        try:
+            self._port = serial.serial_for_url(self.path, baudrate=self.baudrate, timeout=0,
+                                               write_timeout=write_timeout(self.path))
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise LinkError(f"cannot open {self.path}: {exc}") from None
 
     def disconnect(self) -> None:
         if self._port is not None:

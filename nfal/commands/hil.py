@@ -96,10 +96,8 @@ def run_emulator(args: argparse.Namespace) -> int:
     timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
     faults = FaultSettings(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate, delay_s=args.delay,
                            seed=args.seed)
-    disconnection = None
-    if args.disconnect_at is not None:
-        after = None if args.reconnect_after == "never" else _seconds(args.reconnect_after)
-        disconnection = Disconnection(args.disconnect_at, after)
+    after = None if args.reconnect_after == "never" else _seconds(args.reconnect_after)
+    disconnection = None if args.disconnect_at is None else Disconnection(args.disconnect_at, after)
     if args.link and args.port != "pty":
         raise InvalidParameterError("--link", args.link, "used with --port pty only")
     parameters = dict(parse_parameter(text) for text in args.param)
@@ -109,13 +107,14 @@ def run_emulator(args: argparse.Namespace) -> int:
         port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
-            _say(str(port.path))
             emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
                                 record=record)
-            # Ctrl-C and SIGTERM end the run after the current tick, so the report is complete
+            # Ctrl-C and SIGTERM end the run after the current tick, so the report is complete (from the moment the
+            # port is announced: whoever reads it may signal at once)
             previous = {number: signal.signal(number, lambda *_: emulator.stop())
                         for number in (signal.SIGINT, signal.SIGTERM)}
             try:
+                _say(str(port.path))
                 _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "
                      f"{timing.watchdog_timeout_s * 1e3:g} ms{_scheduling(args.rt_priority)}; Ctrl-C to stop")
                 with realtime_priority(args.rt_priority):  # the paced ticks only
@@ -136,12 +135,15 @@ def _scheduling(priority: int | None) -> str:
 
 
 def _seconds(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        from nfal.models.errors import InvalidParameterError
+    from nfal.models.errors import InvalidParameterError
 
-        raise InvalidParameterError("--reconnect-after", text, "a number of seconds or 'never'") from None
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = float("nan")
+    if not seconds > 0:
+        raise InvalidParameterError("--reconnect-after", text, "a number of seconds > 0, or 'never'")
+    return seconds
 
 
 def _print_report(report, as_json: bool) -> None:
@@ -158,5 +160,7 @@ def _print_report(report, as_json: bool) -> None:
               f"p99 {pacing['jitter_p99_s'] * 1e6:.0f} us, max {pacing['jitter_max_s'] * 1e6:.0f} us; tick "
               f"{pacing['step_duration_mean_s'] * 1e6:.0f} us mean; {pacing.get('resyncs', 0)} stalls "
               f"({pacing.get('time_given_up_s', 0.0) * 1e3:.1f} ms given up)", flush=True)
-    print(f"faults injected: {report.faults}; frames dropped by the rig: {report.decoder.get('dropped', 0)}", file=sys.stdout,
-          flush=True)
+    faults = report.faults
+    print(f"faults injected into the rig's frames: {faults.get('dropped', 0)} withheld, {faults.get('corrupted', 0)} "
+          f"corrupted, {faults.get('duplicated', 0)} sent twice (the host counts what it drops and what never came); "
+          f"frames from the host the rig dropped: {report.decoder.get('dropped', 0)}", flush=True)
