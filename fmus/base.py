@@ -418,7 +418,7 @@ class NfalSlave(Fmi2Slave):
         so far (the initial state: the plant at initial_height, the controller's bumpless command), so a
         master that propagates outputs before the first step hands on consistent values, not zeros."""
         if self._in_initialization and self._settings_changed:
-            self._guard("initialisation (checking the parameters)", self.setup)
+            self._guard("initialisation (set-up from the parameters)", self.setup)
             self._settings_changed = False
         return self._guard(what, read, vrs)
 
@@ -427,7 +427,7 @@ class NfalSlave(Fmi2Slave):
             self.setup()
             self.initialized = True
             self._in_initialization = False
-        self._guard("exit_initialization_mode (checking the parameters)", run)
+        self._guard("exit_initialization_mode (set-up from the parameters)", run)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:  # not through _guard: the hot path builds no closure and no message unless it fails

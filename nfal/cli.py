@@ -33,6 +33,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if not args.verbose:  # an FMU's failure reaches the user once: in the error the command prints
+        logging.getLogger("nfal.fmus.base").setLevel(logging.CRITICAL)
     try:
         return int(args.handler(args) or 0)
     except NfalError as exc:

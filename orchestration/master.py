@@ -63,6 +63,8 @@ logger = logging.getLogger(__name__)
 ALGORITHMS = ("causal", "jacobi")
 FMU_LOGGING = ("on", "off")
 _STATUS_LEVELS = {0: logging.DEBUG, 1: logging.WARNING, 2: logging.WARNING, 3: logging.ERROR, 4: logging.ERROR}
+#: What pythonfmu's C wrapper logs after any Python exception, whatever the FMU logged before it.
+_PYTHONFMU_AFTER_REASON = "Fatal py exception encountered"
 _CTYPES = {"Real": fmi2Real, "Integer": fmi2Integer, "Boolean": fmi2Boolean}
 _CONVERT: dict[str, Callable[[float], object]] = {"Real": float, "Integer": lambda v: int(round(v)),
                                                    "Boolean": lambda v: int(bool(v))}
@@ -79,11 +81,16 @@ def _route_log(environment, instance, status, category, message) -> None:
             name = instance.decode("utf-8", "replace") if instance else "?"
             slave = next((s for s in list(_SLAVES.values()) if s.name == name), None)
         text = message.decode("utf-8", "replace") if message else ""
+        level = _STATUS_LEVELS.get(status, logging.ERROR)
         if slave is not None:
-            if status >= 1:
-                slave.messages.append(text)
             name = slave.name
-        logger.log(_STATUS_LEVELS.get(status, logging.ERROR), "[%s] %s", name, text)
+            if status >= 3 and text.startswith(_PYTHONFMU_AFTER_REASON) and slave.messages:
+                level = logging.DEBUG  # noise after the reason the FMU gave
+            elif status >= 1:
+                slave.messages.append(text)
+            if status >= 3:
+                level = logging.DEBUG  # the failing call raises FmuCallError with these messages: said once, there
+        logger.log(level, "[%s] %s", name, text)
     except Exception:  # pragma: no cover - never let an exception cross the C callback
         pass
 
@@ -469,9 +476,7 @@ class Master:
 
     def _failure(self, slave: _Slave, exc: FMICallException, detail: str = "") -> FmuCallError:
         slave.state = "fatal" if exc.status >= 4 else "error"
-        error = FmuCallError(slave.name, exc.function + detail, exc.status, self.time, list(slave.messages))
-        logger.error("%s", error)
-        return error
+        return FmuCallError(slave.name, exc.function + detail, exc.status, self.time, list(slave.messages))
 
     def timing(self) -> dict[str, dict]:
         """Per element: its FMU file and the wall time spent in its doStep calls [s]."""
@@ -485,7 +490,7 @@ class Master:
         for slave in reversed(list(self._slaves.values())):
             if slave.state in ("loaded", "freed") or slave.element.source in fatal:
                 if slave.state == "fatal" or slave.element.source in fatal:
-                    logger.warning("%s: not freed (fmi2Fatal: FMI allows no further call)", slave.name)
+                    logger.info("%s: not freed (fmi2Fatal: FMI allows no further call)", slave.name)
                 continue
             try:
                 if slave.state == "running":
