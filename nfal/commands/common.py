@@ -41,13 +41,16 @@ def _to_builtin(value):
 
 
 def print_step_table(steps: list[dict]) -> None:
-    """The per-step metrics (``StepMetrics.to_dict()`` rows) as an indented table in ms, %, nm and um s."""
-    show = lambda v, scale, fmt: "-" if v is None else format(v * scale, fmt)  # noqa: E731
+    """The per-step metrics (``StepMetrics.to_dict()`` rows) as an indented table in ms, %, nm and um s; a rise or
+    settling time the step never reached is shown as "-" (and explained under the table)."""
+    show = lambda v, scale, width: f"{'-':>{width}}" if v is None else f"{v * scale:{width}.1f}"  # noqa: E731
     print(f"  {'step [um]':>13} {'rise [ms]':>9} {'overshoot [%]':>13} {'settle [ms]':>11} {'noise [nm]':>10} {'IAE [um s]':>10}")
     for step in steps:
-        print(f"  {step['from_m'] * 1e6:5.0f} -> {step['to_m'] * 1e6:4.0f} {show(step['rise_time_s'], 1e3, '9.1f')} "
-              f"{step['overshoot_percent']:13.1f} {show(step['settling_time_s'], 1e3, '11.1f')} "
+        print(f"  {step['from_m'] * 1e6:5.0f} -> {step['to_m'] * 1e6:4.0f} {show(step['rise_time_s'], 1e3, 9)} "
+              f"{step['overshoot_percent']:13.1f} {show(step['settling_time_s'], 1e3, 11)} "
               f"{step['noise_rms_m'] * 1e9:10.1f} {step['iae'] * 1e6:10.3f}")
+    if any(step["rise_time_s"] is None or step["settling_time_s"] is None for step in steps):
+        print("  (-: not reached within the step: no 10-90 % rise, or not settled within 2 % by its end)")
 
 
 def progress_bar(total: int, description: str) -> tqdm:
