@@ -415,8 +415,9 @@ def test_a_poll_after_a_stall_drains_the_backlog_so_the_newest_sample_is_the_new
     assert link.counters.measurements >= 200 and link.decoder.counters.dropped == 0
 
 
-def _rig_on_a_socket(frames: list[bytes]):
-    """A server on loopback that answers the host's HELLO with ``frames``: (url, thread, the socket server)."""
+def _rig_on_a_socket(frames: list[bytes], hellos: int = 1):
+    """A server on loopback that answers the host's ``hellos``-th HELLO with ``frames`` (the ones before it get no
+    answer, as if lost on the wire): (url, thread, the socket server)."""
     import socket
 
     server = socket.create_server(("127.0.0.1", 0))
@@ -426,7 +427,7 @@ def _rig_on_a_socket(frames: list[bytes]):
         with peer:
             peer.settimeout(WAIT_S)
             received = b""
-            while not any(isinstance(r.message, Hello) for r in FrameDecoder(HOST_TO_RIG).feed(received)):
+            while sum(isinstance(r.message, Hello) for r in FrameDecoder(HOST_TO_RIG).feed(received)) < hellos:
                 received += peer.recv(64)
             peer.sendall(b"".join(frames))
             time.sleep(0.5)
@@ -452,6 +453,21 @@ def test_measurements_before_our_hello_ack_belong_to_the_session_before_and_are_
         assert wait_for(link, lambda: link.latest() is not None)
         assert link.latest().measurement.timestamp_us == 2_000 and link.latest().measurement.status == 0
         assert link.counters.measurements == 1 and link.counters.measurements_before_session == 1
+        thread.join(timeout=WAIT_S)
+
+
+def test_a_hello_without_an_answer_is_said_again(links):
+    """A HELLO or its HELLO_ACK lost on the wire (a noisy line, the emulator's --drop): the host says HELLO again
+    after HELLO_REPEAT_S instead of waiting out the connect timeout."""
+    from nfal.hil.protocol import FrameEncoder
+
+    url, thread, server = _rig_on_a_socket([FrameEncoder()(ACK)], hellos=2)
+    with server:
+        link = links(url, connect_timeout_s=WAIT_S)
+        started = time.monotonic()
+        assert link.open() == ACK
+        assert link_module.HELLO_REPEAT_S <= time.monotonic() - started < 2 * link_module.HELLO_REPEAT_S
+        assert link.counters.hellos_repeated == 1 and link.counters.handshake_failures == 0
         thread.join(timeout=WAIT_S)
 
 
