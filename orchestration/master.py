@@ -84,12 +84,10 @@ def _route_log(environment, instance, status, category, message) -> None:
         level = _STATUS_LEVELS.get(status, logging.ERROR)
         if slave is not None:
             name = slave.name
-            if status >= 3 and text.startswith(_PYTHONFMU_AFTER_REASON) and slave.messages:
-                level = logging.DEBUG  # noise after the reason the FMU gave
-            elif status >= 1:
+            if status >= 1 and not (text.startswith(_PYTHONFMU_AFTER_REASON) and slave.messages):
                 slave.messages.append(text)
-            if status >= 3:
-                level = logging.DEBUG  # the failing call raises FmuCallError with these messages: said once, there
+            if status >= 3:  # the failing call's FmuCallError carries the messages: said once, there
+                level = logging.DEBUG
         logger.log(level, "[%s] %s", name, text)
     except Exception:  # pragma: no cover - never let an exception cross the C callback
         pass
