@@ -52,6 +52,8 @@ DRAIN_LIMIT = 16 * READ_CHUNK
 BACKLOG_BYTES = 1024
 #: A HELLO without an answer this long is said again (spec 6: a frame lost on the wire) [s].
 HELLO_REPEAT_S = 0.5
+#: Only out-of-order frames for this long (three RIG_HEARTBEAT periods) means the rig restarted: HELLO again [s].
+RESTART_SILENCE_S = 0.3
 #: Pause between two polls while an owner that polls waits for the rig [s] (not a busy spin).
 WAIT_PAUSE_S = 2e-4
 
@@ -80,6 +82,7 @@ class LinkCounters:
     reconnects: int = 0         #: sessions re-established after a disconnect
     handshake_failures: int = 0  #: HELLO without a HELLO_ACK in time, or a version the rig refused
     hellos_repeated: int = 0    #: HELLOs said again after HELLO_REPEAT_S without an answer
+    rig_restarts: int = 0       #: sessions re-opened because every frame looked old for RESTART_SILENCE_S
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,6 +147,7 @@ class RigLink:
         self._refused: Fault | None = None
         self._hello_at = 0.0      # when this session's first HELLO went out
         self._hello_again_at = 0.0  # when to repeat it if no HELLO_ACK has come
+        self._heard_at = 0.0        # when the decoder last accepted a frame
         self._reconnect_at = 0.0
         self._lost_reason = ""
         self._opening: concurrent.futures.Future | None = None  # a port being opened for a polling owner
@@ -397,7 +401,14 @@ class RigLink:
 
     def _handle(self, data: bytes) -> None:
         now = self.clock()
-        for received in self.decoder.feed(data):
+        stale_before = self.decoder.counters.out_of_order
+        accepted = self.decoder.feed(data)
+        if accepted:
+            self._heard_at = now
+        elif (self.decoder.counters.out_of_order > stale_before and self._acknowledged.is_set()
+              and now - self._heard_at > RESTART_SILENCE_S):
+            self._rig_restarted()
+        for received in accepted:
             message = received.message
             if isinstance(message, Measurement):
                 if not self._acknowledged.is_set():  # still the session before ours (a reconnection's HELLO in flight)
@@ -420,6 +431,16 @@ class RigLink:
                                _fault_name(message.code), message.detail, message.timestamp_us * 1e-6)
                 if message.code == FaultCode.VERSION_MISMATCH:
                     self._refused = message
+
+    def _rig_restarted(self) -> None:
+        """Only frames that look old for RESTART_SILENCE_S: a rig that restarted counts from 0 again without a
+        HELLO_ACK (spec 3), so say HELLO again."""
+        self.counters.rig_restarts += 1
+        logger.warning("%s: the rig's frames all look old (it restarted?): saying HELLO again", self.url)
+        self._acknowledged.clear()
+        self.decoder.reset_sequence()
+        self._hello_at = self.clock()
+        self._say_hello()
 
     def _hello_ack(self, ack: HelloAck) -> None:
         if self._acknowledged.is_set():

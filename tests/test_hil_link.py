@@ -471,6 +471,21 @@ def test_a_hello_without_an_answer_is_said_again(links):
         thread.join(timeout=WAIT_S)
 
 
+def test_a_rig_that_restarts_gets_a_new_hello(rig, links):
+    """A rebooted rig counts from 0 again and sends only heartbeats (no session): every frame looks old to the host
+    (spec 3), which says HELLO again after RESTART_SILENCE_S, and the measurements resume."""
+    fake = rig()
+    link = links(fake.url)
+    link.open()
+    assert wait_for(link, lambda: count(link) >= 200)  # seqs well past what the restarted rig will send
+    with fake.lock:
+        fake.firmware = Firmware(TIMING)
+    before = count(link)
+    assert wait_for(link, lambda: link.counters.rig_restarts == 1 and count(link) > before + 10)
+    assert link.decoder.counters.out_of_order >= 3 and link.counters.reconnects == 1 and link.connected
+    assert fake.state()[0]  # the restarted firmware has a session
+
+
 def test_an_owner_that_polls_never_waits_for_the_port_to_reopen(rig, monkeypatch):
     """Reopening a socket:// port can take seconds: a helper thread opens it, and every poll returns at once."""
     fake = rig()
