@@ -43,14 +43,14 @@ def loop_columns(element_names) -> LoopColumns:
 
 
 def response_panels(columns: LoopColumns = SIMULATED) -> list:
-    """Height (reference, true, measured) in um; excitation in um; drive frequency in Hz (and, with
+    """Height (reference, true, measured) in um; excitation in um; the drive frequency's change in Hz (and, with
     hardware, the commanded and applied voltage and the age of the sample used)."""
     from nfal.orchestration import PlotPanel
 
     heights = (REFERENCE, columns.measured) + ((columns.height,) if columns.height != columns.measured else ())
     excitation = tuple(dict.fromkeys(("Controller.excitation_command", columns.excitation)))
     return [PlotPanel(heights, 1e6, "height [um]"), PlotPanel(excitation, 1e6, "|a| [um]"),
-            PlotPanel((columns.frequency,), 1.0, "drive frequency [Hz]"),
+            PlotPanel((columns.frequency,), 1.0, "drive frequency change [Hz]", from_start=True),
             *(PlotPanel(*panel) for panel in columns.extra_panels)]
 
 

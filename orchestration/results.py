@@ -179,7 +179,8 @@ def write_summary(path: str | os.PathLike, summary: Mapping) -> Path:
 
 @dataclasses.dataclass(frozen=True)
 class PlotPanel:
-    """One panel of the response plot: ``columns`` scaled by ``scale``, with a y-axis label.
+    """One panel of the response plot: ``columns`` scaled by ``scale``, with a y-axis label; ``from_start``
+    plots each column's change from its first value (a drive frequency of 28.5 kHz that moves by hertz).
 
     ``PlotPanel(("Controller.reference", "Plant.height"), scale=1e6, ylabel="height [um]")``
     """
@@ -187,6 +188,7 @@ class PlotPanel:
     columns: tuple[str, ...]
     scale: float = 1.0
     ylabel: str | None = None
+    from_start: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.columns, str):
@@ -232,7 +234,10 @@ def plot_response(table: ResultTable, path: str | os.PathLike, panels: Sequence[
     axes = figure.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)[:, 0]
     for axis, panel in zip(axes, panels):
         for name in panel.columns:
-            axis.step(table.time, table[name] * panel.scale, where="post", label=name, linewidth=1.0)
+            values, label = np.asarray(table[name]) * panel.scale, name
+            if panel.from_start and len(values):
+                values, label = values - values[0], f"{name} - {values[0]:g}"
+            axis.step(table.time, values, where="post", label=label, linewidth=1.0)
         if panel.ylabel:
             axis.set_ylabel(panel.ylabel)
         axis.grid(True, alpha=0.3)
