@@ -77,6 +77,7 @@ class LinkCounters:
     heartbeats: int = 0         #: RIG_HEARTBEAT frames accepted
     faults: int = 0             #: FAULT frames accepted
     drives_sent: int = 0        #: DRIVE frames written in full
+    drives_not_sent: int = 0    #: DRIVE commands the port did not take (down, or full): the rig never got them
     write_errors: int = 0       #: frames the port did not take in full (the rig drops the remainder)
     disconnects: int = 0        #: the port failed or closed under us
     reconnects: int = 0         #: sessions re-established after a disconnect
@@ -208,6 +209,7 @@ class RigLink:
         if self._send(Drive(float(voltage))):
             self.counters.drives_sent += 1
             return True
+        self.counters.drives_not_sent += 1
         return False
 
     def close(self, *, stop: bool = True) -> None:
