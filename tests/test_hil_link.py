@@ -561,6 +561,29 @@ def proxy():
         slave.terminate()
 
 
+def test_the_proxy_fmu_validates_and_declares_its_contract(tmp_path):
+    """fmpy.validation finds no problem; the variables of docs/hil.md's table, with their causalities and units."""
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+
+    from nfal.fmus.build import build_fmus
+
+    fmu = str(build_fmus(tmp_path, ["HardwareProxy"])["HardwareProxy"])
+    assert validate_fmu(fmu) == []
+    variables = {v.name: (v.causality, v.type, v.unit) for v in read_model_description(fmu).modelVariables}
+    assert variables["drive_voltage"] == ("input", "Real", "V")
+    for name, unit in (("measured_height", "m"), ("drive_frequency", "Hz"), ("applied_voltage", "V"), ("rig_time", "s"),
+                       ("measurement_age", "s")):
+        assert variables[name] == ("output", "Real", unit)
+    for name in ("locked", "resting", "watchdog_tripped", "sensor_out_of_range", "fresh", "link_ok"):
+        assert variables[name][:2] == ("output", "Boolean")
+    for name in ("samples_missed", "frames_dropped", "frames_lost", "rig_faults", "reconnects"):
+        assert variables[name][:2] == ("output", "Integer")
+    for name in ("port", "baud_rate", "connect_timeout", "max_missed_samples", "reconnect", "sample_rate"):
+        assert variables[name][0] == "parameter"
+    assert not read_model_description(fmu).coSimulation.canGetAndSetFMUstate  # the rig cannot be rewound
+
+
 def test_the_proxy_starts_from_a_measured_sample_and_drives_the_rig(rig, proxy):
     fake = rig()
     slave = proxy(fake.url)
