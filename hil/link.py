@@ -64,6 +64,14 @@ def write_timeout(url: str) -> float | None:
     return None if url.startswith("loop://") else 0
 
 
+def open_port(url: str, baudrate: int, read_timeout_s: float) -> serial.SerialBase:
+    """``serial.serial_for_url`` with writes that never wait; raises LinkError naming the URL."""
+    try:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout_s, write_timeout=write_timeout(url))
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise LinkError(f"cannot open {url}: {exc}") from None
+
+
 class LinkError(NfalError, RuntimeError):
     """The rig cannot be reached, or it does not speak this protocol."""
 
@@ -149,6 +157,7 @@ class RigLink:
         self._hello_at = 0.0      # when this session's first HELLO went out
         self._hello_again_at = 0.0  # when to repeat it if no HELLO_ACK has come
         self._heard_at = 0.0        # when the decoder last accepted a frame
+        self._hellos_said = 0       # HELLOs of this session (more than one: the rig may restart its count twice)
         self._reconnect_at = 0.0
         self._lost_reason = ""
         self._opening: concurrent.futures.Future | None = None  # a port being opened for a polling owner
@@ -157,22 +166,25 @@ class RigLink:
     def open(self) -> HelloAck:
         """Open the port, say HELLO and wait for the rig's HELLO_ACK (and start the reader thread, if
         ``reader_thread``). Raises LinkError."""
+        if self._thread is not None and not self._thread.is_alive():
+            self._thread = None  # the reader of an earlier session, ended
         if self._port is not None or self._thread is not None:
-            raise LinkError(f"{self.url}: the link is already open")
+            raise LinkError(f"{self.url}: the link is already open (or its reader is still closing)")
         self._stopping.clear()
         self._refused = None  # kept across the reader's reconnections while open() waits
+        failures = self.counters.handshake_failures
         self._connect()  # raises on failure: nothing is left running
         if self.reader_thread:
             self._thread = threading.Thread(target=self._read_loop, name=f"nfal-rig-link {self.url}", daemon=True)
             self._thread.start()
-            acknowledged = self._acknowledged.wait(self.connect_timeout_s)
-        else:
-            acknowledged = self.wait_until(lambda: self._acknowledged.is_set() or self._port is None,
-                                           self.connect_timeout_s) and self._acknowledged.is_set()
-        if not acknowledged:
+        # the reader reconnects by itself if the port fails meanwhile; an owner that polls stops waiting then
+        self.wait_until(lambda: self._acknowledged.is_set() or self._refused is not None
+                        or (not self.reader_thread and self._port is None), self.connect_timeout_s)
+        if not self._acknowledged.is_set():
             refused = self._refused
             self.close()
-            self.counters.handshake_failures += 1
+            if self.counters.handshake_failures == failures:  # not counted yet by the poll that gave up
+                self.counters.handshake_failures += 1
             if refused is not None:
                 raise LinkError(f"{self.url}: the rig refused protocol version {PROTOCOL_VERSION} "
                                 f"(FAULT VERSION_MISMATCH, detail {refused.detail:g})")
@@ -197,7 +209,7 @@ class RigLink:
                 return True
             if self.clock() >= deadline:
                 return False
-            time.sleep(WAIT_PAUSE_S)
+            time.sleep(WAIT_PAUSE_S if not self.reader_thread else READ_TIMEOUT_S / 10)
 
     def latest(self) -> Sample | None:
         """The newest measurement (None before the first)."""
@@ -224,8 +236,9 @@ class RigLink:
             except Exception:  # noqa: BLE001 - not every port type can cancel; the read times out anyway
                 pass
         if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=1.0)
-        self._thread = None
+            self._thread.join(timeout=1.0)  # a reader inside a slow socket:// connect ends when that does
+        if self._thread is not None and not self._thread.is_alive():
+            self._thread = None
         opening, self._opening = self._opening, None
         if opening is not None:  # a port opened after close() is closed at once
             opening.add_done_callback(lambda done: done.exception() is None and done.result().close())
@@ -250,13 +263,8 @@ class RigLink:
         self._start_session(self._open_port())
 
     def _open_port(self) -> serial.SerialBase:
-        try:
-            # the reader thread waits for the first byte; an owner that polls never waits (timeout 0)
-            return serial.serial_for_url(self.url, baudrate=self.baudrate,
-                                         timeout=READ_TIMEOUT_S if self.reader_thread else 0,
-                                         write_timeout=write_timeout(self.url))
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open {self.url}: {exc}") from None
+        # the reader thread waits for the first byte; an owner that polls never waits (timeout 0)
+        return open_port(self.url, self.baudrate, READ_TIMEOUT_S if self.reader_thread else 0)
 
     def _start_session(self, port: serial.SerialBase) -> None:
         """Make ``port`` the link's and say HELLO on it (unless the link is closing: then close it)."""
@@ -267,7 +275,7 @@ class RigLink:
                 port.close()
                 raise LinkError(f"{self.url}: the link was closed")
             self._port = port
-        self._hello_at = self.clock()
+        self._hello_at, self._hellos_said = self.clock(), 0
         if not self._say_hello():
             self._close_port()
             raise LinkError(f"{self.url}: could not write HELLO")
@@ -275,17 +283,14 @@ class RigLink:
     def _say_hello(self) -> bool:
         """HELLO at seq 0, after a 0x00 that ends whatever partial frame the rig may hold (spec 2.1)."""
         self._hello_again_at = self.clock() + HELLO_REPEAT_S
-        with self._write_lock:
+        self._hellos_said += 1
+        with self._write_lock:  # one piece: no DRIVE may take seq 0 before it
             self._encoder.restart()
-        return self._send_bytes(DELIMITER) and self._send(Hello(PROTOCOL_VERSION))
+            return self._write(DELIMITER) and self._write(self._encoder(Hello(PROTOCOL_VERSION)))
 
     def _send(self, message) -> bool:
         with self._write_lock:
             return self._write(self._encoder(message))
-
-    def _send_bytes(self, data: bytes) -> bool:
-        with self._write_lock:
-            return self._write(data)
 
     def _write(self, frame: bytes) -> bool:
         """Write ``frame`` without waiting (the write lock held); False if the port did not take all of it."""
@@ -338,15 +343,6 @@ class RigLink:
         if port is None:
             self._reconnect_if_due()
             return
-        if not self._acknowledged.is_set():
-            now = self.clock()
-            if now - self._hello_at > self.connect_timeout_s:
-                self.counters.handshake_failures += 1
-                self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
-                return
-            if now >= self._hello_again_at:  # the HELLO or its answer may have been lost on the wire (spec 6)
-                self.counters.hellos_repeated += 1
-                self._say_hello()
         try:
             if block:  # up to READ_TIMEOUT_S for the first byte, then what is waiting
                 data = port.read(max(1, port.in_waiting))
@@ -363,6 +359,14 @@ class RigLink:
             return
         if data:
             self._handle(data)
+        if not self._acknowledged.is_set():  # what came has been read: is the answer to HELLO still missing?
+            now = self.clock()
+            if now - self._hello_at > self.connect_timeout_s:
+                self.counters.handshake_failures += 1
+                self._lost(port, f"no HELLO_ACK within {self.connect_timeout_s:g} s")
+            elif now >= self._hello_again_at and self._refused is None:  # lost on the wire? (spec 6)
+                self.counters.hellos_repeated += 1
+                self._say_hello()
 
     def _reconnect_if_due(self) -> None:
         if self._opening is not None:
@@ -376,7 +380,7 @@ class RigLink:
             try:
                 self._connect()
             except LinkError as exc:
-                self.last_error = f"{self._lost_reason}; reopening: {exc}"
+                self._reopen_failed(exc)
             return
         self._opening = concurrent.futures.Future()  # an owner's poll may not: a daemon thread opens it
         threading.Thread(target=_resolve, args=(self._opening, self._open_port), daemon=True,
@@ -390,8 +394,11 @@ class RigLink:
         self._opening = None
         try:
             self._start_session(opening.result())
-        except LinkError as exc:
-            self.last_error = f"{self._lost_reason}; reopening: {exc}"
+        except Exception as exc:  # noqa: BLE001 - a step must not fail for a reopening that did: it is tried again
+            self._reopen_failed(exc)
+
+    def _reopen_failed(self, exc: Exception) -> None:
+        self.last_error = f"{self._lost_reason}; reopening: {exc}"
 
     def _read_loop(self) -> None:
         while not self._stopping.is_set():
@@ -407,9 +414,13 @@ class RigLink:
         accepted = self.decoder.feed(data)
         if accepted:
             self._heard_at = now
-        elif (self.decoder.counters.out_of_order > stale_before and self._acknowledged.is_set()
-              and now - self._heard_at > RESTART_SILENCE_S):
-            self._rig_restarted()
+        elif self.decoder.counters.out_of_order > stale_before and self._acknowledged.is_set():
+            if self._hellos_said > 1:
+                # the rig also answered a repeated HELLO, restarting its count, and that HELLO_ACK was lost: follow it
+                self._hellos_said = 1
+                self.decoder.reset_sequence()
+            elif now - self._heard_at > RESTART_SILENCE_S:
+                self._rig_restarted()
         for received in accepted:
             message = received.message
             if isinstance(message, Measurement):
@@ -441,7 +452,7 @@ class RigLink:
         logger.warning("%s: the rig's frames all look old (it restarted?): saying HELLO again", self.url)
         self._acknowledged.clear()
         self.decoder.reset_sequence()
-        self._hello_at = self.clock()
+        self._hello_at, self._hellos_said = self.clock(), 0
         self._say_hello()
 
     def _hello_ack(self, ack: HelloAck) -> None:

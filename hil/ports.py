@@ -15,7 +15,7 @@ from pathlib import Path
 
 import serial
 
-from .link import LinkError, write_timeout
+from .link import LinkError, open_port
 
 #: Most bytes one read takes.
 READ_CHUNK = 65536
@@ -107,12 +107,8 @@ class UrlPort:
         return self._port is not None
 
     def connect(self) -> None:
-        """Open the URL. Raises LinkError."""
-        try:
-            self._port = serial.serial_for_url(self.path, baudrate=self.baudrate, timeout=0,
-                                               write_timeout=write_timeout(self.path))
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open {self.path}: {exc}") from None
+        """Open the URL (a ``socket://`` connect may take pyserial up to 5 s). Raises LinkError."""
+        self._port = open_port(self.path, self.baudrate, 0)
 
     def disconnect(self) -> None:
         if self._port is not None:
