@@ -94,7 +94,7 @@ class DiscreteControlLaw:
         """Bumpless start at an equilibrium: the integrator holds the excitation ``excitation_m`` [m] that holds
         ``height_m`` [m], and the first sample's derivative update is zero whatever it measures, so a plant that
         starts elsewhere (a rig's object at rest on the surface) gets no derivative kick."""
-        height = self._check("height_m", height_m, MEASUREMENT_RANGE_M)
+        self._check("height_m", height_m, MEASUREMENT_RANGE_M)  # checked only: the state needs the excitation
         excitation = self._check("excitation_m", excitation_m, (0.0, self.max_excitation_m))
         return ControllerState(excitation, 0.0, None)
 

@@ -33,8 +33,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    fmu_logger = logging.getLogger("nfal.fmus.base")
+    level = fmu_logger.level
     if not args.verbose:  # an FMU's failure reaches the user once: in the error the command prints
-        logging.getLogger("nfal.fmus.base").setLevel(logging.CRITICAL)
+        fmu_logger.setLevel(logging.CRITICAL)
     try:
         return int(args.handler(args) or 0)
     except NfalError as exc:
@@ -43,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"nfal {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        fmu_logger.setLevel(level)
 
 
 if __name__ == "__main__":

@@ -84,10 +84,11 @@ def _route_log(environment, instance, status, category, message) -> None:
         level = _STATUS_LEVELS.get(status, logging.ERROR)
         if slave is not None:
             name = slave.name
-            if status >= 1 and not (text.startswith(_PYTHONFMU_AFTER_REASON) and slave.messages):
+            if status >= 1 and not (text.startswith(_PYTHONFMU_AFTER_REASON) and slave.reason_logged):
                 slave.messages.append(text)
             if status >= 3:  # the failing call's FmuCallError carries the messages: said once, there
                 level = logging.DEBUG
+                slave.reason_logged = True
         logger.log(level, "[%s] %s", name, text)
     except Exception:  # pragma: no cover - never let an exception cross the C callback
         pass
@@ -104,6 +105,7 @@ class _Slave:
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
         self.element, self.name = element, element.name
         self.messages: collections.deque[str] = collections.deque(maxlen=20)
+        self.reason_logged = False  # an error-status message came: pythonfmu's generic follow-up adds nothing
         self.state = "loaded"  # -> instantiated -> initialization -> running -> freed; error; fatal
         self.step_time = 0.0
         self.fmu_logging = fmu_logging
@@ -495,7 +497,8 @@ class Master:
                     slave.fmu.terminate()
                 slave.fmu.freeInstance()
             except Exception as exc:  # cleanup must not hide the error that got us here
-                logger.warning("%s: terminate/free failed: %s", slave.name, exc)
+                logger.warning("%s: terminate/free failed: %s%s", slave.name, exc,
+                               f"; {slave.messages[-1]}" if slave.messages else "")
             slave.state = "freed"
         for folder in self._folders:  # a library still mapped after fmi2Fatal survives its files' removal
             shutil.rmtree(folder, ignore_errors=True)
