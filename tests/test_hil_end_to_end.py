@@ -149,7 +149,7 @@ def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7
 
 @pytest.mark.slow
 def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(fig7_archives, emulator, tmp_path):
-    rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "never")
+    rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "never", *LONG_WATCHDOG)
     with pytest.raises(SimulationError, match="no measurement from the rig") as failure:
         _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=1.0, lead_s=0.5))
     result = failure.value.result
@@ -160,7 +160,7 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     assert 400 < completed < 1100
     rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 1 + completed  # header, the initial row, one per completed step
-    time.sleep(0.3)  # the rig's watchdog needs 20 ms and its ramp 50 ms after the last DRIVE
+    time.sleep(0.5)  # the rig's watchdog needs 200 ms and its ramp 50 ms after the last DRIVE
     log = rig.stop()
     assert "port disconnected" in log and "watchdog: no DRIVE" in log and "drive down: 0 V" in log
 
@@ -168,7 +168,7 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
 @pytest.mark.slow
 def test_a_short_disconnect_is_ridden_through_by_reconnecting(fig7_archives, emulator, tmp_path):
     """With the missed-sample limit above the outage the link reconnects and the run completes."""
-    rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "0.05")
+    rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "0.05", *LONG_WATCHDOG)
     result = _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7),
                   **{"proxy.max_missed_samples": 2000})
     table = result.table()

@@ -9,6 +9,7 @@ import pytest
 import serial
 
 from nfal.hil.faults import FaultInjector, FaultSettings
+from nfal.hil.link import LinkError
 from nfal.hil.ports import PtyPort, UrlPort
 from nfal.hil.protocol import RIG_TO_HOST, FrameDecoder, FrameEncoder, Measurement, Received
 from nfal.models.errors import InvalidParameterError
@@ -298,7 +299,8 @@ class StillRig:
         pass
 
 
-def test_the_emulator_reports_a_failed_port_and_reopens_it():
+def test_the_emulator_reports_a_failed_port_and_reopens_it_every_interval():
+    """The first attempt comes at once, the next REOPEN_INTERVAL_S of rig time later."""
     import socket
 
     from nfal.hil.emulator import REOPEN_INTERVAL_S, Emulator
@@ -307,17 +309,30 @@ def test_the_emulator_reports_a_failed_port_and_reopens_it():
     with socket.create_server(("127.0.0.1", 0)) as server:
         emulator = Emulator(UrlPort(f"socket://127.0.0.1:{server.getsockname()[1]}"), StillRig(),
                             on_event=events.append)
-        peer, _ = server.accept()
-        peer.close()
-        ticks_per_reopen = round(REOPEN_INTERVAL_S / emulator.timing.sample_period_s)
+        port, attempts = emulator.port, []
+        connect = port.connect
+
+        def counted_connect() -> None:
+            attempts.append(len(attempts))
+            if len(attempts) == 1:
+                raise LinkError("cannot open: refused (a test)")
+            connect()
+
+        port.connect = counted_connect
+        server.accept()[0].close()
         k = 0
         while emulator.report.disconnects == 0 and k < 200:
             emulator.tick(k)
             k += 1
             time.sleep(0.001)
         assert emulator.report.disconnects == 1 and any("port failed" in event for event in events)
-        for k in range(k, k + ticks_per_reopen + 2):
+        assert len(attempts) == 1 and not port.connected  # at once, refused
+        ticks_per_reopen = round(REOPEN_INTERVAL_S / emulator.timing.sample_period_s)
+        for k in range(k, k + ticks_per_reopen - 2):
             emulator.tick(k)
-        assert emulator.port.connected and any("port reopened" in event for event in events)
+        assert len(attempts) == 1  # not before the interval
+        for k in range(k + 1, k + 4):
+            emulator.tick(k)
+        assert len(attempts) == 2 and port.connected and any("port reopened" in event for event in events)
         server.accept()[0].close()
-        emulator.port.close()
+        port.close()

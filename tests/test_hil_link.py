@@ -400,12 +400,14 @@ def test_a_partial_frame_left_in_the_rig_does_not_spoil_the_hello(rig, links):
 
 
 def test_a_poll_after_a_stall_drains_the_backlog_so_the_newest_sample_is_the_newest_sent(rig):
-    """An owner that polls (the reader thread never lets a backlog build up): 0.25 s without a poll leaves about
-    250 frames (9 kB, over two READ_CHUNKs; a pty holds about 12 kB) in the port, and one poll takes them all."""
+    """An owner that polls (the reader thread never lets a backlog build up): 250 frames without a poll (9 kB, over two
+    READ_CHUNKs; a pty holds 12-20 kB) wait in the port, and one poll takes them all."""
     fake = rig()
     link = RigLink(fake.url, reader_thread=False)
     link.open()
-    time.sleep(0.25)
+    sent = len(fake.sent)
+    while len(fake.sent) < sent + 250:  # counted in the rig's frames, not the wall clock: a busy machine slows both
+        time.sleep(0.005)
     with fake.lock:  # the rig stops between two ticks: what it has sent is all in the port
         newest_sent = max(fake.sent)
         link.poll()
@@ -466,8 +468,51 @@ def test_a_hello_without_an_answer_is_said_again(links):
         link = links(url, connect_timeout_s=WAIT_S)
         started = time.monotonic()
         assert link.open() == ACK
-        assert link_module.HELLO_REPEAT_S <= time.monotonic() - started < 2 * link_module.HELLO_REPEAT_S
+        assert link_module.HELLO_REPEAT_S <= time.monotonic() - started < WAIT_S
         assert link.counters.hellos_repeated == 1 and link.counters.handshake_failures == 0
+        thread.join(timeout=WAIT_S)
+
+
+def test_a_late_answer_then_a_lost_one_does_not_look_like_a_restart(links):
+    """The answer to HELLO comes late (after the host repeated HELLO), the rig answers the repeat too, restarting its
+    count, and that second HELLO_ACK is lost: the host follows the new count at once, without a new session."""
+    import socket
+
+    from nfal.hil.protocol import FrameEncoder
+
+    encoder = FrameEncoder()
+
+    def measurements(first_seq: int, n: int, t0_us: int) -> bytes:
+        encoder.next_seq = first_seq
+        return b"".join(encoder(Measurement(t0_us + 1000 * k, 1e-4, 28_500.0, 0.0, 2, 0)) for k in range(n))
+
+    encoder.restart()
+    first = encoder(ACK) + measurements(1, 10, 0)  # the late answer to the first HELLO, then seq 1-10
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def serve() -> None:
+        peer, _ = server.accept()
+        with peer:
+            peer.settimeout(WAIT_S)
+            received = b""
+            while sum(isinstance(r.message, Hello) for r in FrameDecoder(HOST_TO_RIG).feed(received)) < 2:
+                received += peer.recv(64)
+            peer.sendall(first)
+            time.sleep(0.05)
+            peer.sendall(measurements(1, 3, 20_000))  # counting from 0 again: its HELLO_ACK (seq 0) was lost
+            time.sleep(0.05)
+            peer.sendall(measurements(4, 5, 23_000))
+            time.sleep(0.5)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    with server:
+        link = links(f"socket://127.0.0.1:{server.getsockname()[1]}", connect_timeout_s=WAIT_S)
+        assert link.open() == ACK and link.counters.hellos_repeated == 1
+        # the last frame the rig sent, 0.1 s after the first: before RESTART_SILENCE_S could pass
+        assert wait_for(link, lambda: link.latest() is not None and link.latest().measurement.timestamp_us == 27_000,
+                        timeout_s=0.4)
+        assert link.counters.rig_restarts == 0 and link.decoder.counters.out_of_order >= 1
         thread.join(timeout=WAIT_S)
 
 
