@@ -417,9 +417,9 @@ def test_a_poll_after_a_stall_drains_the_backlog_so_the_newest_sample_is_the_new
     assert link.counters.measurements >= 200 and link.decoder.counters.dropped == 0
 
 
-def _rig_on_a_socket(frames: list[bytes], hellos: int = 1):
-    """A server on loopback that answers the host's ``hellos``-th HELLO with ``frames`` (the ones before it get no
-    answer, as if lost on the wire): (url, thread, the socket server)."""
+def _rig_on_a_socket(*bursts: bytes, hellos: int = 1):
+    """A server on loopback that answers the host's ``hellos``-th HELLO with ``bursts``, 50 ms apart (the HELLOs before
+    it get no answer, as if lost on the wire): (url, thread, the socket server)."""
     import socket
 
     server = socket.create_server(("127.0.0.1", 0))
@@ -431,7 +431,9 @@ def _rig_on_a_socket(frames: list[bytes], hellos: int = 1):
             received = b""
             while sum(isinstance(r.message, Hello) for r in FrameDecoder(HOST_TO_RIG).feed(received)) < hellos:
                 received += peer.recv(64)
-            peer.sendall(b"".join(frames))
+            for burst in bursts:
+                peer.sendall(burst)
+                time.sleep(0.05)
             time.sleep(0.5)
 
     thread = threading.Thread(target=serve, daemon=True)
@@ -448,7 +450,7 @@ def test_measurements_before_our_hello_ack_belong_to_the_session_before_and_are_
     old = encoder(Measurement(1_000, 150e-6, 28_500.0, 40.0, int(StatusFlags.WATCHDOG_TRIPPED), 3))
     encoder.restart()
     frames = [old, encoder(ACK), encoder(Measurement(2_000, 100e-6, 28_500.0, 0.0, 0, 0))]
-    url, thread, server = _rig_on_a_socket(frames)
+    url, thread, server = _rig_on_a_socket(b"".join(frames))
     with server:
         link = links(url, connect_timeout_s=WAIT_S)
         assert link.open() == ACK
@@ -463,7 +465,7 @@ def test_a_hello_without_an_answer_is_said_again(links):
     after HELLO_REPEAT_S instead of waiting out the connect timeout."""
     from nfal.hil.protocol import FrameEncoder
 
-    url, thread, server = _rig_on_a_socket([FrameEncoder()(ACK)], hellos=2)
+    url, thread, server = _rig_on_a_socket(FrameEncoder()(ACK), hellos=2)
     with server:
         link = links(url, connect_timeout_s=WAIT_S)
         started = time.monotonic()
@@ -476,8 +478,6 @@ def test_a_hello_without_an_answer_is_said_again(links):
 def test_a_late_answer_then_a_lost_one_does_not_look_like_a_restart(links):
     """The answer to HELLO comes late (after the host repeated HELLO), the rig answers the repeat too, restarting its
     count, and that second HELLO_ACK is lost: the host follows the new count at once, without a new session."""
-    import socket
-
     from nfal.hil.protocol import FrameEncoder
 
     encoder = FrameEncoder()
@@ -487,27 +487,12 @@ def test_a_late_answer_then_a_lost_one_does_not_look_like_a_restart(links):
         return b"".join(encoder(Measurement(t0_us + 1000 * k, 1e-4, 28_500.0, 0.0, 2, 0)) for k in range(n))
 
     encoder.restart()
-    first = encoder(ACK) + measurements(1, 10, 0)  # the late answer to the first HELLO, then seq 1-10
-    server = socket.create_server(("127.0.0.1", 0))
-
-    def serve() -> None:
-        peer, _ = server.accept()
-        with peer:
-            peer.settimeout(WAIT_S)
-            received = b""
-            while sum(isinstance(r.message, Hello) for r in FrameDecoder(HOST_TO_RIG).feed(received)) < 2:
-                received += peer.recv(64)
-            peer.sendall(first)
-            time.sleep(0.05)
-            peer.sendall(measurements(1, 3, 20_000))  # counting from 0 again: its HELLO_ACK (seq 0) was lost
-            time.sleep(0.05)
-            peer.sendall(measurements(4, 5, 23_000))
-            time.sleep(0.5)
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
+    url, thread, server = _rig_on_a_socket(
+        encoder(ACK) + measurements(1, 10, 0),  # the late answer to the first HELLO, then seq 1-10
+        measurements(1, 3, 20_000),  # counting from 0 again: its HELLO_ACK (seq 0) was lost
+        measurements(4, 5, 23_000), hellos=2)
     with server:
-        link = links(f"socket://127.0.0.1:{server.getsockname()[1]}", connect_timeout_s=WAIT_S)
+        link = links(url, connect_timeout_s=WAIT_S)
         assert link.open() == ACK and link.counters.hellos_repeated == 1
         # the last frame the rig sent, 0.1 s after the first: before RESTART_SILENCE_S could pass
         assert wait_for(link, lambda: link.latest() is not None and link.latest().measurement.timestamp_us == 27_000,
@@ -670,7 +655,7 @@ def test_the_proxy_passes_on_the_rigs_status_flags(proxy):
 
     encoder = FrameEncoder()
     flags = StatusFlags.SESSION_ACTIVE | StatusFlags.SENSOR_OUT_OF_RANGE | StatusFlags.RESTING
-    url, thread, server = _rig_on_a_socket([encoder(ACK), encoder(Measurement(5_000, 2e-3, 28_490.0, 12.0, int(flags), 0))])
+    url, thread, server = _rig_on_a_socket(encoder(ACK) + encoder(Measurement(5_000, 2e-3, 28_490.0, 12.0, int(flags), 0)))
     with server:
         slave = proxy(url)
         assert (slave.sensor_out_of_range, slave.resting, slave.locked, slave.watchdog_tripped) == (True, True, False, False)
