@@ -54,6 +54,8 @@ BACKLOG_BYTES = 1024
 HELLO_REPEAT_S = 0.5
 #: Only out-of-order frames for this long (three RIG_HEARTBEAT periods) means the rig restarted: HELLO again [s].
 RESTART_SILENCE_S = 0.3
+#: What a failed read raises (pyserial raises TypeError/AttributeError when the port is closed under a read).
+READ_ERRORS = (serial.SerialException, OSError, TypeError, AttributeError)
 #: Pause between two polls while an owner that polls waits for the rig [s] (not a busy spin).
 WAIT_PAUSE_S = 2e-4
 
@@ -268,17 +270,21 @@ class RigLink:
 
     def _start_session(self, port: serial.SerialBase) -> None:
         """Make ``port`` the link's and say HELLO on it (unless the link is closing: then close it)."""
-        self._acknowledged.clear()
-        self.decoder.reset_sequence()
         with self._write_lock:
             if self._stopping.is_set():  # close() came while the port was being opened
                 port.close()
                 raise LinkError(f"{self.url}: the link was closed")
             self._port = port
-        self._hello_at, self._hellos_said = self.clock(), 0
-        if not self._say_hello():
+        if not self._handshake():
             self._close_port()
             raise LinkError(f"{self.url}: could not write HELLO")
+
+    def _handshake(self) -> bool:
+        """A new session on the port: forget the acknowledgement and the rig's count, and say HELLO."""
+        self._acknowledged.clear()
+        self.decoder.reset_sequence()
+        self._hello_at, self._hellos_said = self.clock(), 0
+        return self._say_hello()
 
     def _say_hello(self) -> bool:
         """HELLO at seq 0, after a 0x00 that ends whatever partial frame the rig may hold (spec 2.1)."""
@@ -353,8 +359,7 @@ class RigLink:
                 while len(chunk) >= BACKLOG_BYTES and len(data) < DRAIN_LIMIT:
                     chunk = port.read(READ_CHUNK)
                     data += chunk
-        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-            # pyserial raises TypeError/AttributeError when the port is closed under a read
+        except READ_ERRORS as exc:
             self._lost(port, _failed("read failed", exc))
             return
         if data:
@@ -450,10 +455,7 @@ class RigLink:
         HELLO_ACK (spec 3), so say HELLO again."""
         self.counters.rig_restarts += 1
         logger.warning("%s: the rig's frames all look old (it restarted?): saying HELLO again", self.url)
-        self._acknowledged.clear()
-        self.decoder.reset_sequence()
-        self._hello_at, self._hellos_said = self.clock(), 0
-        self._say_hello()
+        self._handshake()
 
     def _hello_ack(self, ack: HelloAck) -> None:
         if self._acknowledged.is_set():
