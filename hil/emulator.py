@@ -140,12 +140,7 @@ class Emulator:
             self.report.disconnects += 1
             self.on_event(f"t = {now_s:.4f} s: port failed: {port.last_error}")
         if not port.connected and self._dropped_at is None and now_s >= self._reopen_at:
-            self._reopen_at = now_s + REOPEN_INTERVAL_S
-            try:
-                port.connect()
-                self.on_event(f"t = {now_s:.4f} s: port reopened at {port.path}")
-            except LinkError as exc:
-                port.last_error = str(exc)
+            self._connect(now_s, "reopened")
         plan, opened = self.disconnection, self._opened_at
         if plan is None or opened is None:
             return
@@ -156,12 +151,17 @@ class Emulator:
             self.on_event(f"t = {now_s:.4f} s: port disconnected")
         elif self._dropped_at is not None and plan.after_s is not None and now_s >= self._dropped_at + plan.after_s:
             self._dropped_at = None  # if this fails, the port is reopened as any failed one
-            try:
-                self.port.connect()
-                self.on_event(f"t = {now_s:.4f} s: port reconnected at {self.port.path}")
-            except LinkError as exc:
-                self.port.last_error = str(exc)
-                self._reopen_at = now_s + REOPEN_INTERVAL_S
+            self._connect(now_s, "reconnected")
+
+    def _connect(self, now_s: float, event: str) -> None:
+        """Connect the port (logging ``port <event>``); if that fails, try again REOPEN_INTERVAL_S later."""
+        self._reopen_at = now_s + REOPEN_INTERVAL_S
+        try:
+            self.port.connect()
+        except LinkError as exc:
+            self.port.last_error = str(exc)
+            return
+        self.on_event(f"t = {now_s:.4f} s: port {event} at {self.port.path}")
 
     def run(self, duration_s: float | None = None) -> EmulatorReport:
         """Tick in real time until ``duration_s`` of wall time (None: until :meth:`stop`)."""

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import serial
 
-from .link import LinkError, open_port
+from .link import READ_ERRORS, LinkError, open_port
 
 #: Most bytes one read takes.
 READ_CHUNK = 65536
@@ -120,7 +120,7 @@ class UrlPort:
             return b""
         try:
             return self._port.read(READ_CHUNK)  # timeout 0: what has arrived (a socket's in_waiting says 1)
-        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+        except READ_ERRORS as exc:
             self._failed(exc)
             return b""
 
