@@ -97,13 +97,20 @@ def realtime_priority(priority: int | None) -> Iterator[None]:
         os.sched_setscheduler(0, policy, param)
 
 
+def require_realtime_priority(priority: int | None) -> None:
+    """Raise :class:`RealtimePriorityError` now if this process may not run at ``priority`` (tried, then undone),
+    so that a command refuses before it builds or opens anything; None: nothing to check."""
+    with realtime_priority(priority):
+        pass
+
+
 def realtime_priority_refusal(priority: int) -> str | None:
     """Why this process may not run at ``priority`` under SCHED_FIFO, or None if it may (tried, then undone)."""
     try:
-        with realtime_priority(priority):
-            return None
+        require_realtime_priority(priority)
     except RealtimePriorityError as exc:
         return str(exc)
+    return None
 
 
 class RealTimePacer:

@@ -22,7 +22,7 @@ from nfal.models.errors import InvalidParameterError, require_positive
 
 from .errors import SimulationError
 from .master import ALGORITHMS, Master
-from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority
+from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority, require_realtime_priority
 from .resolve import resolve
 from .results import CsvWriter, PlotPanel, ResultTable, plot_response, read_results, write_summary
 from .signals import PiecewiseConstant
@@ -164,8 +164,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     if rt_priority is not None:
         if not speed:
             raise InvalidParameterError("rt_priority", rt_priority, "given only with realtime (a paced run)")
-        with realtime_priority(rt_priority):  # refused now, before anything is written, rather than mid-run
-            pass
+        require_realtime_priority(rt_priority)  # refused now, before anything is written, rather than mid-run
     started_at = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
     with read_ssp(path) as structure:
         system = resolve(structure, parameters, undeclared_dependencies=undeclared_dependencies)

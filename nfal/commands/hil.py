@@ -91,7 +91,7 @@ def run_emulator(args: argparse.Namespace) -> int:
     from nfal.hil.ports import PtyPort, UrlPort
     from nfal.hil.rig_model import open_rig
     from nfal.models.errors import InvalidParameterError
-    from nfal.orchestration.pacing import realtime_priority
+    from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
 
     timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
     faults = FaultSettings(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate, delay_s=args.delay,
@@ -101,8 +101,7 @@ def run_emulator(args: argparse.Namespace) -> int:
     if args.link and args.port != "pty":
         raise InvalidParameterError("--link", args.link, "used with --port pty only")
     parameters = dict(parse_parameter(text) for text in args.param)
-    with realtime_priority(args.rt_priority):  # refused now, before anything is built or opened
-        pass
+    require_realtime_priority(args.rt_priority)  # refused now, before anything is built or opened
     with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
         port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
