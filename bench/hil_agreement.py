@@ -58,7 +58,21 @@ def main() -> int:
     print(f"| largest height difference in the step's first 0.2 s | {transient * 1e6:.2f} µm | |")
     print(f"| largest difference over the last half of each hold | {holds * 1e6:.3f} µm | |")
     print(f"| lift-off, first 0.2 s (not compared) | {np.max(difference[t < 0.2]) * 1e6:.1f} µm | |")
+    lift_offs = [lift_off(t, np.asarray(run[column])) for run, column in ((hil, HARDWARE.measured),
+                                                                          (simulated, SIMULATED.measured))]
+    print("| lift-off from rest to 100 µm: peak | " + " | ".join(f"{peak * 1e6:.1f} µm at {at * 1e3:.0f} ms"
+                                                               for peak, at, _ in lift_offs) + " |")
+    print("| within 3 µm of 100 µm from | " + " | ".join(f"{within * 1e3:.0f} ms" for _, _, within in lift_offs) + " |")
     return 0
+
+
+def lift_off(t: np.ndarray, height: np.ndarray, level: float = STEP.levels_m[0], band: float = 3e-6):
+    """Over the first level's hold: the peak height [m], when it came [s], and from when on the height stays
+    within ``band`` of the level [s]."""
+    hold = t < STEP.lead_s
+    outside = np.flatnonzero(np.abs(height[hold] - level) > band)
+    peak = int(np.argmax(height[hold]))
+    return height[peak], t[peak], t[outside[-1] + 1] if outside.size else 0.0
 
 
 if __name__ == "__main__":
