@@ -301,6 +301,40 @@ def test_errors_reach_the_master_with_a_logged_reason(scale, stage):
     assert any(reason in message for message in scale.errors()), scale.messages
 
 
+FMI_DISCARD = 2
+
+DECLINING_SCRIPT = '''
+from pythonfmu import Fmi2Causality, Fmi2Slave, Real
+
+
+class Declining(Fmi2Slave):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.y = 0.0
+        self.register_variable(Real("y", causality=Fmi2Causality.output))
+
+    def do_step(self, current_time, step_size):
+        return False
+'''
+
+
+def test_pythonfmu_gives_discard_for_a_declined_step_and_nothing_gives_fmi2error(tmp_path):
+    """Why a failing nfal FMU answers fmi2Fatal (docs/cosimulation.md, docs/hil.md): pythonfmu 0.7's wrapper turns an
+    exception into fmi2Fatal (the test above) and a ``do_step`` that returns False into fmi2Discard, which would
+    invite a master to retry a shorter step. If this fails, pythonfmu may now offer fmi2Error: use it."""
+    from pythonfmu.builder import FmuBuilder
+
+    script = tmp_path / "declining.py"
+    script.write_text(DECLINING_SCRIPT, encoding="utf-8")
+    fmu = FmuBuilder.build_FMU(script, dest=tmp_path)
+    instance = Instance(fmu, extract(str(fmu)))
+    instance.initialize()
+    with pytest.raises(FMICallException) as raised:
+        instance.step(1e-3)
+    assert raised.value.status == FMI_DISCARD
+    instance.free()
+
+
 def test_a_failed_instance_can_be_freed_again_and_again(scale_fmu):
     """pythonfmu drops references on every exception; the base class gives them back (no crash, no leak)."""
     for i in range(12):
