@@ -29,8 +29,9 @@ thin adapter over :mod:`nfal.models`:
 * **FMU state.** ``_get_fmu_state``/``_set_fmu_state`` save every variable, the time and whatever
   :meth:`get_internal_state` returns (plant state, controller state, RNG state: JSON-ready values);
   states serialize to JSON bytes (``canGetAndSetFMUstate`` and ``canSerializeFMUstate`` are true).
-* **Shared helpers.** :meth:`add_rig_parameters`, :meth:`build_rig` and :meth:`build_calibration`
-  (the contract's rig parameter list and ``calibration``), and :class:`SampleClock` for sampled blocks.
+* **Shared helpers.** :meth:`add_rig_parameters`, :meth:`build_rig`, :meth:`build_calibration` and
+  :meth:`build_rig_calibration` (the contract's rig parameter list and ``calibration``), and
+  :class:`SampleClock` for sampled blocks.
 
 Writing a slave
 ---------------
@@ -77,7 +78,8 @@ from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
-from nfal.models.calibration import CalibrationFunction, load_calibration, paper_calibration, perturbation_calibration
+from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
+                                     paper_calibration, perturbation_calibration)
 from nfal.models.errors import InvalidParameterError, NfalError, require_positive
 from nfal.models.rig import RigParameters
 
@@ -297,7 +299,8 @@ class NfalSlave(Fmi2Slave):
         for name, start, unit, description in RIG_PARAMETERS:
             self.add_parameter(name, start, unit=unit, description=description)
         self.add_parameter("calibration", "paper", description="K(sigma): 'paper' = eq. (17), 'perturbation' "
-                           "(eqs. 9-11 for the paper's excitation form), or the path of a calibration JSON")
+                           "(eqs. 9-11 for the paper's excitation form), or the path of a calibration JSON (with "
+                           "its damping correction of eq. (6), if it has one)")
 
     def add_plant_interface(self) -> None:
         """Declare what every plant shares (contract: SlowPlant, ReynoldsPlant, a hardware proxy): inputs
@@ -368,6 +371,14 @@ class NfalSlave(Fmi2Slave):
         if not spec:
             raise InvalidParameterError("calibration", spec, f"one of {CALIBRATION_CHOICES} or a calibration JSON path")
         return load_calibration(spec)
+
+    def build_rig_calibration(self, rig: RigParameters) -> RigCalibration:
+        """:meth:`build_calibration` with a calibration file's damping correction (if any); a file
+        identified on another rig than ``rig`` is refused."""
+        spec = str(self.calibration).strip()
+        if spec in CALIBRATION_CHOICES or not spec:
+            return RigCalibration(self.build_calibration())
+        return load_rig_calibration(spec, rig)
 
     # --- the slave's part ----------------------------------------------------------------------------
     @abc.abstractmethod

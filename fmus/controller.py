@@ -4,7 +4,10 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
 
 * gains: ``design = gain-scheduled`` -> :func:`design_schedule` over the work range, cut by
   :func:`realizable_schedule` when ``realizable_only``; ``design = fixed`` -> :func:`fixed_design`
-  at ``design_height``. Both from the rig parameters, the calibration and Table 2's cut-offs.
+  at ``design_height``. Both from the rig parameters, the calibration (K and, from an identified
+  rig's file, the damping correction of eq. (6)) and Table 2's cut-offs; ``placement`` chooses the
+  loop whose poles are placed: ``continuous`` (eqs. 23-24, the paper) or ``sampled`` (the loop the
+  law realises at ``sample_rate``, :mod:`~nfal.models.sampled_design`; no gains are held then).
 * sampling: at every communication point that is a whole number of sample periods from the start
   (:class:`~nfal.fmus.base.SampleClock`) the outputs are the law's output for (state, reference,
   measured_height) *at that instant*, computed when read (direct feedthrough, the pure ``law.step``);
@@ -27,6 +30,7 @@ from nfal.models.plant import SimplifiedPlant
 from nfal.models.stability import realizable_schedule
 
 DESIGNS = ("gain-scheduled", "fixed")
+PLACEMENTS = ("continuous", "sampled")
 
 
 
@@ -47,8 +51,10 @@ class Controller(NfalSlave):
         self.add_parameter("design", "gain-scheduled", description="'gain-scheduled' (eqs. 23-24 over the work "
                            "range) or 'fixed' (the design at design_height everywhere)")
         self.add_parameter("design_height", 120e-6, unit="m", description="design height of the fixed controller")
+        self.add_parameter("placement", "continuous", description="poles placed for the 'continuous' loop "
+                           "(eqs. 23-24) or the 'sampled' one the law realises at sample_rate")
         self.add_parameter("realizable_only", True, description="hold the gains below the lowest height the "
-                           "sampled loop realises (Fig. 8)")
+                           "sampled loop realises (Fig. 8; the sampled placement realises all)")
         self.add_parameter("sample_rate", 2000.0, unit="Hz", description="sampling rate (Table 2)")
         self.add_parameter("closed_loop_cutoff", 10.0, unit="Hz", description="closed-loop -3 dB bandwidth, eq. (23) (Table 2)")
         self.add_parameter("filter_cutoff", 300.0, unit="Hz", description="derivative filter cut-off, eq. (22) (Table 2)")
@@ -68,15 +74,19 @@ class Controller(NfalSlave):
     def setup(self) -> None:
         if self.design not in DESIGNS:
             raise InvalidParameterError("design", self.design, f"one of {DESIGNS}")
+        if self.placement not in PLACEMENTS:
+            raise InvalidParameterError("placement", self.placement, f"one of {PLACEMENTS}")
         rig = self.build_rig()
-        calibration = self.build_calibration()
-        spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
-                          require_positive("filter_cutoff", self.filter_cutoff))
+        model = self.build_rig_calibration(rig)
+        calibration = model.calibration
         sample_rate = require_positive("sample_rate", self.sample_rate)
+        spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
+                          require_positive("filter_cutoff", self.filter_cutoff),
+                          sample_rate if self.placement == "sampled" else None)
         design_height = require_positive("design_height", self.design_height) if self.design == "fixed" else None
         key = (self.design, design_height, bool(self.realizable_only), sample_rate, rig, str(self.calibration), spec)
         if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
-            self._gains = (key, self._design(design_height, sample_rate, rig, calibration, spec))
+            self._gains = (key, self._design(design_height, sample_rate, rig, model, spec))
         gains = self._gains[1]
         low, high = require_positive("reference_min", self.reference_min), require_positive("reference_max", self.reference_max)
         if low > high:
@@ -92,11 +102,15 @@ class Controller(NfalSlave):
         self._clock = SampleClock(self.law.period_s, self.start_time)
         self._cache = None
 
-    def _design(self, design_height, sample_rate, rig, calibration, spec):
+    def _design(self, design_height, sample_rate, rig, model, spec):
         if self.design == "fixed":
-            return fixed_design(design_height, rig, calibration, spec)
-        gains = design_schedule(None, rig, calibration, spec)
-        return realizable_schedule(gains, rig, sample_rate_hz=sample_rate) if self.realizable_only else gains
+            return fixed_design(design_height, rig, model.calibration, spec, damping=model.damping)
+        gains = design_schedule(None, rig, model.calibration, spec, damping=model.damping)
+        if not self.realizable_only:
+            return gains
+        # each placement judged by its own map: Fig. 8's forward Euler, or the realised (ZOH) loop
+        discretisation = "forward_euler" if spec.sample_rate_hz is None else "zoh"
+        return realizable_schedule(gains, rig, sample_rate_hz=sample_rate, discretisation=discretisation)
 
     def _checked_reference(self) -> float:
         low, high = self.law.reference_range_m

@@ -13,7 +13,8 @@ that instant (:meth:`SimplifiedPlant.advance` decides rest and lift-off at the s
 
 ``excess_damping_height`` > 0 scales eq. (6)'s damping by 1 + (h / excess_damping_height)^excess_damping_exponent
 (:class:`~nfal.models.plant.ExcessDamping`, Sec. 3.3): a "truth" plant damped like the rig at large gaps.
-The rig-like choice is 137e-6 m and 6; 0 (the default) leaves eq. (6) as it is.
+The rig-like choice is 137e-6 m and 6; 0 (the default) leaves eq. (6) as it is, or applies the damping
+correction of the ``calibration`` file when it has one (an identified rig's; giving both is an error).
 
 ``near_surface`` = "fast" swaps the exact event-handling integrator near the surface (about 4 ms per step
 at lift-off) for the fast one of :mod:`nfal.models.fixed_step_plant` (a few us, within 1 % of the
@@ -27,7 +28,7 @@ import math
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.errors import InvalidParameterError, require_finite
 from nfal.models.fixed_step_plant import FixedStepPlant
-from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
+from nfal.models.plant import DampingModel, ExcessDamping, PlantState, SimplifiedPlant
 
 
 class SlowPlant(NfalSlave):
@@ -47,7 +48,7 @@ class SlowPlant(NfalSlave):
         self.add_parameter("near_surface", "exact", description="integrator below 3 rest gaps: 'exact' (event "
                            "handling, slow) or 'fast' (exponential Euler, real-time capable)")
         self._calibration = None
-        self._excess_damping: ExcessDamping | None = None
+        self._excess_damping: DampingModel | None = None
         self._plant: FixedStepPlant | None = None
         self._plant_frequency = math.nan
 
@@ -55,8 +56,14 @@ class SlowPlant(NfalSlave):
     def setup(self) -> None:
         _, height, velocity = self.checked_release()
         self.build_rig()  # checks the rig parameters under their FMU names
-        self._calibration = self.build_calibration()
+        calibration = self.build_rig_calibration(self.build_rig())
+        self._calibration = calibration.calibration
         self._excess_damping = self.checked_excess_damping()
+        if calibration.damping is not None:
+            if self._excess_damping is not None:
+                raise InvalidParameterError("excess_damping_height", self.excess_damping_height,
+                                            f"0 when the calibration {self.calibration} has its own damping correction")
+            self._excess_damping = calibration.damping
         self._rebuild(self.checked_frequency())
         self.height, self.velocity = height, velocity
         self.resting = self._plant.plant.rests(PlantState(self.height, self.velocity), self.checked_excitation())

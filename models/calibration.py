@@ -3,27 +3,45 @@
 Every source is a :class:`CalibrationFunction`: callable on squeeze numbers, with an exact
 ``derivative`` and a declared ``sigma_range``. Outside that range the value is held at the nearer
 end (slope zero) so that a plant passing through never sees a diverging fit; ``in_range`` tells.
+
+A calibration *file* (JSON) holds one K description (:meth:`CalibrationFunction.to_dict`) at its top
+level and, optionally, ``"version"`` (:data:`CALIBRATION_FILE_VERSION`; absent in files of older
+releases), ``"rig"`` (the rig parameters the identification assumed, checked against the rig a
+design or a plant uses), ``"damping"`` (a :class:`~nfal.models.damping.DampingCorrection` of eq. (6))
+and ``"provenance"`` (free-form: date, port, firmware, raw data file; carried, never interpreted).
+:func:`load_rig_calibration` reads all of it as a :class:`RigCalibration`; :func:`load_calibration`
+only K.
 """
 
 from __future__ import annotations
 
 import abc
+import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 
 import numpy as np
 from scipy import interpolate
 
+from .damping import DampingCorrection
 from .errors import DataFormatError, InvalidParameterError
 from .excitation import ExcitationShape
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
+from .rig import RigParameters
 
 #: Eq. (17): the paper's fit to its measured K, ascending powers of sigma.
 PAPER_COEFFICIENTS = (1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10)
 #: The squeeze numbers over which eq. (17) is used. Not stated in the paper; the quartic is smooth and
 #: positive there and collapses past 500 (K(600) = 0.2). Covers the 50-200 um work range (sigma 24-384).
 PAPER_SIGMA_RANGE = (10.0, 500.0)
+#: The calibration file format this code reads and writes (a file without ``"version"`` is read as 1).
+CALIBRATION_FILE_VERSION = 1
+#: The rig parameters a calibration file's ``"rig"`` may name, and the relative mismatch that makes it
+#: another rig's (K by eq. (16) and the damping factor depend on all of them; h0 only scales).
+CHECKED_RIG_FIELDS = ("mass", "radius", "frequency", "viscosity", "ambient_pressure", "gravity")
+RIG_MATCH_TOLERANCE = 1e-6
 
 
 class CalibrationFunction(abc.ABC):
@@ -63,8 +81,8 @@ class CalibrationFunction(abc.ABC):
         raise NotImplementedError
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write the calibration as JSON (read back with :func:`load_calibration`)."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
+        """Write the calibration as a calibration file (read back with :func:`load_calibration`)."""
+        RigCalibration(self).save(path)
 
 
 class PolynomialK(CalibrationFunction):
@@ -139,10 +157,103 @@ def calibration_from_dict(data: dict) -> CalibrationFunction:
     raise DataFormatError(f"unknown calibration kind {data.get('kind')!r}: expected 'polynomial' or 'table'")
 
 
-def load_calibration(path: str | os.PathLike) -> CalibrationFunction:
-    """Read a calibration JSON file written by :meth:`CalibrationFunction.save` or ``nfal calibrate``."""
+@dataclasses.dataclass(frozen=True)
+class RigCalibration:
+    """Everything a calibration file holds (see the module docstring).
+
+    Attributes
+    ----------
+    calibration : CalibrationFunction
+        K(sigma) of eq. (12).
+    damping : DampingCorrection or None
+        The identified multiplier of eq. (6)'s damping; None: eq. (6) as it is.
+    rig : dict or None
+        The rig parameters (names of :data:`CHECKED_RIG_FIELDS`, SI) the identification assumed.
+    provenance : dict
+        Free-form record of where the calibration came from.
+    """
+
+    calibration: CalibrationFunction
+    damping: DampingCorrection | None = None
+    rig: dict | None = None
+    provenance: dict = dataclasses.field(default_factory=dict)
+
+    def check_rig(self, rig: RigParameters, source: str = "the calibration") -> None:
+        """Raise :class:`DataFormatError` if the file's ``"rig"`` differs from ``rig`` (more than
+        :data:`RIG_MATCH_TOLERANCE` relative in a field of :data:`CHECKED_RIG_FIELDS`)."""
+        if self.rig is None:
+            return
+        differ = [f"{name} {self.rig[name]:g} there, {getattr(rig, name):g} here" for name in CHECKED_RIG_FIELDS
+                  if name in self.rig and not math.isclose(self.rig[name], getattr(rig, name), rel_tol=RIG_MATCH_TOLERANCE)]
+        if differ:
+            raise DataFormatError(f"{source} was identified on another rig ({'; '.join(differ)}): identify this rig "
+                                  "(nfal identify) or give its parameters")
+
+    def to_dict(self) -> dict:
+        data = {"version": CALIBRATION_FILE_VERSION, **self.calibration.to_dict()}
+        if self.damping is not None:
+            data["damping"] = self.damping.to_dict()
+        if self.rig is not None:
+            data["rig"] = dict(self.rig)
+        if self.provenance:
+            data["provenance"] = self.provenance
+        return data
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the calibration file (read back with :func:`load_rig_calibration`)."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
+
+
+def rig_calibration_from_dict(data: dict) -> RigCalibration:
+    """Read a calibration file's content (:meth:`RigCalibration.to_dict`); a K-only description is one too."""
+    if not isinstance(data, dict):
+        raise DataFormatError(f"a calibration file holds a JSON object, not {type(data).__name__}")
+    version = data.get("version", CALIBRATION_FILE_VERSION)
+    if version != CALIBRATION_FILE_VERSION:
+        raise DataFormatError(f"calibration file version {version!r} is not supported: this nfal reads version "
+                              f"{CALIBRATION_FILE_VERSION} (re-identify, or update nfal)")
+    rig = data.get("rig")
+    if rig is not None:
+        if not isinstance(rig, dict) or not set(rig) <= set(CHECKED_RIG_FIELDS) or not all(
+                isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in rig.values()):
+            raise DataFormatError(f"a calibration file's 'rig' maps some of {CHECKED_RIG_FIELDS} to finite numbers > 0 "
+                                  f"(SI), got {rig!r:.200}")
+        rig = {name: float(value) for name, value in rig.items()}
+    provenance = data.get("provenance", {})
+    if not isinstance(provenance, dict):
+        raise DataFormatError(f"a calibration file's 'provenance' is a JSON object, got {provenance!r:.200}")
+    damping = None if data.get("damping") is None else DampingCorrection.from_dict(data["damping"])
+    return RigCalibration(calibration_from_dict(data), damping, rig, provenance)
+
+
+def load_rig_calibration(path: str | os.PathLike, rig: RigParameters | None = None) -> RigCalibration:
+    """Read a calibration file: K, the optional damping correction, rig and provenance.
+
+    Parameters
+    ----------
+    path : path-like
+        A file written by :meth:`RigCalibration.save`, ``nfal calibrate`` or ``nfal identify``.
+    rig : RigParameters, optional
+        The rig the calibration is used for: a file identified on another one is refused.
+
+    Raises
+    ------
+    DataFormatError
+        Unreadable file, unknown version, bad content, or another rig's calibration.
+    """
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataFormatError(f"cannot read calibration {path}: {exc}") from None
-    return calibration_from_dict(data)
+    try:
+        loaded = rig_calibration_from_dict(data)
+    except DataFormatError as exc:
+        raise DataFormatError(f"calibration {path}: {exc}") from None
+    if rig is not None:
+        loaded.check_rig(rig, f"calibration {path}")
+    return loaded
+
+
+def load_calibration(path: str | os.PathLike) -> CalibrationFunction:
+    """K(sigma) of a calibration file (its damping, rig and provenance, if any, are read and dropped)."""
+    return load_rig_calibration(path).calibration

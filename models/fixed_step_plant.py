@@ -77,7 +77,7 @@ class FixedStepPlant:
             self._K = lambda sigma: float(calibration(sigma))
         excess = plant.excess_damping
         if excess is not None:  # chosen here, so that the plain path stays as fast as without the option
-            self._excess_height, self._excess_exponent = excess.height, excess.exponent
+            self._factor = excess.factor_scalar
             self._acceleration = self._corrected_acceleration
             self._substeps = self._corrected_substeps
 
@@ -88,7 +88,7 @@ class FixedStepPlant:
 
     def _corrected_acceleration(self, h: float, v: float, a: float) -> float:
         ratio = a / h
-        factor = 1.0 + (h / self._excess_height) ** self._excess_exponent
+        factor = self._factor(h)
         return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h))
                 - self._damping_per_mass / (h * h * h) * factor * v - self._gravity)
 
@@ -96,7 +96,7 @@ class FixedStepPlant:
         """c(h) / m [1/s], with the excess factor if the plant has one."""
         rate = self._damping_per_mass / (h * h * h)
         excess = self.plant.excess_damping
-        return rate if excess is None else rate * (1.0 + (h / excess.height) ** excess.exponent)
+        return rate if excess is None else rate * excess.factor_scalar(h)
 
     def _exponential_advance(self, state: PlantState, excitation: float, step: float) -> PlantState:
         """Near the surface, fast: see the module docstring (``near_surface="fast"``)."""
@@ -126,10 +126,10 @@ class FixedStepPlant:
         return math.ceil(step * self._damping_per_mass / lowest**3 / STIFFNESS_STEP)
 
     def _corrected_substeps(self, step: float, lowest: float, highest: float) -> int:
-        # c(h) factor(h) / m = k (h^-3 + h^(n-3) / H^n) falls and then rises with h: its largest value over
-        # [lowest, highest] is at one end
-        rate = max(self._damping_per_mass / h**3 * (1.0 + (h / self._excess_height) ** self._excess_exponent)
-                   for h in (lowest, highest))
+        # c(h) f(h) / m: for ExcessDamping, k (h^-3 + h^(n-3) / H^n) falls and then rises with h, so its largest
+        # value over [lowest, highest] is at one end; a table's PCHIP pieces vary little over one step's reach
+        # (RK4's limit is 11x STIFFNESS_STEP)
+        rate = max(self._damping_per_mass / h**3 * self._factor(h) for h in (lowest, highest))
         return math.ceil(step * rate / STIFFNESS_STEP)
 
     def advance(self, state: PlantState, excitation: float, step: float) -> PlantState:

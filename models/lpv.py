@@ -11,6 +11,8 @@ Hbar = hbar / h0, u = |a| / h0) are
 
 with K'(Hbar) = dK/dsigma * dsigma/dHbar = -2 sigma / Hbar * dK/dsigma (sigma of eq. 2). In SI the
 same model reads  dh'' + alpha1 omega dh' + alpha0 omega^2 dh = beta0 omega^2 d|a|.
+With a damping correction f(h) of eq. (6) (identified, or the parametric excess damping) the damping
+term is the rig's: alpha1 = f(hbar_eq) C_d / Hbar^3.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 
 from .calibration import CalibrationFunction, paper_calibration
 from .errors import InvalidParameterError
-from .plant import SimplifiedPlant
+from .plant import DampingModel, SimplifiedPlant
 from .rig import RigParameters
 
 logger = logging.getLogger(__name__)
@@ -110,7 +112,7 @@ def calibration_slope(calibration: CalibrationFunction, sigma, scheme: str = "ex
 
 
 def lpv_coefficients(height_m, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
-                     *, derivative: str = "exact") -> LPVCoefficients:
+                     *, derivative: str = "exact", damping: DampingModel | None = None) -> LPVCoefficients:
     """alpha0, alpha1, beta0 of eq. (20) at the equilibria of clearance ``height_m`` [m].
 
     Parameters
@@ -123,6 +125,8 @@ def lpv_coefficients(height_m, rig: RigParameters | None = None, calibration: Ca
         Any K(sigma) source; defaults to eq. (17).
     derivative : {"exact", "central"}
         How dK/dsigma is taken (see :func:`calibration_slope`).
+    damping : ExcessDamping or DampingCorrection, optional
+        Correction f(h) of eq. (6)'s damping: alpha1 is multiplied by f(hbar_eq). None: eq. (6).
 
     Returns
     -------
@@ -138,14 +142,14 @@ def lpv_coefficients(height_m, rig: RigParameters | None = None, calibration: Ca
         low, high = (float(rig.clearance_at(s)) for s in calibration.sigma_range[::-1])
         raise InvalidParameterError("height_m", height_m,
                                     f"within the calibrated range {low * 1e6:.1f}-{high * 1e6:.1f} um of {calibration.name}")
-    excitation = SimplifiedPlant(rig, calibration).equilibrium_excitation(height)  # eq. (16)
+    excitation = SimplifiedPlant(rig, calibration, excess_damping=damping).equilibrium_excitation(height)  # eq. (16)
     H = height / rig.reference_clearance
     u = excitation / rig.reference_clearance
     K = np.asarray(calibration(sigma), dtype=float)
     dK_dH = calibration_slope(calibration, sigma, derivative) * (-2.0 * sigma / H)
     Cs, Cd = rig.stiffness_coefficient, rig.damping_coefficient
     alpha0 = -(dK_dH / H**2 - 2.0 * K / H**3) * Cs * u**2
-    alpha1 = Cd / H**3
+    alpha1 = Cd / H**3 * (1.0 if damping is None else damping.factor(height))
     beta0 = 2.0 * Cs * u * K / H**2
     if np.any(alpha0 <= 0):
         logger.warning("alpha0 <= 0 at some heights: the open-loop equilibrium is statically unstable there")

@@ -33,7 +33,9 @@ from scipy import interpolate, optimize
 from .calibration import CalibrationFunction, paper_calibration
 from .errors import ConvergenceError, InvalidParameterError, require_positive
 from .lpv import LPVCoefficients, lpv_coefficients
+from .plant import DampingModel
 from .rig import RigParameters
+from .sampled_design import SampledLoop
 
 logger = logging.getLogger(__name__)
 
@@ -57,14 +59,20 @@ class DesignSpec:
         -3 dB bandwidth of the local closed loop, eq. (23) [Hz].
     filter_cutoff_hz : float
         Cut-off omega_LPF / 2 pi of the differentiator's low-pass filter, eq. (22) [Hz].
+    sample_rate_hz : float or None
+        None: place the poles of the continuous loop, eqs. (23)-(24) (the paper). A rate [Hz]: place
+        those of the loop sampled at that rate, as the digital law runs it (:mod:`nfal.models.sampled_design`).
     """
 
     closed_loop_cutoff_hz: float = CLOSED_LOOP_CUTOFF_HZ
     filter_cutoff_hz: float = FILTER_CUTOFF_HZ
+    sample_rate_hz: float | None = None
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
-            object.__setattr__(self, field.name, require_positive(field.name, getattr(self, field.name)))
+            value = getattr(self, field.name)
+            if not (field.name == "sample_rate_hz" and value is None):  # None: the continuous design
+                object.__setattr__(self, field.name, require_positive(field.name, value))
 
     def omega_lpf(self, rig: RigParameters) -> float:
         """omega_LPF in the paper's time unit 1 / omega (non-dimensional)."""
@@ -90,9 +98,12 @@ class PIDDesign:
     kp, ki, kd : float
         The paper's gains k_p, k_i, k_d (non-dimensional).
     slow_pole, fast_pole : float
-        p1 <= p2: the closed loop's poles are -p1 and -p2, each double (non-dimensional).
+        p1 <= p2: the closed loop's poles are -p1 and -p2, each double (non-dimensional); for a sampled
+        design the discrete loop's are exp(-p1 T_s) and exp(-p2 T_s).
     bandwidth : float
-        -3 dB bandwidth of eq. (23) reached (non-dimensional).
+        -3 dB bandwidth reached (non-dimensional), of eq. (23) or of the sampled loop.
+    sample_step : float or None
+        omega T_s of a sampled design (:mod:`nfal.models.sampled_design`); None: a continuous one.
     """
 
     lpv: LPVCoefficients
@@ -103,6 +114,7 @@ class PIDDesign:
     slow_pole: float
     fast_pole: float
     bandwidth: float
+    sample_step: float | None = None
 
     @property
     def height_m(self) -> float:
@@ -213,35 +225,57 @@ def closed_loop_bandwidth(lpv: LPVCoefficients, slow_pole: float, omega_lpf: flo
 
 
 def design_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> PIDDesign:
-    """Double-pair design of eqs. (23)-(24) at one equilibrium (see the module docstring)."""
-    wl, wc = spec.omega_lpf(rig), spec.omega_cutoff(rig)
+    """Double-pair design at one equilibrium: of eqs. (23)-(24) (the module docstring), or of the sampled
+    loop when ``spec.sample_rate_hz`` is set (:mod:`nfal.models.sampled_design`)."""
+    wl = spec.omega_lpf(rig)
     total = 0.5 * (float(lpv.alpha1) + wl)
-    kp_of = lambda slow: gains_for_pole_product(lpv, slow * (total - slow), wl)[0]  # noqa: E731
-    grid = np.geomspace(1e-7 * total, 0.5 * total, 400)
+    if spec.sample_rate_hz is None:
+        def placed(slow: float) -> tuple[float, float, float, float]:
+            return (*gains_for_pole_product(lpv, slow * (total - slow), wl), total - slow)
+        bandwidth, step = (lambda slow: closed_loop_bandwidth(lpv, slow, wl)), None
+    else:
+        step = rig.omega / spec.sample_rate_hz
+        loop = SampledLoop(lpv, wl, step)
+
+        def placed(slow: float) -> tuple[float, float, float, float]:
+            kp, ki, kd, fast = loop.gains(slow)
+            return kp, ki, kd, (-math.log(fast) / step if 0.0 < fast < 1.0 else math.nan)
+        bandwidth = loop.bandwidth
+    slow = _slow_pole_for_cutoff(lambda p: placed(p)[0], bandwidth, np.geomspace(1e-7 * total, 0.5 * total, 400),
+                                 spec.omega_cutoff(rig), spec, lpv, rig)
+    kp, ki, kd, fast = placed(slow)
+    if not math.isfinite(fast):
+        raise ConvergenceError(f"the sampled design at {float(lpv.height_m) * 1e6:.1f} um has no fast pair in (0, 1)")
+    return PIDDesign(lpv, wl, kp, ki, kd, slow, fast, bandwidth(slow), step)
+
+
+def _slow_pole_for_cutoff(kp_of, bandwidth_of, grid: np.ndarray, cutoff: float, spec: DesignSpec,
+                          lpv: LPVCoefficients, rig: RigParameters) -> float:
+    """The slow pole p1 whose design reaches the -3 dB ``cutoff``, on the branch k_p >= 0 (docs/controller.md):
+    from the p1 where k_p = 0 up to the first grid point whose bandwidth exceeds the cut-off, by Brent's method."""
+    height_um = float(lpv.height_m) * 1e6
     kp = np.array([kp_of(p) for p in grid])
     rising = np.flatnonzero((kp[:-1] < 0) & (kp[1:] >= 0))
     if rising.size == 0:
-        raise ConvergenceError(f"no slow pole gives k_p >= 0 at {float(lpv.height_m) * 1e6:.1f} um")
+        raise ConvergenceError(f"no slow pole gives k_p >= 0 at {height_um:.1f} um")
     i = rising[0]
     slow_min = optimize.brentq(kp_of, grid[i], grid[i + 1], xtol=1e-16, rtol=1e-13)
     candidates = np.concatenate([[slow_min * (1 + 1e-9)], grid[i + 1:]])
     for lower, upper in zip(candidates[:-1], candidates[1:]):
-        if closed_loop_bandwidth(lpv, upper, wl) >= wc:
+        if bandwidth_of(upper) >= cutoff:
             break
     else:
         raise InvalidParameterError("closed_loop_cutoff_hz", spec.closed_loop_cutoff_hz,
-                                    f"reachable with double pole pairs at {float(lpv.height_m) * 1e6:.1f} um")
-    if closed_loop_bandwidth(lpv, lower, wl) > wc:
-        reachable = closed_loop_bandwidth(lpv, lower, wl) * rig.omega / (2 * math.pi)
+                                    f"reachable with double pole pairs at {height_um:.1f} um")
+    if bandwidth_of(lower) > cutoff:
+        reachable = bandwidth_of(lower) * rig.omega / (2 * math.pi)
         raise InvalidParameterError("closed_loop_cutoff_hz", spec.closed_loop_cutoff_hz,
-                                    f">= {reachable:.3g} Hz at {float(lpv.height_m) * 1e6:.1f} um (the k_p = 0 design)")
-    slow = optimize.brentq(lambda p: closed_loop_bandwidth(lpv, p, wl) - wc, lower, upper, xtol=1e-16, rtol=1e-12)
-    kp, ki, kd = gains_for_pole_product(lpv, slow * (total - slow), wl)
-    return PIDDesign(lpv, wl, kp, ki, kd, slow, total - slow, closed_loop_bandwidth(lpv, slow, wl))
+                                    f">= {reachable:.3g} Hz at {height_um:.1f} um (the k_p = 0 design)")
+    return float(optimize.brentq(lambda p: bandwidth_of(p) - cutoff, lower, upper, xtol=1e-16, rtol=1e-12))
 
 
 def design_pid(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
-               spec: DesignSpec | None = None, *, derivative: str = "exact") -> PIDDesign:
+               spec: DesignSpec | None = None, *, derivative: str = "exact", damping: DampingModel | None = None) -> PIDDesign:
     """The local PID of eqs. (21)-(24) designed at the equilibrium of clearance ``height_m`` [m].
 
     Parameters
@@ -251,14 +285,16 @@ def design_pid(height_m: float, rig: RigParameters | None = None, calibration: C
     rig, calibration : optional
         Design model; default the paper's rig and eq. (17).
     spec : DesignSpec, optional
-        Cut-offs; default Table 2 (10 Hz closed loop, 300 Hz filter).
+        Cut-offs and the loop designed for; default Table 2 (10 Hz closed loop, 300 Hz filter), continuous.
     derivative : {"exact", "central"}
         How dK/dsigma enters alpha0 (:func:`nfal.models.lpv.calibration_slope`).
+    damping : ExcessDamping or DampingCorrection, optional
+        Correction of eq. (6)'s damping (an identified rig's); it enters alpha1 of eq. (20).
     """
     rig = rig or RigParameters()
     if np.ndim(height_m) != 0:
         raise InvalidParameterError("height_m", height_m, "one clearance [m] (use design_schedule for many)")
-    lpv = lpv_coefficients(float(height_m), rig, calibration or paper_calibration(), derivative=derivative)
+    lpv = lpv_coefficients(float(height_m), rig, calibration or paper_calibration(), derivative=derivative, damping=damping)
     return design_at(lpv, spec or DesignSpec(), rig)
 
 
@@ -339,22 +375,25 @@ class FixedGains:
 
 
 def design_schedule(heights_m=None, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
-                    spec: DesignSpec | None = None, *, derivative: str = "exact") -> GainSchedule:
-    """Designs at every height of ``heights_m`` [m] (default 50-200 um every 5 um) as a :class:`GainSchedule`."""
+                    spec: DesignSpec | None = None, *, derivative: str = "exact",
+                    damping: DampingModel | None = None) -> GainSchedule:
+    """Designs at every height of ``heights_m`` [m] (default 50-200 um every 5 um) as a :class:`GainSchedule`
+    (arguments as :func:`design_pid`)."""
     if heights_m is None:
         heights_m = np.linspace(*WORK_RANGE_M, 31)
     rig, calibration, spec = rig or RigParameters(), calibration or paper_calibration(), spec or DesignSpec()
     heights = np.sort(np.asarray(heights_m, dtype=float).ravel())
-    lpv = lpv_coefficients(heights, rig, calibration, derivative=derivative)
+    lpv = lpv_coefficients(heights, rig, calibration, derivative=derivative, damping=damping)
     designs = [design_at(lpv.at(i), spec, rig) for i in range(heights.size)]
     logger.info("designed %d PIDs over %.1f-%.1f um", heights.size, heights[0] * 1e6, heights[-1] * 1e6)
     return GainSchedule(designs)
 
 
 def fixed_design(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
-                 spec: DesignSpec | None = None, *, derivative: str = "exact") -> FixedGains:
+                 spec: DesignSpec | None = None, *, derivative: str = "exact",
+                 damping: DampingModel | None = None) -> FixedGains:
     """The linear controller of Sec. 4.1's comparison: the design at ``height_m`` [m] used everywhere."""
-    return FixedGains(design_pid(height_m, rig, calibration, spec, derivative=derivative))
+    return FixedGains(design_pid(height_m, rig, calibration, spec, derivative=derivative, damping=damping))
 
 
 def _time_scale(lpv: LPVCoefficients, units: str) -> float:

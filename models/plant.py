@@ -7,7 +7,8 @@ come closer to the driving surface than ``rest_gap``: it lands there (inelastica
 levitation force is below its weight, and lifts off when the force returns. A state that rests, or that
 is at rest_gap with velocity <= 0, is on the surface: from it the object lifts off at once (from rest_gap,
 at rest) if the film force there beats its weight, and rests otherwise. An optional :class:`ExcessDamping`
-scales the damping of eq. (6) up at large gaps, as the rig shows (Sec. 3.3).
+or an identified :class:`~nfal.models.damping.DampingCorrection` scales the damping of eq. (6) up at large
+gaps, as the rig shows (Sec. 3.3).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from scipy import integrate, optimize
 
 from .calibration import CalibrationFunction
+from .damping import DampingCorrection
 from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .rig import RigParameters
 
@@ -74,6 +76,14 @@ class ExcessDamping:
         """1 + (h / height)^exponent at the clearance(s) ``height`` [m]."""
         return 1.0 + (np.asarray(height, dtype=float) / self.height) ** self.exponent
 
+    def factor_scalar(self, height: float) -> float:
+        """:meth:`factor` at one clearance, in plain Python (plants call it per sub-step)."""
+        return 1.0 + (height / self.height) ** self.exponent
+
+
+#: A correction of eq. (6)'s damping: parametric (:class:`ExcessDamping`) or identified (:class:`DampingCorrection`).
+DampingModel = ExcessDamping | DampingCorrection
+
 
 @dataclasses.dataclass(frozen=True)
 class PlantState:
@@ -104,17 +114,18 @@ class SimplifiedPlant:
         Any K source: eq. (17), a table, or the perturbation route.
     rest_gap : float
         Closest approach to the driving surface [m].
-    excess_damping : ExcessDamping or None
-        Empirical scaling of eq. (6)'s damping at large gaps (Sec. 3.3); None: eq. (6) as it is.
+    excess_damping : ExcessDamping, DampingCorrection or None
+        Empirical scaling of eq. (6)'s damping at large gaps (Sec. 3.3), parametric or identified;
+        None: eq. (6) as it is.
     """
 
     def __init__(self, rig: RigParameters, calibration: CalibrationFunction, rest_gap: float = DEFAULT_REST_GAP,
-                 *, excess_damping: ExcessDamping | None = None) -> None:
+                 *, excess_damping: DampingModel | None = None) -> None:
         self.rig, self.calibration = rig, calibration
         self.rest_gap = require_positive("rest_gap", rest_gap)
         self.weight = rig.mass * rig.gravity
-        if excess_damping is not None and not isinstance(excess_damping, ExcessDamping):
-            raise InvalidParameterError("excess_damping", excess_damping, "an ExcessDamping or None")
+        if excess_damping is not None and not isinstance(excess_damping, (ExcessDamping, DampingCorrection)):
+            raise InvalidParameterError("excess_damping", excess_damping, "an ExcessDamping, a DampingCorrection or None")
         self.excess_damping = excess_damping
 
     # --- forces -------------------------------------------------------------------------------

@@ -1,21 +1,9 @@
 """The local stability map of Fig. 8: design height x operating height -> discrete pole closest to |z| = 1.
 
 For a design height h_d and an operating height h_o the local loop is the plant of eq. (20) at h_o with
-the gains of eqs. (21)-(22) designed at h_d. Its state is Upsilon = (dHbar, dHbar/dT, eta, psi) of
-Sec. 4.1 and, per unit T,
-
-    dHbar'  = V
-    V'      = -alpha0 dHbar - alpha1 V + beta0 du,     du = -k_p dHbar + eta - k_d psi
-    eta'    = -k_i dHbar                              (zero reference deviation)
-    psi'    = omega_L (V - psi).
-
-Two discretisations at the sampling period T_s (Table 2: 2 kHz):
-
-``"forward_euler"`` (the paper's Fig. 8): the whole loop, plant included, by forward Euler,
-    A_d = I + T_s A, so z = 1 + T_s s for every continuous closed-loop pole s.
-``"zoh"`` (what the digital loop of :mod:`nfal.models.control_law` and the simulation see): the plant
-    sampled exactly behind a zero-order hold, the controller by forward Euler, the derivative fed by the
-    measured height: psi_k = (1 - T_s omega_L) psi_{k-1} + omega_L (H_k - H_{k-1}).
+the gains of eqs. (21)-(22) designed at h_d (:mod:`nfal.models.local_loop`: its state, and its two
+discretisations at the sampling period T_s, Table 2: 2 kHz: ``"forward_euler"``, the paper's Fig. 8, and
+``"zoh"``, the realised digital loop).
 
 Because trace(A) = -(alpha1 + omega_L) does not depend on the gains, the forward-Euler loop can only be
 stable where alpha1 + omega_L < 8 / T_s (every |1 + T_s s| < 1 needs Re s > -2 / T_s): with the paper's
@@ -28,17 +16,19 @@ import dataclasses
 import logging
 
 import numpy as np
-from scipy import linalg
 
 from .calibration import CalibrationFunction, paper_calibration
 from .errors import InvalidParameterError, require_positive
+from .local_loop import DISCRETISATIONS, continuous_loop_matrix, discrete_loop_matrix
 from .lpv import LPVCoefficients, lpv_coefficients
+from .plant import DampingModel
 from .pid_design import SAMPLING_RATE_HZ, DesignSpec, GainSchedule, design_at
 from .rig import RigParameters
 
 logger = logging.getLogger(__name__)
 
-DISCRETISATIONS = ("forward_euler", "zoh")
+__all__ = ["StabilityMap", "continuous_loop_matrix", "discrete_loop_matrix", "max_pole_modulus", "stability_map",
+           "diagonal_moduli", "realizable_schedule", "DISCRETISATIONS"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,41 +47,6 @@ class StabilityMap:
                 "max_pole_modulus": self.max_pole_modulus.tolist()}
 
 
-def continuous_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float) -> np.ndarray:
-    """A of the local loop (state dHbar, dHbar/dT, eta, psi; time unit 1 / omega)."""
-    a0, a1, b0 = float(plant.alpha0), float(plant.alpha1), float(plant.beta0)
-    kp, ki, kd = (float(g) for g in gains)
-    return np.array([[0.0, 1.0, 0.0, 0.0],
-                     [-a0 - b0 * kp, -a1, b0, -b0 * kd],
-                     [-ki, 0.0, 0.0, 0.0],
-                     [0.0, omega_lpf, 0.0, -omega_lpf]])
-
-
-def discrete_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float, step: float,
-                         discretisation: str = "forward_euler") -> np.ndarray:
-    """The local loop's transition matrix over one sample of ``step`` (non-dimensional, omega T_s)."""
-    if discretisation == "forward_euler":
-        return np.eye(4) + step * continuous_loop_matrix(plant, gains, omega_lpf)
-    if discretisation != "zoh":
-        raise InvalidParameterError("discretisation", discretisation, f"one of {DISCRETISATIONS}")
-    a0, a1, b0 = float(plant.alpha0), float(plant.alpha1), float(plant.beta0)
-    kp, ki, kd = (float(g) for g in gains)
-    augmented = np.zeros((3, 3))
-    augmented[:2, :2] = [[0.0, 1.0], [-a0, -a1]]
-    augmented[1, 2] = b0
-    exact = linalg.expm(augmented * step)
-    phi, gamma = exact[:2, :2], exact[:2, 2]
-    # State (H, V, eta, xi) with psi = omega_L (H - xi) and xi_{k+1} = xi_k + step omega_L (H_k - xi_k):
-    # the same recursion for psi as the module docstring's, written without H_{k-1}.
-    command = np.array([-kp - kd * omega_lpf, 0.0, 1.0, kd * omega_lpf])  # du_k in terms of the state
-    loop = np.zeros((4, 4))
-    loop[:2, :2] = phi
-    loop[:2, :] += np.outer(gamma, command)
-    loop[2] = [-step * ki, 0.0, 1.0, 0.0]
-    loop[3] = [step * omega_lpf, 0.0, 0.0, 1.0 - step * omega_lpf]
-    return loop
-
-
 def max_pole_modulus(plant: LPVCoefficients, gains, omega_lpf: float, step: float,
                      discretisation: str = "forward_euler") -> float:
     """Largest |z| of the discrete local loop: < 1 means locally stable."""
@@ -100,15 +55,17 @@ def max_pole_modulus(plant: LPVCoefficients, gains, omega_lpf: float, step: floa
 
 def stability_map(design_heights_m=None, operating_heights_m=None, rig: RigParameters | None = None,
                   calibration: CalibrationFunction | None = None, spec: DesignSpec | None = None, *,
-                  sample_rate_hz: float = SAMPLING_RATE_HZ, discretisation: str = "forward_euler") -> StabilityMap:
+                  sample_rate_hz: float = SAMPLING_RATE_HZ, discretisation: str = "forward_euler",
+                  damping: DampingModel | None = None) -> StabilityMap:
     """Fig. 8 over a grid of design and operating heights [m] (default 50-200 um every 5 um for both).
 
     Parameters
     ----------
     design_heights_m, operating_heights_m : array_like, optional
         Clearances [m] where the controller is designed and where the plant is linearised.
-    rig, calibration, spec : optional
-        Design and plant model (default: the paper's rig, eq. (17), Table 2).
+    rig, calibration, spec, damping : optional
+        Design and plant model (default: the paper's rig, eq. (17), Table 2's continuous design, eq. (6)).
+        With ``spec.sample_rate_hz`` set (a sampled design) the map of the realised loop is ``"zoh"``.
     sample_rate_hz : float
         Sampling rate of the digital loop [Hz] (Table 2: 2000).
     discretisation : {"forward_euler", "zoh"}
@@ -121,8 +78,8 @@ def stability_map(design_heights_m=None, operating_heights_m=None, rig: RigParam
     step = rig.omega / require_positive("sample_rate_hz", sample_rate_hz)
     if discretisation not in DISCRETISATIONS:
         raise InvalidParameterError("discretisation", discretisation, f"one of {DISCRETISATIONS}")
-    design_lpv = lpv_coefficients(design_h, rig, calibration)
-    operating_lpv = lpv_coefficients(operating_h, rig, calibration)
+    design_lpv = lpv_coefficients(design_h, rig, calibration, damping=damping)
+    operating_lpv = lpv_coefficients(operating_h, rig, calibration, damping=damping)
     designs = [design_at(design_lpv.at(i), spec, rig) for i in range(design_h.size)]
     wl = spec.omega_lpf(rig)
     moduli = np.array([[max_pole_modulus(operating_lpv.at(j), (d.kp, d.ki, d.kd), wl, step, discretisation)

@@ -12,6 +12,7 @@ from nfal.commands.common import (add_output_options, add_rig_options, number_li
 from nfal.models.errors import InvalidParameterError
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
+PLACEMENTS = ("continuous", "sampled")
 GAIN_UNITS = {"height_m": "m", "kp": "m/m", "ki": "1/s", "kd": "s", "slow_pole_hz": "Hz", "fast_pole_hz": "Hz"}
 
 
@@ -57,27 +58,37 @@ def _add_design_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--closed-loop-cutoff", type=float, default=10.0, help="closed-loop -3 dB bandwidth [Hz] (default 10)")
     parser.add_argument("--filter-cutoff", type=float, default=300.0, help="derivative filter cut-off [Hz] (default 300)")
     parser.add_argument("--sample-rate", type=float, default=2000.0, help="controller sampling rate [Hz] (default 2000)")
-    parser.add_argument("--calibration", metavar="FILE.json", help="K(sigma) calibration file (default: eq. (17))")
+    parser.add_argument("--placement", choices=PLACEMENTS, default="continuous",
+                        help="loop whose poles are placed: continuous (eqs. 23-24, the paper) or sampled (the loop "
+                        "the discrete law realises at --sample-rate: ZOH plant, forward-Euler integrator and "
+                        "derivative filter) (default continuous)")
+    parser.add_argument("--calibration", metavar="FILE.json",
+                        help="calibration file: K(sigma) and, from nfal identify, the damping correction of eq. (6) "
+                        "for the plant and the design (default: eq. (17), eq. (6) as it is)")
     add_rig_options(parser)
 
 
 def _model(args: argparse.Namespace):
-    from nfal.models.calibration import load_calibration, paper_calibration
+    """(rig, RigCalibration, DesignSpec) of the design options."""
+    from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
     from nfal.models.pid_design import DesignSpec
 
-    calibration = load_calibration(args.calibration) if args.calibration else paper_calibration()
-    return rig_from_args(args), calibration, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff)
+    rig = rig_from_args(args)
+    model = load_rig_calibration(args.calibration, rig) if args.calibration else RigCalibration(paper_calibration())
+    sample_rate = args.sample_rate if args.placement == "sampled" else None
+    return rig, model, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff, sample_rate)
 
 
 def run_design(args: argparse.Namespace) -> int:
     from nfal.models.pid_design import design_schedule
     from nfal.models.stability import realizable_schedule, stability_map
 
-    rig, calibration, spec = _model(args)
+    rig, model, spec = _model(args)
     heights = np.unique(args.heights)
-    schedule = design_schedule(heights, rig, calibration, spec)
+    schedule = design_schedule(heights, rig, model.calibration, spec, damping=model.damping)
     discretisation = DISCRETISATION_CHOICES[args.discretisation]
-    grid = stability_map(heights, heights, rig, calibration, spec, sample_rate_hz=args.sample_rate, discretisation=discretisation)
+    grid = stability_map(heights, heights, rig, model.calibration, spec, sample_rate_hz=args.sample_rate,
+                         discretisation=discretisation, damping=model.damping)
     try:
         realizable_from = realizable_schedule(schedule, rig, sample_rate_hz=args.sample_rate,
                                              discretisation=discretisation).height_range_m[0]
@@ -137,8 +148,8 @@ def run_compare(args: argparse.Namespace) -> int:
 
     keys = _parse_controllers(args.controllers)
     started = time.perf_counter()
-    rig, calibration, spec = _model(args)
-    plant = SimplifiedPlant(rig, calibration)
+    rig, model, spec = _model(args)
+    plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
     reference = Staircase(tuple(args.levels), hold_s=args.hold)
     noise = coloured_noise(reference.samples(args.sample_rate), sample_rate_hz=args.sample_rate,
                            cutoff_hz=args.noise_cutoff, peak_m=args.noise_peak, seed=args.seed)
@@ -147,11 +158,12 @@ def run_compare(args: argparse.Namespace) -> int:
     with progress_bar(len(keys), "closed-loop runs") as bar:
         for key in keys:
             if key == "gs":
-                gains = design_schedule(None, rig, calibration, spec)
+                gains = design_schedule(None, rig, model.calibration, spec, damping=model.damping)
                 if not args.full_schedule:
-                    gains = realizable_schedule(gains, rig, sample_rate_hz=args.sample_rate)
+                    gains = realizable_schedule(gains, rig, sample_rate_hz=args.sample_rate,
+                                                discretisation="zoh" if spec.sample_rate_hz else "forward_euler")
             else:
-                gains = fixed_design(float(key) * 1e-6, rig, calibration, spec)
+                gains = fixed_design(float(key) * 1e-6, rig, model.calibration, spec, damping=model.damping)
             law = DiscreteControlLaw(gains, sample_rate_hz=args.sample_rate, max_excitation_m=args.max_excitation,
                                      reference_range_m=work_range)
             run = simulate_closed_loop(law, plant, reference, noise)

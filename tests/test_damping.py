@@ -1,0 +1,140 @@
+"""DampingCorrection (models/damping.py) and the calibration file that carries it (models/calibration.py):
+the contract between ``nfal identify`` (writes) and the plants, the LPV model and the designs (read)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nfal.models.calibration import (CALIBRATION_FILE_VERSION, RigCalibration, load_calibration, load_rig_calibration,
+                                     paper_calibration)
+from nfal.models.damping import DampingCorrection
+from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.models.fixed_step_plant import FixedStepPlant
+from nfal.models.lpv import lpv_coefficients
+from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
+from nfal.models.rig import RigParameters
+
+RIG = RigParameters()
+HEIGHTS = np.array([50e-6, 75e-6, 100e-6, 130e-6, 160e-6, 200e-6])
+#: A table sampled from the rig-like ExcessDamping, as an identification would measure it.
+RIG_LIKE = ExcessDamping.rig_like()
+TABLE = DampingCorrection(HEIGHTS, RIG_LIKE.factor(HEIGHTS), 0.9 * RIG_LIKE.factor(HEIGHTS), 1.1 * RIG_LIKE.factor(HEIGHTS))
+
+
+def test_table_passes_through_its_points_and_holds_outside():
+    np.testing.assert_allclose(TABLE.factor(HEIGHTS), RIG_LIKE.factor(HEIGHTS), rtol=1e-12)
+    assert TABLE.factor(20e-6) == pytest.approx(TABLE.factor(50e-6), rel=1e-15)
+    assert TABLE.factor(400e-6) == pytest.approx(TABLE.factor(200e-6), rel=1e-15)
+
+
+def test_interpolation_is_monotone_and_close_to_the_smooth_law():
+    """PCHIP on log f keeps a monotone table monotone; between the 6 points it follows the law it samples."""
+    h = np.linspace(50e-6, 200e-6, 601)
+    f = TABLE.factor(h)
+    assert np.all(np.diff(f) >= 0)
+    np.testing.assert_allclose(f, RIG_LIKE.factor(h), rtol=0.06)
+
+
+@pytest.mark.parametrize("height", [30e-6, 50e-6, 61.3e-6, 99.9e-6, 100e-6, 187.2e-6, 250e-6])
+def test_scalar_path_equals_the_array_path(height):
+    assert TABLE.factor_scalar(height) == pytest.approx(float(TABLE.factor(height)), rel=1e-13)
+
+
+def test_band_interpolates_like_the_factor():
+    low, high = TABLE.factor_band(HEIGHTS)
+    np.testing.assert_allclose(low, 0.9 * RIG_LIKE.factor(HEIGHTS), rtol=1e-12)
+    np.testing.assert_allclose(high, 1.1 * RIG_LIKE.factor(HEIGHTS), rtol=1e-12)
+
+
+@pytest.mark.parametrize("heights, factors, low, high, reason", [
+    ([50e-6], [1.0], None, None, ">= 2 heights"),
+    ([50e-6, 40e-6], [1.0, 2.0], None, None, "strictly increasing"),
+    ([50e-6, 60e-6], [1.0, -2.0], None, None, "0 < factors_low"),
+    ([50e-6, 60e-6], [1.0, 2.0], [1.1, 1.5], [1.2, 2.5], "factors_low <= factors"),
+    ([50e-6, 60e-6], [1.0, float("nan")], None, None, "finite"),
+    ([50e-6, 60e-6], ["a", 1.0], None, None, "list of numbers"),
+    ([50e-6, 60e-6, 70e-6], [1.0, 2.0], None, None, "one factor"),
+])
+def test_bad_tables_raise(heights, factors, low, high, reason):
+    with pytest.raises(DataFormatError, match=reason):
+        DampingCorrection(heights, factors, low, high)
+
+
+# --- in the plants and the LPV model -------------------------------------------------------------------
+def test_plants_take_the_table_like_the_parametric_correction():
+    plant = SimplifiedPlant(RIG, paper_calibration(), excess_damping=TABLE)
+    assert plant.squeeze_film_damping(130e-6) == pytest.approx(RIG.squeeze_film_damping(130e-6) * RIG_LIKE.factor(130e-6),
+                                                               rel=1e-12)
+    state, excitation = PlantState(150e-6, 1e-3), float(plant.equilibrium_excitation(150e-6))
+    exact, fast = plant.advance(state, excitation, 5e-4), FixedStepPlant(plant).advance(state, excitation, 5e-4)
+    assert fast.height == pytest.approx(exact.height, abs=1e-10)
+
+
+def test_plant_refuses_another_kind_of_damping():
+    with pytest.raises(InvalidParameterError, match="DampingCorrection"):
+        SimplifiedPlant(RIG, paper_calibration(), excess_damping=2.0)
+
+
+@pytest.mark.parametrize("height", [60e-6, 130e-6, 190e-6])
+def test_lpv_damping_is_scaled_by_the_factor(height):
+    plain, corrected = lpv_coefficients(height, RIG), lpv_coefficients(height, RIG, damping=TABLE)
+    assert float(corrected.alpha1) == pytest.approx(float(plain.alpha1) * float(TABLE.factor(height)), rel=1e-12)
+    for name in ("alpha0", "beta0", "excitation_m"):
+        assert float(getattr(corrected, name)) == float(getattr(plain, name))
+
+
+# --- the calibration file -------------------------------------------------------------------------------
+PROVENANCE = {"date": "2026-11-24T19:00:00Z", "port": "socket://localhost:7777", "firmware": "1.2", "raw": "raw.csv"}
+RIG_FIELDS = {"mass": RIG.mass, "radius": RIG.radius, "frequency": RIG.frequency, "viscosity": RIG.viscosity,
+              "ambient_pressure": RIG.ambient_pressure, "gravity": RIG.gravity}
+
+
+def test_file_round_trip_keeps_k_damping_rig_and_provenance(tmp_path):
+    path = tmp_path / "rig.json"
+    RigCalibration(paper_calibration(), TABLE, RIG_FIELDS, PROVENANCE).save(path)
+    data = json.loads(path.read_text())
+    assert data["version"] == CALIBRATION_FILE_VERSION and data["provenance"] == PROVENANCE
+    loaded = load_rig_calibration(path, RIG)
+    np.testing.assert_array_equal(loaded.damping.factors, TABLE.factors)
+    np.testing.assert_array_equal(loaded.damping.factors_high, TABLE.factors_high)
+    assert loaded.provenance == PROVENANCE and loaded.rig == RIG_FIELDS
+    assert loaded.calibration(123.0) == paper_calibration()(123.0)
+    assert load_calibration(path)(123.0) == paper_calibration()(123.0)  # K-only readers keep working
+
+
+def test_k_only_files_of_older_releases_load(tmp_path):
+    path = tmp_path / "k.json"
+    path.write_text(json.dumps(paper_calibration().to_dict()))  # no version, no damping
+    loaded = load_rig_calibration(path, RIG)
+    assert loaded.damping is None and loaded.rig is None and loaded.provenance == {}
+
+
+def _write(tmp_path, **extra) -> str:
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps({**paper_calibration().to_dict(), **extra}))
+    return str(path)
+
+
+@pytest.mark.parametrize("extra, reason", [
+    ({"version": 2}, "version 2 is not supported"),
+    ({"version": "1"}, "version '1' is not supported"),
+    ({"damping": {"heights_m": [50e-6, 60e-6]}}, "must hold 'heights_m' and 'factors'"),
+    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, 2], "factor": 3}}, "unknown keys"),
+    ({"rig": {"mass": -1.0}}, "finite numbers > 0"),
+    ({"rig": {"colour": 1.0}}, "maps some of"),
+    ({"provenance": "yesterday"}, "'provenance' is a JSON object"),
+])
+def test_bad_files_name_the_problem(tmp_path, extra, reason):
+    with pytest.raises(DataFormatError, match=reason):
+        load_rig_calibration(_write(tmp_path, **extra))
+
+
+@pytest.mark.parametrize("field, value", [("mass", 0.2), ("frequency", 40e3), ("radius", 0.03)])
+def test_another_rigs_file_is_refused(tmp_path, field, value):
+    path = _write(tmp_path, rig={**RIG_FIELDS, field: value})
+    with pytest.raises(DataFormatError, match=f"another rig \\({field} {value:g} there"):
+        load_rig_calibration(path, RIG)
+    assert load_rig_calibration(path, RIG.replace(**{field: value})).rig[field] == value

@@ -1,0 +1,81 @@
+"""The sampled-loop design (models/sampled_design.py, DesignSpec.sample_rate_hz): the 2 kHz loop the law
+runs (ZOH plant, forward-Euler integrator and derivative filter) has the placed double pairs, the 10 Hz
+cut-off, and its map is below 1 at every (design height, operating height) pair of 50-200 um."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nfal.models.errors import InvalidParameterError
+from nfal.models.local_loop import discrete_loop_matrix
+from nfal.models.pid_design import DesignSpec, design_pid, design_schedule
+from nfal.models.plant import ExcessDamping
+from nfal.models.rig import RigParameters
+from nfal.models.sampled_design import SampledLoop
+from nfal.models.stability import realizable_schedule, stability_map
+
+RIG = RigParameters()
+SAMPLED = DesignSpec(sample_rate_hz=2000.0)
+STEP = RIG.omega / 2000.0
+HEIGHTS = [50e-6, 65e-6, 90e-6, 125e-6, 160e-6, 200e-6]
+
+
+@pytest.fixture(scope="module", params=[None, ExcessDamping.rig_like()], ids=["eq6", "rig-like damping"])
+def damping(request):
+    return request.param
+
+
+@pytest.fixture(scope="module")
+def grid(damping):
+    return stability_map(spec=SAMPLED, discretisation="zoh", damping=damping)
+
+
+@pytest.mark.parametrize("height", HEIGHTS)
+def test_realised_loop_has_the_placed_double_pairs(height):
+    design = design_pid(height, RIG, spec=SAMPLED)
+    poles = np.sort(np.abs(np.linalg.eigvals(discrete_loop_matrix(design.lpv, (design.kp, design.ki, design.kd),
+                                                                  design.omega_lpf, STEP, "zoh"))))
+    placed = np.exp(-STEP * np.array([design.fast_pole, design.fast_pole, design.slow_pole, design.slow_pole]))
+    np.testing.assert_allclose(poles, placed, rtol=1e-6)  # double roots: ~sqrt(eps)
+    assert design.sample_step == pytest.approx(STEP)
+    assert min(design.kp, design.ki, design.kd) > 0
+
+
+@pytest.mark.parametrize("height", HEIGHTS)
+def test_realised_loop_has_the_cutoff_and_unit_dc_gain(height):
+    design = design_pid(height, RIG, spec=SAMPLED)
+    loop = SampledLoop(design.lpv, design.omega_lpf, STEP)
+    gains = (design.kp, design.ki, design.kd)
+    assert design.bandwidth_hz == pytest.approx(10.0, abs=1e-6)
+    assert loop.reference_gain(gains, design.bandwidth)[0] == pytest.approx(1 / np.sqrt(2), rel=1e-9)
+    assert loop.reference_gain(gains, 1e-9)[0] == pytest.approx(1.0, rel=1e-9)
+
+
+def test_map_is_below_one_at_every_pair(grid):
+    """The acceptance test of issue 14 item 3: any pair on 50-200 um reaching |z| = 1 fails."""
+    assert grid.design_height_m[0] == 50e-6 and grid.design_height_m[-1] == 200e-6
+    assert grid.max_pole_modulus.max() < 1.0
+
+
+def test_margin_is_largest_on_the_diagonal():
+    """For the paper's model (eq. 6); with the rig-like damping it is not (docs/controller.md)."""
+    moduli = stability_map(spec=SAMPLED, discretisation="zoh").max_pole_modulus
+    np.testing.assert_array_equal(np.argmin(moduli, axis=0), np.arange(moduli.shape[1]))
+
+
+def test_no_gains_are_held():
+    schedule = design_schedule(None, RIG, spec=SAMPLED)
+    assert realizable_schedule(schedule, RIG, discretisation="zoh").height_range_m == (50e-6, 200e-6)
+
+
+def test_the_paper_placement_is_unchanged_by_the_option():
+    continuous = design_pid(120e-6, RIG)
+    assert continuous.sample_step is None
+    assert design_pid(120e-6, RIG, spec=DesignSpec(sample_rate_hz=None)).kp == continuous.kp
+
+
+@pytest.mark.parametrize("rate", [0.0, -2000.0, float("nan")])
+def test_bad_sample_rate_raises(rate):
+    with pytest.raises(InvalidParameterError, match="sample_rate_hz"):
+        DesignSpec(sample_rate_hz=rate)
