@@ -138,3 +138,59 @@ def test_another_rigs_file_is_refused(tmp_path, field, value):
     with pytest.raises(DataFormatError, match=f"another rig \\({field} {value:g} there"):
         load_rig_calibration(path, RIG)
     assert load_rig_calibration(path, RIG.replace(**{field: value})).rig[field] == value
+
+
+# --- the SlowPlant FMU and the CLI read the file's damping --------------------------------------------------
+@pytest.fixture()
+def identified_file(tmp_path):
+    path = tmp_path / "identified.json"
+    RigCalibration(paper_calibration(), TABLE, RIG_FIELDS, PROVENANCE).save(path)
+    return str(path)
+
+
+def _slow_plant(**parameters):
+    from nfal.fmus.slow_plant import SlowPlant  # the FMU adapter, only for these tests
+
+    slave = SlowPlant(instance_name="slow")
+    slave.initial_height = 150e-6
+    for name, value in parameters.items():
+        setattr(slave, name, value)
+    slave.setup_experiment(0.0)
+    slave.exit_initialization_mode()
+    return slave
+
+
+def test_slow_plant_steps_with_the_files_damping(identified_file):
+    slave = _slow_plant(calibration=identified_file)
+    excitation = float(SimplifiedPlant(RIG, paper_calibration()).equilibrium_excitation(190e-6))
+    slave.excitation_amplitude = excitation
+    slave.do_step(0.0, 5e-4)
+    expected = FixedStepPlant(SimplifiedPlant(RIG, paper_calibration(), excess_damping=TABLE)).advance(
+        PlantState(150e-6), excitation, 5e-4)
+    assert slave.height == expected.height
+
+
+def test_slow_plant_refuses_two_damping_corrections(identified_file):
+    with pytest.raises(InvalidParameterError, match="excess_damping_height = .* 0 when the calibration"):
+        _slow_plant(calibration=identified_file, excess_damping_height=137e-6)
+
+
+def test_cli_design_uses_the_files_damping(capsys, identified_file):
+    from nfal.cli import main  # the front door, only for these tests
+
+    arguments = ["design", "--heights", "120e-6,150e-6,180e-6,200e-6", "--placement", "sampled", "--json"]
+    assert main(arguments) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert main(arguments + ["--calibration", identified_file]) == 0
+    corrected = json.loads(capsys.readouterr().out)
+    assert corrected["kd"][-1] != pytest.approx(plain["kd"][-1], rel=1e-3)
+    assert max(max(row) for row in corrected["stability_map"]["max_pole_modulus"]) < 1.0
+
+
+@pytest.mark.parametrize("extra, message", [({"version": 7}, "version 7 is not supported"),
+                                            ({"rig": {"mass": 0.5}}, "another rig")])
+def test_cli_refuses_a_bad_file_with_exit_2(capsys, tmp_path, extra, message):
+    from nfal.cli import main  # the front door, only for these tests
+
+    assert main(["design", "--heights", "100e-6,150e-6,180e-6,200e-6", "--calibration", _write(tmp_path, **extra)]) == 2
+    assert message in capsys.readouterr().err

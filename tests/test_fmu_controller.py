@@ -13,11 +13,12 @@ from fmpy.validation import validate_fmu
 from test_fmu_base import FMI_FATAL, Instance, build_and_extract
 
 from nfal.fmus.controller import Controller
-from nfal.models.calibration import paper_calibration
+from nfal.models.calibration import RigCalibration, paper_calibration
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.models.errors import InvalidParameterError
+from nfal.models.damping import DampingCorrection
+from nfal.models.errors import DataFormatError, InvalidParameterError
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
-from nfal.models.plant import SimplifiedPlant
+from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
 from nfal.models.stability import realizable_schedule
 
@@ -120,8 +121,41 @@ def test_realizable_only_false_keeps_the_full_schedule():
     assert initialised().law.name.startswith("gain-scheduled from")
 
 
+@pytest.mark.parametrize("height", [50e-6, 77e-6, 140e-6, 200e-6])
+def test_sampled_placement_schedules_the_sampled_designs_without_holding(height):
+    slave = initialised(placement="sampled")
+    expected = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0))
+    np.testing.assert_allclose(slave.law.gains.gains_si(height), expected.gains_si(height), rtol=1e-12)
+    assert slave.law.name == "gain-scheduled from 50 um"
+
+
+@pytest.fixture()
+def identified(tmp_path):
+    """A calibration file as nfal identify writes it: K, a damping table, the rig, provenance."""
+    heights = np.array([50e-6, 80e-6, 110e-6, 140e-6, 170e-6, 200e-6])
+    table = DampingCorrection(heights, ExcessDamping.rig_like().factor(heights))
+    path = tmp_path / "identified.json"
+    RigCalibration(paper_calibration(), table, {"mass": RIG.mass, "frequency": RIG.frequency}, {"port": "loop://"}).save(path)
+    return str(path), table
+
+
+def test_calibration_file_damping_enters_the_design(identified):
+    path, table = identified
+    slave = initialised(calibration=path, placement="sampled")
+    expected = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0), damping=table)
+    plain = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0))
+    np.testing.assert_allclose(slave.law.gains.gains_si(180e-6), expected.gains_si(180e-6), rtol=1e-12)
+    assert not np.allclose(slave.law.gains.gains_si(180e-6), plain.gains_si(180e-6), rtol=1e-3)
+
+
+def test_calibration_file_of_another_rig_is_refused(identified):
+    with pytest.raises(DataFormatError, match=r"another rig \(mass 0.1347 there, 0.2 here"):
+        initialised(calibration=identified[0], mass=0.2)
+
+
 @pytest.mark.parametrize("parameters, reason", [
     ({"design": "adaptive"}, "design = 'adaptive'"),
+    ({"placement": "hybrid"}, "placement = 'hybrid'"),
     ({"reference_min": 120e-6, "reference_max": 100e-6}, "reference_max"),
     ({"reference": 300e-6}, "reference = 0.0003"),
     ({"sample_rate": -1.0}, "sample_rate"),

@@ -25,9 +25,10 @@ def register(commands) -> None:
         "kp [m/m], ki [1/s], kd [s].")
     design.add_argument("--heights", type=number_list, default=number_list("50e-6:200e-6:31"),
                         help="design and operating heights [m]: A,B,C or START:STOP:COUNT (default 50e-6:200e-6:31)")
-    design.add_argument("--discretisation", choices=tuple(DISCRETISATION_CHOICES), default="forward-euler",
+    design.add_argument("--discretisation", choices=tuple(DISCRETISATION_CHOICES),
                         help="map's discrete loop: forward-euler (the paper's Fig. 8) or zoh (exact plant, "
-                        "forward-Euler controller: what the digital loop sees) (default forward-euler)")
+                        "forward-Euler controller: what the digital loop realises) (default: forward-euler for "
+                        "--placement continuous, zoh for sampled)")
     _add_design_options(design)
     add_output_options(design)
     design.set_defaults(handler=run_design)
@@ -86,7 +87,8 @@ def run_design(args: argparse.Namespace) -> int:
     rig, model, spec = _model(args)
     heights = np.unique(args.heights)
     schedule = design_schedule(heights, rig, model.calibration, spec, damping=model.damping)
-    discretisation = DISCRETISATION_CHOICES[args.discretisation]
+    default = "forward-euler" if spec.sample_rate_hz is None else "zoh"
+    discretisation = DISCRETISATION_CHOICES[args.discretisation or default]
     grid = stability_map(heights, heights, rig, model.calibration, spec, sample_rate_hz=args.sample_rate,
                          discretisation=discretisation, damping=model.damping)
     try:
