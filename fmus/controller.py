@@ -6,8 +6,9 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
   :func:`realizable_schedule` when ``realizable_only``; ``design = fixed`` -> :func:`fixed_design`
   at ``design_height``. Both from the rig parameters, the calibration (K and, from an identified
   rig's file, the damping correction of eq. (6)) and Table 2's cut-offs; ``placement`` chooses the
-  loop whose poles are placed: ``continuous`` (eqs. 23-24, the paper) or ``sampled`` (the loop the
-  law realises at ``sample_rate``, :mod:`~nfal.models.sampled_design`; no gains are held then).
+  loop whose poles are placed: ``sampled`` (the default: the loop the law realises at ``sample_rate``,
+  :mod:`~nfal.models.sampled_design`; it realises every design, so no gains are held) or
+  ``continuous`` (eqs. 23-24, the paper; held below 90 um when ``realizable_only``).
 * sampling: at every communication point that is a whole number of sample periods from the start
   (:class:`~nfal.fmus.base.SampleClock`) the outputs are the law's output for (state, reference,
   measured_height) *at that instant*, computed when read (direct feedthrough, the pure ``law.step``);
@@ -51,8 +52,8 @@ class Controller(NfalSlave):
         self.add_parameter("design", "gain-scheduled", description="'gain-scheduled' (eqs. 23-24 over the work "
                            "range) or 'fixed' (the design at design_height everywhere)")
         self.add_parameter("design_height", 120e-6, unit="m", description="design height of the fixed controller")
-        self.add_parameter("placement", "continuous", description="poles placed for the 'continuous' loop "
-                           "(eqs. 23-24) or the 'sampled' one the law realises at sample_rate")
+        self.add_parameter("placement", "sampled", description="poles placed for the 'sampled' loop the law "
+                           "realises at sample_rate (default) or the 'continuous' one of eqs. (23)-(24) (the paper)")
         self.add_parameter("realizable_only", True, description="hold the gains below the lowest height the "
                            "sampled loop realises (Fig. 8; the sampled placement realises all)")
         self.add_parameter("sample_rate", 2000.0, unit="Hz", description="sampling rate (Table 2)")

@@ -11,7 +11,7 @@ STEP_KEYS = {"from_m", "to_m", "rise_time_s", "overshoot_percent", "settling_tim
 
 def test_design_json_and_plot(capsys, tmp_path):
     png = tmp_path / "map.png"
-    assert main(["design", "--heights", "60e-6:200e-6:8", "--json", "--plot", str(png)]) == 0
+    assert main(["design", "--heights", "60e-6:200e-6:8", "--placement", "continuous", "--json", "--plot", str(png)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert len(data["height_m"]) == len(data["kp"]) == len(data["ki"]) == len(data["kd"]) == 8
     grid = data["stability_map"]
@@ -19,6 +19,13 @@ def test_design_json_and_plot(capsys, tmp_path):
     assert len(grid["max_pole_modulus"]) == 8 and len(grid["max_pole_modulus"][0]) == 8
     assert data["units"]["ki"] == "1/s" and data["realizable_from_m"] == pytest.approx(100e-6)
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_design_defaults_to_the_sampled_placement_and_its_realised_map(capsys):
+    assert main(["design", "--heights", "50e-6:200e-6:7", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["stability_map"]["discretisation"] == "zoh" and data["realizable_from_m"] == pytest.approx(50e-6)
+    assert max(max(row) for row in data["stability_map"]["max_pole_modulus"]) < 1.0
 
 
 def test_design_text_output(capsys):

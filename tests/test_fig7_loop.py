@@ -11,7 +11,6 @@ from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
-from nfal.models.stability import realizable_schedule
 from nfal.orchestration import run_structure
 
 ONE_STEP = Staircase((60e-6, 100e-6), hold_s=0.6, lead_s=0.1)
@@ -22,7 +21,7 @@ AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.anal
 
 def pure_loop(reference: Staircase, seed: int = 0):
     rig, calibration = RigParameters(), paper_calibration()
-    schedule = realizable_schedule(design_schedule(None, rig, calibration, DesignSpec()), rig)
+    schedule = design_schedule(None, rig, calibration, DesignSpec(sample_rate_hz=2000.0))  # the Controller's default
     law = DiscreteControlLaw(schedule, sample_rate_hz=2000.0, max_excitation_m=10e-6)
     noise = coloured_noise(reference.samples(2000.0), seed=seed)
     return simulate_closed_loop(law, SimplifiedPlant(rig, calibration), reference, noise)

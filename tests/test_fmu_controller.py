@@ -20,7 +20,6 @@ from nfal.models.errors import DataFormatError, InvalidParameterError
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
-from nfal.models.stability import realizable_schedule
 
 RIG = RigParameters()
 PERIOD = 5e-4  # 2 kHz
@@ -32,11 +31,11 @@ MEASURED = REFERENCES + RNG.normal(0.0, 3e-6, REFERENCES.size) + np.linspace(-10
 
 
 def make_law(design="gain-scheduled"):
-    calibration, spec = paper_calibration(), DesignSpec(10.0, 300.0)
+    calibration, spec = paper_calibration(), DesignSpec(10.0, 300.0, 2000.0)  # the sampled placement (default)
     if design == "fixed":
         gains = fixed_design(120e-6, RIG, calibration, spec)
     else:
-        gains = realizable_schedule(design_schedule(None, RIG, calibration, spec), RIG, sample_rate_hz=2000.0)
+        gains = design_schedule(None, RIG, calibration, spec)
     return DiscreteControlLaw(gains, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_range_m=(50e-6, 200e-6))
 
 
@@ -117,13 +116,13 @@ def test_fixed_design_uses_one_gain_set():
 
 
 def test_realizable_only_false_keeps_the_full_schedule():
-    assert initialised(realizable_only=False).law.name == "gain-scheduled"
-    assert initialised().law.name.startswith("gain-scheduled from")
+    assert initialised(placement="continuous", realizable_only=False).law.name == "gain-scheduled"
+    assert initialised(placement="continuous").law.name == "gain-scheduled from 90 um"
 
 
 @pytest.mark.parametrize("height", [50e-6, 77e-6, 140e-6, 200e-6])
 def test_sampled_placement_schedules_the_sampled_designs_without_holding(height):
-    slave = initialised(placement="sampled")
+    slave = initialised()
     expected = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0))
     np.testing.assert_allclose(slave.law.gains.gains_si(height), expected.gains_si(height), rtol=1e-12)
     assert slave.law.name == "gain-scheduled from 50 um"

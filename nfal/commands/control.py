@@ -19,10 +19,12 @@ GAIN_UNITS = {"height_m": "m", "kp": "m/m", "ki": "1/s", "kd": "s", "slow_pole_h
 def register(commands) -> None:
     design = commands.add_parser(
         "design", help="gain-scheduled PID over the work range and its stability map (Sec. 4.1, Fig. 8)",
-        description="Design the PID of eqs. (21)-(24) at every height (two double pole pairs, -3 dB bandwidth of "
-        "eq. (23) = the closed-loop cut-off, derivative filter at the filter cut-off) and compute the Fig. 8 map: "
-        "max |z| of the local discrete loop for every (design height, operating height). Gains in SI: "
-        "kp [m/m], ki [1/s], kd [s].")
+        description="Design the PID of eqs. (21)-(22) at every height (two double pole pairs, -3 dB bandwidth of the "
+        "closed loop = the closed-loop cut-off, derivative filter at the filter cut-off), for the loop sampled at "
+        "--sample-rate (default) or the continuous one of eqs. (23)-(24) (--placement continuous, the paper), and "
+        "compute the Fig. 8 map: max |z| of the local discrete loop for every (design height, operating height). "
+        "The paper's Fig. 8: --placement continuous (forward-Euler map). With --calibration, K(sigma) and the "
+        "damping correction of an identified rig enter eq. (20). Gains in SI: kp [m/m], ki [1/s], kd [s].")
     design.add_argument("--heights", type=number_list, default=number_list("50e-6:200e-6:31"),
                         help="design and operating heights [m]: A,B,C or START:STOP:COUNT (default 50e-6:200e-6:31)")
     design.add_argument("--discretisation", choices=tuple(DISCRETISATION_CHOICES),
@@ -48,8 +50,9 @@ def register(commands) -> None:
     compare.add_argument("--hold", type=float, default=0.6, help="hold time of each level [s] (default 0.6)")
     compare.add_argument("--max-excitation", type=float, default=10e-6, help="actuator limit |a|max [m] (default 10e-6)")
     compare.add_argument("--full-schedule", action="store_true",
-                         help="schedule the paper's designs at every height, even those the 2 kHz forward-Euler "
-                         "loop cannot realise (default: hold the gains below the lowest realisable height)")
+                         help="with --placement continuous: schedule the paper's designs at every height, even those "
+                         "the 2 kHz forward-Euler loop cannot realise (default: hold the gains below the lowest "
+                         "realisable height; the sampled placement realises all)")
     _add_design_options(compare)
     add_output_options(compare)
     compare.set_defaults(handler=run_compare)
@@ -59,10 +62,10 @@ def _add_design_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--closed-loop-cutoff", type=float, default=10.0, help="closed-loop -3 dB bandwidth [Hz] (default 10)")
     parser.add_argument("--filter-cutoff", type=float, default=300.0, help="derivative filter cut-off [Hz] (default 300)")
     parser.add_argument("--sample-rate", type=float, default=2000.0, help="controller sampling rate [Hz] (default 2000)")
-    parser.add_argument("--placement", choices=PLACEMENTS, default="continuous",
-                        help="loop whose poles are placed: continuous (eqs. 23-24, the paper) or sampled (the loop "
-                        "the discrete law realises at --sample-rate: ZOH plant, forward-Euler integrator and "
-                        "derivative filter) (default continuous)")
+    parser.add_argument("--placement", choices=PLACEMENTS, default="sampled",
+                        help="loop whose poles are placed: sampled (the loop the discrete law realises at --sample-rate: "
+                        "ZOH plant, forward-Euler integrator and derivative filter; the Controller FMU's default) or "
+                        "continuous (eqs. 23-24, the paper's Fig. 8) (default sampled)")
     parser.add_argument("--calibration", metavar="FILE.json",
                         help="calibration file: K(sigma) and, from nfal identify, the damping correction of eq. (6) "
                         "for the plant and the design (default: eq. (17), eq. (6) as it is)")
