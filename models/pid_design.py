@@ -230,20 +230,21 @@ def design_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> PID
     wl = spec.omega_lpf(rig)
     total = 0.5 * (float(lpv.alpha1) + wl)
     if spec.sample_rate_hz is None:
-        def placed(slow: float) -> tuple[float, float, float, float]:
+        def placed(slow):
             return (*gains_for_pole_product(lpv, slow * (total - slow), wl), total - slow)
         bandwidth, step = (lambda slow: closed_loop_bandwidth(lpv, slow, wl)), None
     else:
         step = rig.omega / spec.sample_rate_hz
         loop = SampledLoop(lpv, wl, step)
 
-        def placed(slow: float) -> tuple[float, float, float, float]:
+        def placed(slow):
             kp, ki, kd, fast = loop.gains(slow)
-            return kp, ki, kd, (-math.log(fast) / step if 0.0 < fast < 1.0 else math.nan)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return kp, ki, kd, np.where((fast > 0.0) & (fast < 1.0), -np.log(fast) / step, math.nan)
         bandwidth = loop.bandwidth
     slow = _slow_pole_for_cutoff(lambda p: placed(p)[0], bandwidth, np.geomspace(1e-7 * total, 0.5 * total, 400),
                                  spec.omega_cutoff(rig), spec, lpv, rig)
-    kp, ki, kd, fast = placed(slow)
+    kp, ki, kd, fast = (float(v) for v in placed(slow))
     if not math.isfinite(fast):
         raise ConvergenceError(f"the sampled design at {float(lpv.height_m) * 1e6:.1f} um has no fast pair in (0, 1)")
     return PIDDesign(lpv, wl, kp, ki, kd, slow, fast, bandwidth(slow), step)
@@ -254,12 +255,12 @@ def _slow_pole_for_cutoff(kp_of, bandwidth_of, grid: np.ndarray, cutoff: float, 
     """The slow pole p1 whose design reaches the -3 dB ``cutoff``, on the branch k_p >= 0 (docs/controller.md):
     from the p1 where k_p = 0 up to the first grid point whose bandwidth exceeds the cut-off, by Brent's method."""
     height_um = float(lpv.height_m) * 1e6
-    kp = np.array([kp_of(p) for p in grid])
+    kp = np.asarray(kp_of(grid), dtype=float)  # vectorised over the grid
     rising = np.flatnonzero((kp[:-1] < 0) & (kp[1:] >= 0))
     if rising.size == 0:
         raise ConvergenceError(f"no slow pole gives k_p >= 0 at {height_um:.1f} um")
     i = rising[0]
-    slow_min = optimize.brentq(kp_of, grid[i], grid[i + 1], xtol=1e-16, rtol=1e-13)
+    slow_min = optimize.brentq(lambda p: float(kp_of(p)), grid[i], grid[i + 1], xtol=1e-16, rtol=1e-13)
     candidates = np.concatenate([[slow_min * (1 + 1e-9)], grid[i + 1:]])
     for lower, upper in zip(candidates[:-1], candidates[1:]):
         if bandwidth_of(upper) >= cutoff:

@@ -12,8 +12,8 @@ asks for (z - z1)^2 (z - z2)^2, the z-images z = exp(-p T_s) of the paper's doub
     det(z I - A_d(k)) = (z - z1)^2 (z^2 + a z + b),   a^2 = 4 b   (then z2 = -a / 2).
 
 For a slow pole z1 the first condition is 4 linear equations in the 5 unknowns (k_p, k_i, k_d, a, b):
-a line; the second is a quadratic along it. Of its real roots the one with the smaller |z2| (the faster
-pair) is taken. As in the continuous design one degree of freedom, z1, is left; the closed loop's -3 dB
+a line, x0 + a x1; the second is a quadratic along it. Of its real roots the one with the smaller |z2|
+(the faster pair) is taken. As in the continuous design one degree of freedom, z1, is left; the closed loop's -3 dB
 cut-off (now of the sampled transfer function r -> H at z = exp(j w T_s)) fixes it.
 """
 
@@ -44,9 +44,12 @@ class SampledLoop:
 
     def __init__(self, lpv: LPVCoefficients, omega_lpf: float, step: float) -> None:
         self.lpv, self.omega_lpf, self.step = lpv, float(omega_lpf), float(step)
-        base = self.matrix((0.0, 0.0, 0.0))
-        self._offset = np.poly(base)[1:]
-        self._slopes = np.column_stack([np.poly(self.matrix(unit))[1:] - self._offset for unit in np.eye(3)])
+        # A_d and its characteristic polynomial are affine in the gains: keep the offset and the slopes
+        self._matrix_offset = discrete_loop_matrix(lpv, (0.0, 0.0, 0.0), self.omega_lpf, self.step, "zoh")
+        units = [discrete_loop_matrix(lpv, unit, self.omega_lpf, self.step, "zoh") for unit in np.eye(3)]
+        self._matrix_slopes = np.array([m - self._matrix_offset for m in units])
+        self._offset = np.poly(self._matrix_offset)[1:]
+        self._slopes = np.column_stack([np.poly(m)[1:] - self._offset for m in units])
         plant = np.zeros((3, 3))
         plant[:2, :2] = [[0.0, 1.0], [-float(lpv.alpha0), -float(lpv.alpha1)]]
         plant[1, 2] = float(lpv.beta0)
@@ -54,35 +57,36 @@ class SampledLoop:
 
     def matrix(self, gains) -> np.ndarray:
         """A_d of the loop with ``gains`` = (k_p, k_i, k_d) (non-dimensional)."""
-        return discrete_loop_matrix(self.lpv, gains, self.omega_lpf, self.step, "zoh")
+        return self._matrix_offset + np.tensordot(np.asarray(gains, dtype=float), self._matrix_slopes, axes=1)
 
-    def gains(self, slow_pole: float) -> tuple[float, float, float, float]:
+    def gains(self, slow_pole):
         """(k_p, k_i, k_d, z2) placing a double pole at z1 = exp(-``slow_pole`` T_s) and a double pole z2.
 
-        NaNs when no real gains do (the quadratic has no real root).
+        ``slow_pole`` may be an array (the four results are then arrays). NaNs where no real gains do.
         """
-        z1 = math.exp(-slow_pole * self.step)
-        # (z - z1)^2 (z^2 + a z + b) = z^4 + (a - 2 z1) z^3 + (b - 2 z1 a + z1^2) z^2 + (z1^2 a - 2 z1 b) z + z1^2 b
-        along_a = np.array([1.0, -2.0 * z1, z1**2, 0.0])
-        along_b = np.array([0.0, 1.0, -2.0 * z1, z1**2])
-        fixed = np.array([-2.0 * z1, z1**2, 0.0, 0.0])
-        system = np.column_stack([self._slopes, -along_a, -along_b])
-        particular = np.linalg.lstsq(system, fixed - self._offset, rcond=None)[0]
-        direction = np.linalg.svd(system)[2][-1]
-        (a0, b0), (a1, b1) = particular[3:], direction[3:]
-        roots = np.roots([a1**2, 2.0 * a0 * a1 - 4.0 * b1, a0**2 - 4.0 * b0])  # a(t)^2 = 4 b(t)
-        real = [t.real for t in roots if abs(t.imag) <= 1e-9 * max(abs(t), 1.0)]
-        if not real:
-            return (math.nan,) * 4
-        solution = min((particular + t * direction for t in real), key=lambda x: abs(x[3]))
-        kp, ki, kd, a, _ = (float(v) for v in solution)
-        return kp, ki, kd, -0.5 * a
+        z1 = np.exp(-np.asarray(slow_pole, dtype=float) * self.step)[..., None]
+        zero, one = np.zeros_like(z1), np.ones_like(z1)
+        # (z - z1)^2 (z^2 + a z + b) = z^4 + (a - 2 z1) z^3 + (b - 2 z1 a + z1^2) z^2 + (z1^2 a - 2 z1 b) z + z1^2 b:
+        # with (k_p, k_i, k_d, b) as unknowns the coefficients are linear, x = x0 + a x1, and then b = a^2 / 4
+        along_a = np.concatenate([one, -2.0 * z1, z1**2, zero], axis=-1)
+        along_b = np.concatenate([zero, one, -2.0 * z1, z1**2], axis=-1)
+        fixed = np.concatenate([-2.0 * z1, z1**2, zero, zero], axis=-1)
+        system = np.concatenate([np.broadcast_to(self._slopes, z1.shape[:-1] + (4, 3)), -along_b[..., None]], axis=-1)
+        x0 = np.linalg.solve(system, (fixed - self._offset)[..., None])[..., 0]
+        x1 = np.linalg.solve(system, along_a[..., None])[..., 0]
+        # a^2 / 4 - x1_b a - x0_b = 0, z2 = -a / 2 = -x1_b -+ sqrt(x1_b^2 + x0_b): the smaller |z2|, the faster pair
+        centre = -x1[..., 3]
+        with np.errstate(invalid="ignore"):
+            spread = np.sqrt(centre**2 + x0[..., 3])
+        fast = np.where(np.abs(centre - spread) < np.abs(centre + spread), centre - spread, centre + spread)
+        kp, ki, kd = (x0[..., i] - 2.0 * fast * x1[..., i] for i in range(3))
+        return kp, ki, kd, fast
 
     def reference_gain(self, gains, frequency) -> np.ndarray:
         """|H / r| of the sampled loop at ``frequency`` (non-dimensional, up to pi / step): the reference
         enters through k_p (held by the DAC) and the integrator, eq. (21)-(22)."""
         kp, ki, _ = (float(g) for g in gains)
-        loop = self.matrix(gains)
+        loop = self.matrix([kp, ki, gains[2]])
         entry = np.zeros(4)
         entry[:2] = self._hold_gain * kp
         entry[2] = self.step * ki
@@ -92,11 +96,11 @@ class SampledLoop:
 
     def bandwidth(self, slow_pole: float) -> float:
         """Lowest frequency (non-dimensional) where |H / r| falls through 1/sqrt(2), slow pole ``slow_pole``."""
-        gains = self.gains(slow_pole)[:3]
+        gains = [float(g) for g in self.gains(slow_pole)[:3]]
         if not np.all(np.isfinite(gains)):
             raise ConvergenceError(f"no real sampled design for the slow pole {slow_pole:.4g}")
         nyquist = math.pi / self.step
-        grid = np.geomspace(1e-4 * slow_pole, nyquist, 2000)
+        grid = np.geomspace(1e-4 * slow_pole, nyquist, 600)  # brackets the first crossing; brentq refines it
         below = np.flatnonzero(self.reference_gain(gains, grid) < 1.0 / math.sqrt(2.0))
         if below.size == 0 or below[0] == 0:
             raise ConvergenceError(f"no -3 dB crossing of the sampled loop for p1 = {slow_pole:.4g}")
