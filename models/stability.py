@@ -34,13 +34,15 @@ __all__ = ["StabilityMap", "continuous_loop_matrix", "discrete_loop_matrix", "ma
 @dataclasses.dataclass(frozen=True)
 class StabilityMap:
     """Fig. 8: ``max_pole_modulus[i, j]`` for design height ``design_height_m[i]`` and operating
-    height ``operating_height_m[j]`` [m] (largest |z| of the discrete closed loop)."""
+    height ``operating_height_m[j]`` [m] (largest |z| of the discrete closed loop); ``placement`` is
+    the loop the designs placed the poles of ("continuous" or "sampled")."""
 
     design_height_m: np.ndarray
     operating_height_m: np.ndarray
     max_pole_modulus: np.ndarray
     discretisation: str
     sample_rate_hz: float
+    placement: str = "continuous"
 
     def to_dict(self) -> dict:
         return {"design_height_m": self.design_height_m.tolist(), "operating_height_m": self.operating_height_m.tolist(),
@@ -85,7 +87,8 @@ def stability_map(design_heights_m=None, operating_heights_m=None, rig: RigParam
     moduli = np.array([[max_pole_modulus(operating_lpv.at(j), (d.kp, d.ki, d.kd), wl, step, discretisation)
                         for j in range(operating_h.size)] for d in designs])
     logger.info("stability map (%s): max |z| from %.4f to %.4f", discretisation, moduli.min(), moduli.max())
-    return StabilityMap(design_h, operating_h, moduli, discretisation, float(sample_rate_hz))
+    placement = "continuous" if spec.sample_rate_hz is None else "sampled"
+    return StabilityMap(design_h, operating_h, moduli, discretisation, float(sample_rate_hz), placement)
 
 
 def diagonal_moduli(schedule: GainSchedule, rig: RigParameters | None = None, *,

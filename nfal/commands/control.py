@@ -105,6 +105,7 @@ def run_design(args: argparse.Namespace) -> int:
         "kp": [d.kp_si for d in designs], "ki": [d.ki_si for d in designs], "kd": [d.kd_si for d in designs],
         "slow_pole_hz": [d.slow_pole_hz for d in designs], "fast_pole_hz": [d.fast_pole_hz for d in designs],
         "units": GAIN_UNITS,
+        "placement": args.placement,
         "stability_map": {**grid.to_dict(), "discretisation": discretisation, "sample_rate_hz": args.sample_rate},
         "realizable_from_m": realizable_from,
     }
@@ -119,7 +120,7 @@ def run_design(args: argparse.Namespace) -> int:
     for i, d in enumerate(designs):
         print(f"{d.height_m * 1e6:11.1f} {d.kp_si:11.4g} {d.ki_si:10.4g} {d.kd_si:11.4g} {d.slow_pole_hz:8.2f} "
               f"{d.fast_pole_hz:8.1f} {grid.max_pole_modulus[i, i]:9.4f}")
-    print(f"map ({discretisation}, {args.sample_rate:g} Hz): max |z| from {grid.max_pole_modulus.min():.4f} "
+    print(f"map ({args.placement} placement, {discretisation}, {args.sample_rate:g} Hz): max |z| from {grid.max_pole_modulus.min():.4f} "
           f"to {grid.max_pole_modulus.max():.4f}")
     if realizable_from is not None:
         print(f"{discretisation} loop stable on the diagonal from {realizable_from * 1e6:.1f} um up")

@@ -40,7 +40,8 @@ def plot_stability_map(path, grid) -> None:
     axis.set_xlabel("operating height (actual clearance) [µm]")
     axis.set_ylabel("design height [µm]")
     method = {"forward_euler": "forward Euler", "zoh": "ZOH plant, forward-Euler controller"}.get(grid.discretisation, grid.discretisation)
-    axis.set_title(f"Fig. 8: closed-loop pole nearest |z| = 1 ({method}, {grid.sample_rate_hz:g} Hz)", fontsize=10)
+    axis.set_title(f"Fig. 8: closed-loop pole nearest |z| = 1, {grid.placement} placement\n"
+                   f"({method}, {grid.sample_rate_hz:g} Hz)", fontsize=10)
     axis.legend(loc="lower right", fontsize=8)
     _save(figure, path)
 
