@@ -140,39 +140,12 @@ def test_another_rigs_file_is_refused(tmp_path, field, value):
     assert load_rig_calibration(path, RIG.replace(**{field: value})).rig[field] == value
 
 
-# --- the SlowPlant FMU and the CLI read the file's damping --------------------------------------------------
+# --- the CLI reads the file's damping (the SlowPlant FMU: tests/test_excess_damping.py) -----------------------
 @pytest.fixture()
 def identified_file(tmp_path):
     path = tmp_path / "identified.json"
     RigCalibration(paper_calibration(), TABLE, RIG_FIELDS, PROVENANCE).save(path)
     return str(path)
-
-
-def _slow_plant(**parameters):
-    from nfal.fmus.slow_plant import SlowPlant  # the FMU adapter, only for these tests
-
-    slave = SlowPlant(instance_name="slow")
-    slave.initial_height = 150e-6
-    for name, value in parameters.items():
-        setattr(slave, name, value)
-    slave.setup_experiment(0.0)
-    slave.exit_initialization_mode()
-    return slave
-
-
-def test_slow_plant_steps_with_the_files_damping(identified_file):
-    slave = _slow_plant(calibration=identified_file)
-    excitation = float(SimplifiedPlant(RIG, paper_calibration()).equilibrium_excitation(190e-6))
-    slave.excitation_amplitude = excitation
-    slave.do_step(0.0, 5e-4)
-    expected = FixedStepPlant(SimplifiedPlant(RIG, paper_calibration(), excess_damping=TABLE)).advance(
-        PlantState(150e-6), excitation, 5e-4)
-    assert slave.height == expected.height
-
-
-def test_slow_plant_refuses_two_damping_corrections(identified_file):
-    with pytest.raises(InvalidParameterError, match="excess_damping_height = .* 0 when the calibration"):
-        _slow_plant(calibration=identified_file, excess_damping_height=137e-6)
 
 
 def test_cli_design_uses_the_files_damping(capsys, identified_file):
