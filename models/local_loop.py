@@ -40,20 +40,19 @@ def continuous_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float) -> n
                      [0.0, omega_lpf, 0.0, -omega_lpf]])
 
 
-def discrete_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float, step: float,
-                         discretisation: str = "forward_euler") -> np.ndarray:
-    """The local loop's transition matrix over one sample of ``step`` (non-dimensional, omega T_s)."""
-    if discretisation == "forward_euler":
-        return np.eye(4) + step * continuous_loop_matrix(plant, gains, omega_lpf)
-    if discretisation != "zoh":
-        raise InvalidParameterError("discretisation", discretisation, f"one of {DISCRETISATIONS}")
-    a0, a1, b0 = float(plant.alpha0), float(plant.alpha1), float(plant.beta0)
-    kp, ki, kd = (float(g) for g in gains)
+def held_plant(plant: LPVCoefficients, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi, Gamma): eq. (20) over one sample of ``step`` with its input held, (H, V)_{k+1} = Phi (H, V)_k + Gamma du_k."""
     augmented = np.zeros((3, 3))
-    augmented[:2, :2] = [[0.0, 1.0], [-a0, -a1]]
-    augmented[1, 2] = b0
+    augmented[:2, :2] = [[0.0, 1.0], [-float(plant.alpha0), -float(plant.alpha1)]]
+    augmented[1, 2] = float(plant.beta0)
     exact = linalg.expm(augmented * step)
-    phi, gamma = exact[:2, :2], exact[:2, 2]
+    return exact[:2, :2], exact[:2, 2]
+
+
+def sampled_loop_matrix(held: tuple[np.ndarray, np.ndarray], gains, omega_lpf: float, step: float) -> np.ndarray:
+    """The ``"zoh"`` loop's transition matrix from the plant's :func:`held_plant` ``held``."""
+    phi, gamma = held
+    kp, ki, kd = (float(g) for g in gains)
     # State (H, V, eta, xi) with psi = omega_L (H - xi) and xi_{k+1} = xi_k + step omega_L (H_k - xi_k):
     # the same recursion for psi as the module docstring's, written without H_{k-1}.
     command = np.array([-kp - kd * omega_lpf, 0.0, 1.0, kd * omega_lpf])  # du_k in terms of the state
@@ -63,3 +62,13 @@ def discrete_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float, step: 
     loop[2] = [-step * ki, 0.0, 1.0, 0.0]
     loop[3] = [step * omega_lpf, 0.0, 0.0, 1.0 - step * omega_lpf]
     return loop
+
+
+def discrete_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float, step: float,
+                         discretisation: str = "forward_euler") -> np.ndarray:
+    """The local loop's transition matrix over one sample of ``step`` (non-dimensional, omega T_s)."""
+    if discretisation == "forward_euler":
+        return np.eye(4) + step * continuous_loop_matrix(plant, gains, omega_lpf)
+    if discretisation != "zoh":
+        raise InvalidParameterError("discretisation", discretisation, f"one of {DISCRETISATIONS}")
+    return sampled_loop_matrix(held_plant(plant, step), gains, omega_lpf, step)

@@ -104,6 +104,9 @@ class PIDDesign:
         -3 dB bandwidth reached (non-dimensional), of eq. (23) or of the sampled loop.
     sample_step : float or None
         omega T_s of a sampled design (:mod:`nfal.models.sampled_design`); None: a continuous one.
+
+    :meth:`closed_loop` and :meth:`loop_poles` are the continuous loop's (eq. 23) with these gains; the
+    loop a sampled design realises is :class:`~nfal.models.sampled_design.SampledLoop`.
     """
 
     lpv: LPVCoefficients
@@ -242,8 +245,14 @@ def design_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> PID
             with np.errstate(invalid="ignore", divide="ignore"):
                 return kp, ki, kd, np.where((fast > 0.0) & (fast < 1.0), -np.log(fast) / step, math.nan)
         bandwidth = loop.bandwidth
-    slow = _slow_pole_for_cutoff(lambda p: placed(p)[0], bandwidth, np.geomspace(1e-7 * total, 0.5 * total, 400),
-                                 spec.omega_cutoff(rig), spec, lpv, rig)
+    grid = np.geomspace(1e-7 * total, 0.5 * total, 400)
+    if step is not None and not np.any(np.isfinite(placed(grid)[0])):
+        # the fast pair cannot be a real double pole: seen when the filter's forward-Euler pole 1 - T_s omega_L < 0
+        raise InvalidParameterError("sample_rate_hz", spec.sample_rate_hz,
+                                    f"fast enough for a critically damped sampled loop at {float(lpv.height_m) * 1e6:.1f} um "
+                                    f"with the {spec.filter_cutoff_hz:g} Hz filter (here T_s omega_L = {step * wl:.2f}; Table 2's "
+                                    "2 kHz and 300 Hz give 0.94), or the continuous placement")
+    slow = _slow_pole_for_cutoff(lambda p: placed(p)[0], bandwidth, grid, spec.omega_cutoff(rig), spec, lpv, rig)
     kp, ki, kd, fast = (float(v) for v in placed(slow))
     if not math.isfinite(fast):
         raise ConvergenceError(f"the sampled design at {float(lpv.height_m) * 1e6:.1f} um has no fast pair in (0, 1)")

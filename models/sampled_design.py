@@ -2,7 +2,7 @@
 
 The paper places the poles of the continuous loop, eqs. (23)-(24); the digital loop realises something
 else (Fig. 8's forward-Euler map exceeds 1 below ~90 um, docs/controller.md). Here the design is made
-for the loop that actually runs (:func:`~nfal.models.local_loop.discrete_loop_matrix`, ``"zoh"``): the
+for the loop that actually runs (:func:`~nfal.models.local_loop.sampled_loop_matrix`, ``"zoh"``): the
 plant of eq. (20) held by the DAC for a sample, the discrete law of :mod:`nfal.models.control_law` with
 its forward-Euler integrator and derivative filter.
 
@@ -22,10 +22,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import linalg, optimize
+from scipy import optimize
 
 from .errors import ConvergenceError
-from .local_loop import discrete_loop_matrix
+from .local_loop import held_plant, sampled_loop_matrix
 from .lpv import LPVCoefficients
 
 
@@ -45,15 +45,13 @@ class SampledLoop:
     def __init__(self, lpv: LPVCoefficients, omega_lpf: float, step: float) -> None:
         self.lpv, self.omega_lpf, self.step = lpv, float(omega_lpf), float(step)
         # A_d and its characteristic polynomial are affine in the gains: keep the offset and the slopes
-        self._matrix_offset = discrete_loop_matrix(lpv, (0.0, 0.0, 0.0), self.omega_lpf, self.step, "zoh")
-        units = [discrete_loop_matrix(lpv, unit, self.omega_lpf, self.step, "zoh") for unit in np.eye(3)]
+        held = held_plant(lpv, self.step)
+        self._matrix_offset = sampled_loop_matrix(held, (0.0, 0.0, 0.0), self.omega_lpf, self.step)
+        units = [sampled_loop_matrix(held, unit, self.omega_lpf, self.step) for unit in np.eye(3)]
         self._matrix_slopes = np.array([m - self._matrix_offset for m in units])
         self._offset = np.poly(self._matrix_offset)[1:]
         self._slopes = np.column_stack([np.poly(m)[1:] - self._offset for m in units])
-        plant = np.zeros((3, 3))
-        plant[:2, :2] = [[0.0, 1.0], [-float(lpv.alpha0), -float(lpv.alpha1)]]
-        plant[1, 2] = float(lpv.beta0)
-        self._hold_gain = linalg.expm(plant * self.step)[:2, 2]  # H, V per unit du held over a sample
+        self._hold_gain = held[1]  # H, V per unit du held over a sample
 
     def matrix(self, gains) -> np.ndarray:
         """A_d of the loop with ``gains`` = (k_p, k_i, k_d) (non-dimensional)."""
@@ -82,28 +80,40 @@ class SampledLoop:
         kp, ki, kd = (x0[..., i] - 2.0 * fast * x1[..., i] for i in range(3))
         return kp, ki, kd, fast
 
-    def reference_gain(self, gains, frequency) -> np.ndarray:
-        """|H / r| of the sampled loop at ``frequency`` (non-dimensional, up to pi / step): the reference
-        enters through k_p (held by the DAC) and the integrator, eq. (21)-(22)."""
-        kp, ki, _ = (float(g) for g in gains)
-        loop = self.matrix([kp, ki, gains[2]])
+    def reference_response(self, gains) -> tuple[np.ndarray, np.ndarray]:
+        """(numerator, denominator) of H / r (z) of the sampled loop: the reference enters through k_p (held
+        by the DAC) and the integrator, eqs. (21)-(22). For one input b and output c,
+        c (zI - A)^-1 b = (det(zI - A + b c) - det(zI - A)) / det(zI - A)."""
+        gains = [float(g) for g in gains]
+        kp, ki = gains[:2]
+        loop = self.matrix(gains)
         entry = np.zeros(4)
         entry[:2] = self._hold_gain * kp
         entry[2] = self.step * ki
-        z = np.exp(1j * np.atleast_1d(np.asarray(frequency, dtype=float)) * self.step)
-        response = np.linalg.solve(z[:, None, None] * np.eye(4) - loop, np.broadcast_to(entry, (z.size, 4))[..., None])
-        return np.abs(response[:, 0, 0])
+        denominator = np.poly(loop)
+        output = np.array([1.0, 0.0, 0.0, 0.0])  # H
+        return np.poly(loop - np.outer(entry, output)) - denominator, denominator
+
+    def reference_gain(self, gains, frequency) -> np.ndarray:
+        """|H / r| of the sampled loop at ``frequency`` (non-dimensional, up to pi / step)."""
+        return _gain(*self.reference_response(gains), frequency, self.step)
 
     def bandwidth(self, slow_pole: float) -> float:
         """Lowest frequency (non-dimensional) where |H / r| falls through 1/sqrt(2), slow pole ``slow_pole``."""
         gains = [float(g) for g in self.gains(slow_pole)[:3]]
         if not np.all(np.isfinite(gains)):
             raise ConvergenceError(f"no real sampled design for the slow pole {slow_pole:.4g}")
-        nyquist = math.pi / self.step
-        grid = np.geomspace(1e-4 * slow_pole, nyquist, 600)  # brackets the first crossing; brentq refines it
-        below = np.flatnonzero(self.reference_gain(gains, grid) < 1.0 / math.sqrt(2.0))
+        numerator, denominator = self.reference_response(gains)
+        excess = lambda w: _gain(numerator, denominator, w, self.step) - 1.0 / math.sqrt(2.0)  # noqa: E731
+        grid = np.geomspace(1e-4 * slow_pole, math.pi / self.step, 600)  # to Nyquist; brackets the first crossing
+        below = np.flatnonzero(excess(grid) < 0.0)
         if below.size == 0 or below[0] == 0:
             raise ConvergenceError(f"no -3 dB crossing of the sampled loop for p1 = {slow_pole:.4g}")
         i = below[0]
-        return float(optimize.brentq(lambda w: self.reference_gain(gains, w)[0] - 1.0 / math.sqrt(2.0),
-                                     grid[i - 1], grid[i], xtol=1e-14, rtol=1e-12))
+        return float(optimize.brentq(lambda w: float(excess(w)[0]), grid[i - 1], grid[i], xtol=1e-14, rtol=1e-12))
+
+
+def _gain(numerator: np.ndarray, denominator: np.ndarray, frequency, step: float) -> np.ndarray:
+    """|N / D| at z = exp(j w step) for the (non-dimensional) frequencies ``frequency``."""
+    z = np.exp(1j * np.atleast_1d(np.asarray(frequency, dtype=float)) * step)
+    return np.abs(np.polyval(numerator, z) / np.polyval(denominator, z))
