@@ -55,8 +55,7 @@ class SlowPlant(NfalSlave):
     # --- the model --------------------------------------------------------------------------------
     def setup(self) -> None:
         _, height, velocity = self.checked_release()
-        self.build_rig()  # checks the rig parameters under their FMU names
-        calibration = self.build_rig_calibration(self.build_rig())
+        calibration = self.build_rig_calibration(self.build_rig())  # build_rig checks the rig parameters
         self._calibration = calibration.calibration
         self._excess_damping = self.checked_excess_damping()
         if calibration.damping is not None:

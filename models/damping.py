@@ -75,7 +75,8 @@ class DampingCorrection:
                      for band in (self.factors_low, self.factors_high))
 
     def factor_scalar(self, height: float) -> float:
-        """:meth:`factor` at one clearance, in plain Python (about 20x faster: plants call it per sub-step)."""
+        """:meth:`factor` at one clearance, in plain Python: plants call it per sub-step (0.5 us against
+        7.7 us for :meth:`factor`)."""
         knots, pieces = self._pieces
         h = min(max(height, knots[0]), knots[-1])
         i = min(bisect.bisect_right(knots, h) - 1, len(pieces) - 1)
