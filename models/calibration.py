@@ -204,6 +204,12 @@ class RigCalibration:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
 
 
+def rig_record(rig: RigParameters) -> dict[str, float]:
+    """The ``"rig"`` entry of a calibration file identified on ``rig``: every field that
+    :meth:`RigCalibration.check_rig` checks."""
+    return {name: float(getattr(rig, name)) for name in CHECKED_RIG_FIELDS}
+
+
 def rig_calibration_from_dict(data: dict) -> RigCalibration:
     """Read a calibration file's content (:meth:`RigCalibration.to_dict`); a K-only description is one too."""
     if not isinstance(data, dict):

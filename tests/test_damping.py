@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nfal.models.calibration import (CALIBRATION_FILE_VERSION, RigCalibration, load_calibration, load_rig_calibration,
-                                     paper_calibration)
+                                     paper_calibration, rig_record)
 from nfal.models.damping import DampingCorrection
 from nfal.models.errors import DataFormatError, InvalidParameterError
 from nfal.models.fixed_step_plant import FixedStepPlant
@@ -88,8 +88,12 @@ def test_lpv_damping_is_scaled_by_the_factor(height):
 
 # --- the calibration file -------------------------------------------------------------------------------
 PROVENANCE = {"date": "2026-11-24T19:00:00Z", "port": "socket://localhost:7777", "firmware": "1.2", "raw": "raw.csv"}
-RIG_FIELDS = {"mass": RIG.mass, "radius": RIG.radius, "frequency": RIG.frequency, "viscosity": RIG.viscosity,
-              "ambient_pressure": RIG.ambient_pressure, "gravity": RIG.gravity}
+RIG_FIELDS = rig_record(RIG)
+
+
+def test_rig_record_names_every_checked_field():
+    assert RIG_FIELDS == {"mass": 0.1347, "radius": 0.05, "frequency": 28.5e3, "viscosity": 1.81e-5,
+                          "ambient_pressure": 101_325.0, "gravity": 9.81}
 
 
 def test_file_round_trip_keeps_k_damping_rig_and_provenance(tmp_path):
