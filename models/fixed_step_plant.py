@@ -62,11 +62,14 @@ class FixedStepPlant:
         self._gravity = rig.gravity
         self._floor = FALLBACK_FACTOR * plant.rest_gap
         calibration = plant.calibration
-        if isinstance(calibration, PolynomialK):
+        table = getattr(plant, "table", None)  # an AveragedFilmPlant: K(sigma, delta) of the full film
+        if table is not None:
+            self._K = table.scalar
+        elif isinstance(calibration, PolynomialK):
             coefficients = [float(c) for c in calibration.coefficients[::-1]]
             low, high = calibration.sigma_range
 
-            def K(sigma: float) -> float:
+            def K(sigma: float, delta: float) -> float:
                 sigma = min(max(sigma, low), high)
                 value = 0.0
                 for c in coefficients:  # Horner
@@ -74,7 +77,7 @@ class FixedStepPlant:
                 return value
             self._K = K
         else:
-            self._K = lambda sigma: float(calibration(sigma))
+            self._K = lambda sigma, delta: float(calibration(sigma))
         excess = plant.excess_damping
         if excess is not None:  # chosen here, so that the plain path stays as fast as without the option
             self._excess_height, self._excess_exponent = excess.height, excess.exponent
@@ -83,13 +86,13 @@ class FixedStepPlant:
 
     def _acceleration(self, h: float, v: float, a: float) -> float:
         ratio = a / h
-        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h))
+        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio)
                 - self._damping_per_mass / (h * h * h) * v - self._gravity)
 
     def _corrected_acceleration(self, h: float, v: float, a: float) -> float:
         ratio = a / h
         factor = 1.0 + (h / self._excess_height) ** self._excess_exponent
-        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h))
+        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio)
                 - self._damping_per_mass / (h * h * h) * factor * v - self._gravity)
 
     def _damping_rate(self, h: float) -> float:
@@ -111,7 +114,7 @@ class FixedStepPlant:
         while elapsed < step:
             rate = self._damping_rate(h)
             ratio = excitation / h
-            drift = self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h)) - self._gravity
+            drift = self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio) - self._gravity
             dt = min(step - elapsed, max(shortest, FAST_HEIGHT_FRACTION * h / max(abs(v), 1e-12)))
             decay = math.exp(-rate * dt)
             terminal = drift / rate  # the velocity at which damping balances the other forces

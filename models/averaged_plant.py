@@ -1,0 +1,82 @@
+"""The full film, averaged: the object's slow motion driven by the periodic film force of eqs. (3)-(5).
+
+Sec. 3.2 averages the equation of motion (4) over one excitation period: the slow clearance hbar obeys
+
+    m hbar'' = pi r0^2 p_a delta^2 K(sigma(hbar), delta) - 3 pi mu r0^4 / (2 hbar^3) hbar' - m g,
+
+the levitation force of eq. (12) plus the squeeze-film damping of eq. (6) (eq. 13 in SI). Here K is
+not the delta -> 0 calibration of eq. (13) but the periodic steady state of Reynolds' equation itself
+at the actual delta = |a| / hbar, solved by harmonic balance (:mod:`nfal.models.harmonic_balance`)
+and tabulated once per shape and grid (:class:`~nfal.models.film_force_table.FilmForceTable`). The
+film is quasi-steady within a slow step: its slowest mode decays by exp(-2 pi 5.78 / sigma) per
+period, against slow motion over hundreds of periods (Sec. 3.2, "the time constants of the pressure
+are considerably lower").
+
+What it leaves out against :class:`~nfal.models.coupled.CoupledModel` (time marching, the reference):
+the object's own fast oscillation chi and its O(chi / hbar) effect on the mean force (2.2e-4 of the
+clearance for case a of Table 1, docs/film_solvers.md), and the film's delay in following slow motion
+beyond eq. (6). Touchdown and lift-off are those of :class:`~nfal.models.plant.SimplifiedPlant`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .calibration import CalibrationFunction
+from .film_force_table import FilmForceTable
+from .plant import DEFAULT_REST_GAP, SimplifiedPlant
+from .rig import RigParameters
+
+
+class AveragedFilmPlant(SimplifiedPlant):
+    """Eq. (13) with K(sigma, delta) of the full film at finite delta (harmonic balance), in SI.
+
+    Parameters
+    ----------
+    rig : RigParameters
+    table : FilmForceTable
+        The periodic film force of the excitation form.
+    rest_gap : float
+        Closest approach to the driving surface [m].
+    """
+
+    def __init__(self, rig: RigParameters, table: FilmForceTable, rest_gap: float = DEFAULT_REST_GAP) -> None:
+        super().__init__(rig, _DeltaZeroView(table), rest_gap)
+        self.table = table
+
+    def levitation_force(self, height, excitation):
+        """Period-averaged film force pi r0^2 p_a delta^2 K(sigma, delta) [N] (eq. 12) at finite delta."""
+        height = np.asarray(height, dtype=float)
+        delta = np.asarray(excitation, dtype=float) / height
+        return self.rig.film_force_scale * delta**2 * self.table(self.rig.squeeze_number(height), delta)
+
+    def oscillation(self, height: float, excitation: float) -> float:
+        """Amplitude chi [m] of the object's fast oscillation (eq. 1), to first order in delta.
+
+        The surface drives the film with Pi_s (eq. 10, this shape); the object moving by Im(zeta e^{iT})
+        hbar drives it like a piston (Pi_p, eps_hat = 1) of the opposite sign. With S = 2 sum V Pi_s,
+        Q = 2 sum V Pi_p and eq. (4): zeta = i C delta S / (i C Q - Z), C = C_s* of eq. (14), Z = hbar / h0.
+        """
+        if excitation <= 0.0:
+            return 0.0
+        rig = self.rig
+        S, Q = self.table.first_harmonic_forces(float(rig.squeeze_number(height)))
+        delta = excitation / height
+        C, Z = rig.stiffness_coefficient, height / rig.reference_clearance
+        return float(abs(1j * C * delta * S / (1j * C * Q - Z)) * height)
+
+
+class _DeltaZeroView(CalibrationFunction):
+    """K(sigma, delta -> smallest tabulated delta) of a table: the calibration SimplifiedPlant keeps for
+    its eq.-(13) helpers (the forces use the table at the actual delta)."""
+
+    def __init__(self, table: FilmForceTable) -> None:
+        super().__init__(table.sigma_range, "harmonic balance")
+        self._table = table
+
+    def _value(self, sigma):
+        return self._table(sigma, 0.0)
+
+    def _slope(self, sigma):
+        step = 1e-6 * sigma
+        return (self._table(sigma + step, 0.0) - self._table(sigma - step, 0.0)) / (2.0 * step)
