@@ -83,10 +83,10 @@ class ReynoldsPlant(NfalSlave):
             if str(getattr(self, name)) not in choices:
                 raise InvalidParameterError(name, getattr(self, name), f"one of {', '.join(choices)}")
         self._shape = parse_shape(str(self.shape))
+        self._largest_excursion = float(np.max(np.abs(self._shape(np.linspace(0.0, 1.0, 401)))))
         if str(self.film_solver) == "harmonic_balance":
             self._setup_averaged(height, velocity)
             return
-        self._largest_excursion = float(np.max(np.abs(self._shape(np.linspace(0.0, 1.0, 401)))))
         self._lift_off = SimplifiedPlant(self.build_rig(), self.build_calibration(), rest_gap=rest_gap)
         self._model = self._build_model(self.checked_frequency())
         excitation = self.checked_excitation()
@@ -96,7 +96,7 @@ class ReynoldsPlant(NfalSlave):
 
     def _setup_averaged(self, height: float, velocity: float) -> None:
         """Tabulate the periodic film force once and release the object on it."""
-        self._table = FilmForceTable(self._shape, int(self.radial_nodes), int(self.harmonics))
+        self._table = FilmForceTable(self._shape, int(self.radial_nodes), int(self.harmonics), rig=self.build_rig())
         self._averaged = self._build_averaged(self.checked_frequency())
         self.height, self.velocity, self.oscillation_amplitude = height, velocity, 0.0
         self.resting = self._averaged.plant.rests(PlantState(height, velocity), self.checked_excitation())
@@ -109,6 +109,11 @@ class ReynoldsPlant(NfalSlave):
         excitation, frequency = self.checked_excitation(), self.checked_frequency()
         if self.frequency_changed(frequency, self._averaged.plant.rig.frequency):
             self._averaged = self._build_averaged(frequency)
+        if not self.resting and excitation * self._largest_excursion >= self.height:  # as the marched film: the gap closes
+            self.log(f"touchdown: the surface's excursion {excitation * self._largest_excursion * 1e6:.4g} um reaches "
+                     f"the object at {self.height * 1e6:.4g} um")
+            self.height, self.velocity, self.resting, self.oscillation_amplitude = self.rest_gap, 0.0, True, 0.0
+            return  # rests for the step, as the marched film does
         state = self._averaged.advance(PlantState(self.height, self.velocity, self.resting), excitation, step_size)
         self.height, self.velocity, self.resting = float(state.height), float(state.velocity), bool(state.resting)
         self.oscillation_amplitude = 0.0 if self.resting else self._averaged.plant.oscillation(self.height, excitation)

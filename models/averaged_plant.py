@@ -12,10 +12,11 @@ film is quasi-steady within a slow step: its slowest mode decays by exp(-2 pi 5.
 period, against slow motion over hundreds of periods (Sec. 3.2, "the time constants of the pressure
 are considerably lower").
 
-What it leaves out against :class:`~nfal.models.coupled.CoupledModel` (time marching, the reference):
-the object's own fast oscillation chi and its O(chi / hbar) effect on the mean force (2.2e-4 of the
-clearance for case a of Table 1, docs/film_solvers.md), and the film's delay in following slow motion
-beyond eq. (6). Touchdown and lift-off are those of :class:`~nfal.models.plant.SimplifiedPlant`.
+Built with the rig (``FilmForceTable(..., rig=rig)``), the table includes the object's own fast
+oscillation chi (first order in delta) in the gap, and so its effect on the mean force (2.2e-4 of the
+clearance for case a of Table 1, 2e-3 for a piston; docs/film_solvers.md). What it leaves out against
+:class:`~nfal.models.coupled.CoupledModel` (time marching, the reference): chi beyond first order, and
+the film's delay in following slow motion beyond eq. (6). Touchdown and lift-off are those of :class:`~nfal.models.plant.SimplifiedPlant`.
 """
 
 from __future__ import annotations
@@ -51,19 +52,9 @@ class AveragedFilmPlant(SimplifiedPlant):
         return self.rig.film_force_scale * delta**2 * self.table(self.rig.squeeze_number(height), delta)
 
     def oscillation(self, height: float, excitation: float) -> float:
-        """Amplitude chi [m] of the object's fast oscillation (eq. 1), to first order in delta.
-
-        The surface drives the film with Pi_s (eq. 10, this shape); the object moving by Im(zeta e^{iT})
-        hbar drives it like a piston (Pi_p, eps_hat = 1) of the opposite sign. With S = 2 sum V Pi_s,
-        Q = 2 sum V Pi_p and eq. (4): zeta = i C delta S / (i C Q - Z), C = C_s* of eq. (14), Z = hbar / h0.
-        """
-        if excitation <= 0.0:
-            return 0.0
-        rig = self.rig
-        S, Q = self.table.first_harmonic_forces(float(rig.squeeze_number(height)))
-        delta = excitation / height
-        C, Z = rig.stiffness_coefficient, height / rig.reference_clearance
-        return float(abs(1j * C * delta * S / (1j * C * Q - Z)) * height)
+        """Amplitude chi [m] of the object's fast oscillation (eq. 1), to first order in delta:
+        |zeta| hbar = |a| |zeta / delta| (:meth:`FilmForceTable.response`; 0 for a table without a rig)."""
+        return abs(self.table.response(float(self.rig.squeeze_number(height)))) * excitation
 
 
 class _DeltaZeroView(CalibrationFunction):

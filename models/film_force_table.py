@@ -1,5 +1,7 @@
 """A table of the periodic film force K(sigma, delta) for one excitation form, by harmonic balance.
 
+(With a rig, for the free object: its own fast oscillation is part of the gap; see ``rig`` below.)
+
 The period-averaged force of the film over an object at clearance hbar under |a| is
 pi r0^2 p_a delta^2 K(sigma, delta) (eq. 12), with sigma(hbar) of eq. (2) and delta = |a| / hbar. K
 depends on delta only through delta^2 (delta -> -delta is the shift T -> T + pi), smoothly: so per
@@ -24,6 +26,7 @@ from .errors import InvalidParameterError
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure
+from .rig import RigParameters
 
 #: Table points in delta per squeeze number: Chebyshev-Gauss points in delta^2 over [0, delta_max^2].
 DELTA_POINTS = 6
@@ -51,6 +54,11 @@ class FilmForceTable:
     delta_max : float, optional
         Largest excitation norm tabulated, 0 < delta_max max eps_hat < 1 (default: the gap swing
         delta_max max eps_hat = ``DEFAULT_GAP_SWING``).
+    rig : RigParameters, optional
+        With a rig, the object is free: its own fast oscillation (first order in delta, from eq. 4 and the
+        first-harmonic forces, :meth:`response`) is part of the gap the film sees, and K includes its
+        O(C_s*) effect on the mean force (2e-3 of the clearance for a piston at 77 um). Without one (default),
+        the fixed object of eq. (8). The rig's frequency fixes sigma -> hbar for that response.
     richardson : bool
         Tabulate the Richardson extrapolation (4 K_fine - K) / 3 of ``nodes`` and 2 ``nodes`` - 1 radial
         nodes (the scheme is second order in dR) instead of K on ``nodes`` alone.
@@ -58,7 +66,7 @@ class FilmForceTable:
 
     def __init__(self, shape: ExcitationShape, nodes: int = 41, harmonics: int = 6,
                  sigma_range: tuple[float, float] = DEFAULT_SIGMA_RANGE, sigmas: int = DEFAULT_SIGMAS,
-                 delta_max: float | None = None, richardson: bool = True) -> None:
+                 delta_max: float | None = None, rig: RigParameters | None = None, richardson: bool = True) -> None:
         low, high = (float(value) for value in sigma_range)
         if not 0.0 < low < high < np.inf:
             raise InvalidParameterError("sigma_range", sigma_range, "two finite squeeze numbers 0 < low < high")
@@ -67,13 +75,15 @@ class FilmForceTable:
         self.film = HarmonicBalanceFilm(shape, nodes, harmonics)
         self.fine_film = HarmonicBalanceFilm(shape, 2 * nodes - 1, harmonics) if richardson else None
         if delta_max is None:
-            delta_max = DEFAULT_GAP_SWING / self.film._largest_eps
-        if not 0.0 < float(delta_max) < 1.0 / self.film._largest_eps:
-            raise InvalidParameterError("delta_max", delta_max, f"a number in (0, {1.0 / self.film._largest_eps:.4g})")
+            delta_max = DEFAULT_GAP_SWING / self.film.largest_eps
+        if not 0.0 < float(delta_max) < 1.0 / self.film.largest_eps:
+            raise InvalidParameterError("delta_max", delta_max, f"a number in (0, {1.0 / self.film.largest_eps:.4g})")
         self.sigma_range, self.delta_max = (low, high), float(delta_max)
         self.sigmas = np.geomspace(low, high, int(sigmas))
         chebyshev = np.cos((2 * np.arange(DELTA_POINTS) + 1) * np.pi / (2 * DELTA_POINTS))
         self.deltas = self.delta_max * np.sqrt((1.0 - chebyshev[::-1]) / 2.0)
+        self.rig = rig
+        self._harmonic_spline = interpolate.CubicSpline(np.log(self.sigmas), self._first_harmonics())
         values = self._solve_all(self.film)
         if self.fine_film is not None:
             values = (4.0 * self._solve_all(self.fine_film) - values) / 3.0
@@ -81,7 +91,6 @@ class FilmForceTable:
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
         coefficients = np.linalg.solve(powers, values.T).T  # K = sum_p c_p delta^(2p)
         self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
-        self._harmonic_spline = interpolate.CubicSpline(np.log(self.sigmas), self._first_harmonics())
         # the same spline as nested lists, for :meth:`scalar` (a plant's inner loop)
         self._breaks = self._spline.x.tolist()
         self._pieces = self._spline.c.transpose(1, 2, 0).tolist()  # [interval][power of delta^2][cubic coefficient]
@@ -92,7 +101,7 @@ class FilmForceTable:
         for j, delta in enumerate(self.deltas):
             guess = None
             for i, sigma in enumerate(self.sigmas):  # continuation in sigma: Newton starts next door
-                solution = film.solve(sigma, delta, guess)
+                solution = film.solve(sigma, delta, guess, delta * self.response(sigma))
                 values[i, j], guess = solution.K, solution.pressure - 1.0
         return values
 
@@ -112,10 +121,24 @@ class FilmForceTable:
         values = self._harmonic_spline(math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1])))
         return complex(values[0], values[1]), complex(values[2], values[3])
 
+    def response(self, sigma: float) -> complex:
+        """zeta / delta: the free object's fast oscillation per unit delta, z = hbar (1 + Im(zeta e^{iT})).
+
+        The surface drives the film with S, the object moving by zeta drives it like a piston with -zeta Q
+        (:meth:`first_harmonic_forces`); eq. (4) at the first harmonic, -Z zeta = i C (delta S - zeta Q) with
+        C = C_s* and Z = hbar / h0 of eq. (14), gives zeta = i C delta S / (i C Q - Z). 0 without a rig.
+        """
+        if self.rig is None:
+            return 0.0j
+        S, Q = self.first_harmonic_forces(sigma)
+        C, Z = self.rig.stiffness_coefficient, float(self.rig.clearance_at(sigma)) / self.rig.reference_clearance
+        return 1j * C * S / (1j * C * Q - Z)
+
     def direct(self, sigma: float, delta: float) -> float:
         """K(sigma, delta) solved directly (with the table's Richardson extrapolation, if any)."""
-        coarse = self.film.K(sigma, delta)
-        return coarse if self.fine_film is None else (4.0 * self.fine_film.K(sigma, delta) - coarse) / 3.0
+        motion = delta * self.response(sigma)
+        coarse = self.film.K(sigma, delta, motion)
+        return coarse if self.fine_film is None else (4.0 * self.fine_film.K(sigma, delta, motion) - coarse) / 3.0
 
     def __call__(self, sigma, delta):
         """K(sigma, delta) (broadcast), held at the table's edges outside it."""

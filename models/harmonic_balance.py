@@ -33,7 +33,7 @@ from .reynolds import discrete_mean_correction
 #: Default harmonics h (M = 2 h + 1 collocation phases): K within ~1e-7 of the M -> infinity limit up to
 #: delta = 0.3 (tests/test_harmonic_balance.py).
 DEFAULT_HARMONICS = 8
-#: Newton stops when the largest update of P - 1 is below this times delta^2 (K is O(delta^2)).
+#: Newton stops when the largest update of P - 1 is below this times delta^2 (K is O(delta^2)), plus 1e-15.
 NEWTON_TOLERANCE = 1e-11
 NEWTON_MAX_ITERATIONS = 20
 
@@ -98,7 +98,7 @@ class HarmonicBalanceFilm:
         self._eps_nodes = shape(self.R)
         self._eps_faces = shape(self._faces)
         self._conductance = self._faces / self.R[1]
-        self._largest_eps = float(max(np.max(self._eps_nodes), np.max(self._eps_faces)))
+        self.largest_eps = float(max(np.max(self._eps_nodes), np.max(self._eps_faces)))
         self._assemble_pattern()
 
     def _assemble_pattern(self) -> None:
@@ -123,10 +123,12 @@ class HarmonicBalanceFilm:
         mean = discrete_mean_correction(self.shape, amplitude, self.R, self._faces)
         return delta * np.real(amplitude[:, None] * np.exp(1j * self.phases)[None, :]) + delta**2 * mean[:, None]
 
-    def solve(self, sigma: float, delta: float, guess: np.ndarray | None = None) -> HarmonicFilm:
+    def solve(self, sigma: float, delta: float, guess: np.ndarray | None = None, motion: complex = 0.0) -> HarmonicFilm:
         """The periodic film at squeeze number ``sigma`` (eq. 2) and excitation norm ``delta`` (eq. 7).
 
         ``guess`` (nodes x M gauge pressures, e.g. a neighbouring solution) replaces the perturbation start.
+        ``motion`` zeta is the object's own fast oscillation, z = hbar (1 + Im(zeta e^{iT})) (eq. 1): the gap
+        becomes H = 1 - delta eps_hat sin T + Im(zeta e^{iT}) (0: the fixed object of eq. 8).
 
         Raises
         ------
@@ -140,14 +142,15 @@ class HarmonicBalanceFilm:
             raise InvalidParameterError("sigma", sigma, "one finite squeeze number > 0")
         sigma = float(sigmas[0])
         delta = float(delta)
-        if not (np.isfinite(delta) and 0.0 < delta and delta * self._largest_eps < 1.0):
-            raise InvalidParameterError("delta", delta, f"a number with 0 < delta < 1 / max eps_hat = {1.0 / self._largest_eps:.4g}")
+        if not (np.isfinite(delta) and 0.0 < delta and delta * self.largest_eps < 1.0):
+            raise InvalidParameterError("delta", delta, f"a number with 0 < delta < 1 / max eps_hat = {1.0 / self.largest_eps:.4g}")
         u = self.initial_guess(sigma, delta) if guess is None else np.array(guess, dtype=float)
         u[-1] = 0.0
         sine = np.sin(self.phases)
-        h_nodes = 1.0 - delta * self._eps_nodes[:, None] * sine[None, :]
-        c_faces = self._conductance[:, None] * (1.0 - delta * self._eps_faces[:, None] * sine[None, :]) ** 3 / sigma
-        tolerance = NEWTON_TOLERANCE * delta**2
+        rigid = 1.0 + np.imag(complex(motion) * np.exp(1j * self.phases))[None, :]
+        h_nodes = rigid - delta * self._eps_nodes[:, None] * sine[None, :]
+        c_faces = self._conductance[:, None] * (rigid - delta * self._eps_faces[:, None] * sine[None, :]) ** 3 / sigma
+        tolerance = NEWTON_TOLERANCE * delta**2 + 1e-15  # the floor: round-off in the residual
         for iteration in range(1, NEWTON_MAX_ITERATIONS + 1):
             residual, jacobian = self._residual_jacobian(u, h_nodes, c_faces)
             step = linalg.solve_banded((self.points, self.points), jacobian, -residual.ravel(),
@@ -179,6 +182,6 @@ class HarmonicBalanceFilm:
         band[self._band_rows, self._cols] = values
         return residual, band
 
-    def K(self, sigma: float, delta: float) -> float:
+    def K(self, sigma: float, delta: float, motion: complex = 0.0) -> float:
         """K(sigma, delta) of eq. (12) (see :meth:`solve`)."""
-        return self.solve(sigma, delta).K
+        return self.solve(sigma, delta, motion=motion).K
