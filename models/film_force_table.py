@@ -16,9 +16,9 @@ nearest edge; the plant only goes there at touchdown and lift-off.
 
 from __future__ import annotations
 
-import bisect
 import math
 
+import numba
 import numpy as np
 from scipy import interpolate
 
@@ -91,9 +91,10 @@ class FilmForceTable:
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
         coefficients = np.linalg.solve(powers, values.T).T  # K = sum_p c_p delta^(2p)
         self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
-        # the same spline as nested lists, for :meth:`scalar` (a plant's inner loop)
-        self._breaks = self._spline.x.tolist()
-        self._pieces = self._spline.c.transpose(1, 2, 0).tolist()  # [interval][power of delta^2][cubic coefficient]
+        #: the same spline as arrays for compiled code (:func:`table_K`): breaks in log sigma, and per interval,
+        #: power of delta^2 and cubic coefficient (highest first)
+        self.breaks = np.ascontiguousarray(self._spline.x)
+        self.pieces = np.ascontiguousarray(self._spline.c.transpose(1, 2, 0))
 
     def _solve_all(self, film: HarmonicBalanceFilm) -> np.ndarray:
         """K at every (sigma, delta) of the table on ``film``'s grid."""
@@ -151,17 +152,8 @@ class FilmForceTable:
         return value
 
     def scalar(self, sigma: float, delta: float) -> float:
-        """:meth:`__call__` for one (sigma, delta), in plain Python floats (~20x faster than the array path)."""
-        low, high = self.sigma_range
-        x = math.log(min(max(sigma, low), high))
-        breaks = self._breaks
-        interval = min(max(bisect.bisect_right(breaks, x) - 1, 0), len(breaks) - 2)
-        t = x - breaks[interval]
-        squared = min(abs(delta), self.delta_max) ** 2
-        value = 0.0
-        for c0, c1, c2, c3 in reversed(self._pieces[interval]):  # Horner in delta^2 over cubic pieces in log sigma
-            value = value * squared + (((c0 * t + c1) * t + c2) * t + c3)
-        return value
+        """:meth:`__call__` for one (sigma, delta), compiled (:func:`table_K`; ~30x faster than the array path)."""
+        return table_K(self.breaks, self.pieces, self.sigma_range[0], self.sigma_range[1], self.delta_max, sigma, delta)
 
     def check(self, points: int = 6) -> float:
         """Largest |K_table - K_direct| over ``points`` sigmas midway between table points, at delta
@@ -170,3 +162,17 @@ class FilmForceTable:
         chosen = middles[np.linspace(0, middles.size - 1, points).astype(int)]
         deltas = np.concatenate(([0.1 * self.delta_max], 0.5 * (self.deltas[:-1] + self.deltas[1:])))
         return max(abs(float(self(sigma, delta)) - self.direct(sigma, delta)) for sigma in chosen for delta in deltas)
+
+
+@numba.njit(cache=True)
+def table_K(breaks, pieces, sigma_low, sigma_high, delta_max, sigma, delta):
+    """K(sigma, delta) from a :class:`FilmForceTable`'s ``breaks`` and ``pieces`` (held at its edges)."""
+    x = math.log(min(max(sigma, sigma_low), sigma_high))
+    interval = min(max(np.searchsorted(breaks, x, side="right") - 1, 0), breaks.shape[0] - 2)
+    t = x - breaks[interval]
+    squared = min(abs(delta), delta_max) ** 2
+    value = 0.0
+    for power in range(pieces.shape[1] - 1, -1, -1):  # Horner in delta^2 over cubic pieces in log sigma
+        c = pieces[interval, power]
+        value = value * squared + (((c[0] * t + c[1]) * t + c[2]) * t + c[3])
+    return value

@@ -21,6 +21,7 @@ within 1e-10 m per 0.5 ms step (|v| <= 5 mm/s, 40-200 um) and over a closed-loop
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -62,9 +63,12 @@ class FixedStepPlant:
         self._gravity = rig.gravity
         self._floor = FALLBACK_FACTOR * plant.rest_gap
         calibration = plant.calibration
+        self._free_flight = self._rk4
         table = getattr(plant, "table", None)  # an AveragedFilmPlant: K(sigma, delta) of the full film
         if table is not None:
             self._K = table.scalar
+            if plant.excess_damping is None:  # the same RK4, compiled
+                self._free_flight = functools.partial(plant.free_flight, floor=self._floor)
         elif isinstance(calibration, PolynomialK):
             coefficients = [float(c) for c in calibration.coefficients[::-1]]
             low, high = calibration.sigma_range
@@ -151,6 +155,13 @@ class FixedStepPlant:
         substeps = max(MIN_SUBSTEPS, self._substeps(step, lowest, h + max(v, 0.0) * step))
         if substeps > MAX_SUBSTEPS:
             return self._hand_over(state, excitation, step)
+        moved = self._free_flight(h, v, excitation, step, substeps)
+        if moved is None:  # left free flight (near the surface, or not finite)
+            return self._hand_over(state, excitation, step)
+        return PlantState(moved[0], moved[1], False)
+
+    def _rk4(self, h: float, v: float, excitation: float, step: float, substeps: int) -> tuple[float, float] | None:
+        """RK4 over ``step`` in ``substeps``: (h, v), or None when the height falls to the floor."""
         dt = step / substeps
         f = self._acceleration
         for _ in range(substeps):
@@ -161,5 +172,5 @@ class FixedStepPlant:
             h += dt / 6.0 * (k1h + 2.0 * k2h + 2.0 * k3h + k4h)
             v += dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
             if not (h > self._floor and np.isfinite(v)):
-                return self._hand_over(state, excitation, step)
-        return PlantState(h, v, False)
+                return None
+        return h, v
