@@ -16,8 +16,8 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
   as :mod:`nfal.models.closed_loop` does.
 * ``drive_voltage`` = ``excitation_command`` / ``metres_per_volt`` (the voltage -> |a| map at
   resonance, an assumption of docs/cosimulation.md).
-* saturation: ``saturated_time`` is how long the held command has been at ``max_excitation`` without a
-  break; once per such episode longer than ``saturation_warning_time`` a warning goes to the FMU log
+* saturation: ``saturated_time`` is how long the held command has been at ``max_excitation`` (through
+  dips shorter than ``SATURATION_GAP_S``); once per such episode longer than ``saturation_warning_time`` a warning goes to the FMU log
   (the reference is beyond what the film holds with this drive limit). ``nfal run`` lists the episodes in
   summary.json (``metrics.saturation``).
 """
@@ -28,7 +28,7 @@ import numpy as np
 from pythonfmu.enums import Fmi2Status
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import ControllerState, DiscreteControlLaw
+from nfal.models.control_law import SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.errors import InvalidParameterError, require_positive
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
@@ -37,6 +37,8 @@ from nfal.models.stability import realizable_schedule
 DESIGNS = ("gain-scheduled", "fixed")
 #: Design heights of the gain schedule, evenly over [reference_min, reference_max].
 DESIGN_HEIGHTS = 31
+#: A saturation goes on through dips below the limit shorter than this [s] (measurement noise feeds through).
+SATURATION_GAP_S = 0.02
 
 
 
@@ -66,10 +68,10 @@ class Controller(NfalSlave):
         self.add_parameter("metres_per_volt", 0.1e-6, unit="m/V", description="|a| per volt at resonance (assumption)")
         self.add_parameter("reference_min", 50e-6, unit="m", description="smallest accepted reference")
         self.add_parameter("reference_max", 200e-6, unit="m", description="largest accepted reference")
-        self.add_parameter("saturation_warning_time", 0.1, unit="s", description="warn (FMU log) when the drive "
+        self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) when the drive "
                            "stays saturated at max_excitation this long: the reference is out of the film's reach")
         self.add_output("saturated_time", unit="s", description="how long the drive has been saturated at "
-                        "max_excitation without a break (0 when not saturated)", getter=self._saturated_time)
+                        "max_excitation, through dips under 20 ms (0 when not saturated)", getter=self._saturated_time)
         self.add_rig_parameters()
         self.law: DiscreteControlLaw | None = None
         self._clock: SampleClock | None = None
@@ -78,6 +80,7 @@ class Controller(NfalSlave):
         self._cache: tuple | None = None  # (state, reference, measured, command, next state)
         self._gains: tuple | None = None  # (settings, gains) of the last design
         self._saturated_since: float | None = None  # start of the current saturation, if any
+        self._last_at_limit = 0.0  # the last sample at the limit
         self._warned = False  # the current saturation has been reported
 
     # --- initialisation ---------------------------------------------------------------------------
@@ -151,13 +154,16 @@ class Controller(NfalSlave):
             self._watch_saturation(current_time)
 
     def _watch_saturation(self, now: float) -> None:
-        """Track how long the drive has been at max_excitation; log a warning once per long saturation."""
-        if self._held < self.law.max_excitation_m:
+        """Track how long the drive has been at max_excitation (dips shorter than SATURATION_GAP_S, noise
+        feeding through, do not end it); log a warning once per saturation longer than saturation_warning_time."""
+        if self._held >= self.law.max_excitation_m:
+            if self._saturated_since is None:
+                self._saturated_since = now
+            self._last_at_limit = now
+        elif self._saturated_since is not None and now - self._last_at_limit > SATURATION_GAP_S:
             self._saturated_since, self._warned = None, False
-            return
-        if self._saturated_since is None:
-            self._saturated_since = now
-        if not self._warned and now - self._saturated_since >= self.saturation_warning_time - 1e-12:
+        if self._saturated_since is not None and not self._warned \
+                and now - self._saturated_since >= self.saturation_warning_time - 1e-12:
             self._warned = True
             self.log(f"drive saturated at |a| = {self.max_excitation * 1e6:.3g} um for {now - self._saturated_since:.3g} s "
                      f"(since t = {self._saturated_since:.4g} s): the reference {self.reference * 1e6:.4g} um is out of "
@@ -171,11 +177,13 @@ class Controller(NfalSlave):
     def get_internal_state(self) -> dict:
         state = self._state
         return {"held": self._held, "saturated_since": self._saturated_since, "warned": self._warned,
+                "last_at_limit": self._last_at_limit,
                 "law": None if state is None else [state.integrator_m, state.derivative_m_per_s, state.previous_measurement_m]}
 
     def set_internal_state(self, state: dict) -> None:
         self._held = float(state["held"])
         self._saturated_since, self._warned = state.get("saturated_since"), bool(state.get("warned", False))
+        self._last_at_limit = float(state.get("last_at_limit", 0.0))
         law = state["law"]
         self._state = None if law is None else ControllerState(float(law[0]), float(law[1]), None if law[2] is None else float(law[2]))
         self._cache = None

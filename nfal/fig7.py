@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
+from nfal.models.control_law import SATURATION_WARNING_S
 from nfal.models.errors import InvalidParameterError
 from nfal.models.step_metrics import step_metrics, total_iae
 
@@ -96,9 +97,29 @@ def loop_run(table, name: str = "fmu loop", columns: LoopColumns = SIMULATED) ->
 
 
 def loop_metrics(table, reference: Staircase, columns: LoopColumns = SIMULATED) -> dict:
-    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI."""
+    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI, and the
+    drive's long saturations (:func:`saturation_episodes`)."""
     run = loop_run(table, columns=columns)
-    return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)]}
+    return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)],
+            "saturation": saturation_episodes(table)}
+
+
+SATURATED_TIME = "Controller.saturated_time"
+
+
+def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S) -> list[dict]:
+    """Every stretch in which the Controller's drive stayed saturated longer than ``longest_allowed_s``:
+    its start, length and the reference then (what the film could not reach). Empty when the table has
+    no ``Controller.saturated_time`` column (a controller without it)."""
+    if SATURATED_TIME not in table:
+        return []
+    time, saturated = np.asarray(table.time), np.asarray(table[SATURATED_TIME])
+    reference = np.asarray(table[REFERENCE])
+    ends = np.flatnonzero((saturated[:-1] > 0) & (saturated[1:] <= saturated[:-1]))  # the run's last sample
+    if saturated.size and saturated[-1] > 0:
+        ends = np.append(ends, saturated.size - 1)
+    return [{"start_s": float(time[i] - saturated[i]), "duration_s": float(saturated[i]),
+             "reference_m": float(reference[i])} for i in ends if saturated[i] >= longest_allowed_s - 1e-12]
 
 
 #: The proxy's link-health outputs summarised after a hardware-in-the-loop run (their last or worst value).

@@ -203,6 +203,9 @@ def _print_summary(summary: dict, out: Path) -> None:
     if metrics:
         print(f"IAE {metrics['iae'] * 1e6:.3f} um s")
         print_step_table(metrics["steps"])
+        for episode in metrics.get("saturation", []):
+            print(f"warning: the drive stayed saturated for {episode['duration_s']:.3g} s from t = {episode['start_s']:.4g} s: "
+                  f"the reference {episode['reference_m'] * 1e6:.4g} um is out of the film's reach with this drive limit")
     link = summary.get("link")
     if link:
         print(f"link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} rig "
