@@ -4,7 +4,7 @@
 
 * ``harmonic_balance`` (default): the film's periodic steady state K(sigma, delta) by harmonic balance
   (``harmonics`` in the fast time, ``radial_nodes`` radial nodes, Richardson-extrapolated to twice the
-  nodes), tabulated once at set-up (:class:`~nfal.models.film_force_table.FilmForceTable`), drives the
+  nodes), tabulated once at set-up (and kept on disk: :func:`~nfal.models.film_force_table.cached_table`) (:class:`~nfal.models.film_force_table.FilmForceTable`), drives the
   object's slow motion with the damping of eq. (6) (:class:`~nfal.models.averaged_plant.AveragedFilmPlant`,
   stepped like the SlowPlant: RK4, the exact event-handling integrator near the surface or, with
   ``near_surface`` = 'fast', the real-time one). Faster than real time.
@@ -36,7 +36,7 @@ from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel, CoupledState, GapClosedError
 from nfal.models.errors import InvalidParameterError
 from nfal.models.excitation import parse_shape
-from nfal.models.film_force_table import FilmForceTable
+from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.fixed_step_plant import NEAR_SURFACE, FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant
 
@@ -96,7 +96,8 @@ class ReynoldsPlant(NfalSlave):
 
     def _setup_averaged(self, height: float, velocity: float) -> None:
         """Tabulate the periodic film force once and release the object on it."""
-        self._table = FilmForceTable(self._shape, int(self.radial_nodes), int(self.harmonics), rig=self.build_rig())
+        self._table = cached_table(self._shape, nodes=int(self.radial_nodes), harmonics=int(self.harmonics),
+                                   rig=self.build_rig())
         self._averaged = self._build_averaged(self.checked_frequency())
         self.height, self.velocity, self.oscillation_amplitude = height, velocity, 0.0
         self.resting = self._averaged.plant.rests(PlantState(height, velocity), self.checked_excitation())

@@ -16,7 +16,13 @@ nearest edge; the plant only goes there at touchdown and lift-off.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import logging
 import math
+import os
+import tempfile
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -27,6 +33,8 @@ from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure
 from .rig import RigParameters
+
+logger = logging.getLogger(__name__)
 
 #: Table points in delta per squeeze number: Chebyshev-Gauss points in delta^2 over [0, delta_max^2].
 DELTA_POINTS = 6
@@ -62,11 +70,15 @@ class FilmForceTable:
     richardson : bool
         Tabulate the Richardson extrapolation (4 K_fine - K) / 3 of ``nodes`` and 2 ``nodes`` - 1 radial
         nodes (the scheme is second order in dR) instead of K on ``nodes`` alone.
+    values : ndarray, optional
+        K at the table's (sigma, delta) points as a table with the same settings computed them (``values``
+        of that table, e.g. from :func:`cached_table`): the solves are skipped.
     """
 
     def __init__(self, shape: ExcitationShape, nodes: int = 41, harmonics: int = 6,
                  sigma_range: tuple[float, float] = DEFAULT_SIGMA_RANGE, sigmas: int = DEFAULT_SIGMAS,
-                 delta_max: float | None = None, rig: RigParameters | None = None, richardson: bool = True) -> None:
+                 delta_max: float | None = None, rig: RigParameters | None = None, richardson: bool = True,
+                 values: np.ndarray | None = None) -> None:
         low, high = (float(value) for value in sigma_range)
         if not 0.0 < low < high < np.inf:
             raise InvalidParameterError("sigma_range", sigma_range, "two finite squeeze numbers 0 < low < high")
@@ -84,12 +96,15 @@ class FilmForceTable:
         self.deltas = self.delta_max * np.sqrt((1.0 - chebyshev[::-1]) / 2.0)
         self.rig = rig
         self._harmonic_spline = interpolate.CubicSpline(np.log(self.sigmas), self._first_harmonics())
-        values = self._solve_all(self.film)
-        if self.fine_film is not None:
-            values = (4.0 * self._solve_all(self.fine_film) - values) / 3.0
-        self.values = values
+        if values is None:
+            values = self._solve_all(self.film)
+            if self.fine_film is not None:
+                values = (4.0 * self._solve_all(self.fine_film) - values) / 3.0
+        elif np.shape(values) != (self.sigmas.size, self.deltas.size):
+            raise InvalidParameterError("values", np.shape(values), f"a {self.sigmas.size} x {self.deltas.size} table")
+        self.values = np.asarray(values, dtype=float)
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
-        coefficients = np.linalg.solve(powers, values.T).T  # K = sum_p c_p delta^(2p)
+        coefficients = np.linalg.solve(powers, self.values.T).T  # K = sum_p c_p delta^(2p)
         self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
         #: the same spline as arrays for compiled code (:func:`table_K`): breaks in log sigma, and per interval,
         #: power of delta^2 and cubic coefficient (highest first)
@@ -176,3 +191,39 @@ def table_K(breaks, pieces, sigma_low, sigma_high, delta_max, sigma, delta):
         c = pieces[interval, power]
         value = value * squared + (((c[0] * t + c[1]) * t + c[2]) * t + c[3])
     return value
+
+
+#: Bump when the table's numbers would change for the same settings (the scheme, the δ points, ...).
+CACHE_FORMAT = 1
+
+
+def cache_key(shape: ExcitationShape, **settings) -> str:
+    """A digest of everything a table's values depend on: the shape (sampled finely), the settings, the
+    format. ``rig`` enters through its fields."""
+    digest = hashlib.sha256(f"film-force-table {CACHE_FORMAT}".encode())
+    digest.update(np.ascontiguousarray(shape(np.linspace(0.0, 1.0, 2001)), dtype=float).tobytes())
+    for name, value in sorted(settings.items()):
+        value = dataclasses.astuple(value) if dataclasses.is_dataclass(value) else value
+        digest.update(f"{name}={value!r};".encode())
+    return digest.hexdigest()[:32]
+
+
+def cached_table(shape: ExcitationShape, cache_dir: str | os.PathLike | None = None, **settings) -> FilmForceTable:
+    """:class:`FilmForceTable` (``settings`` its keyword arguments), its values kept in ``cache_dir``
+    (default ``$NFAL_CACHE_DIR`` or ``~/.cache/nfal``, folder ``film_tables``) so that a second build with
+    the same shape and settings skips the solves. A cache that cannot be read or written is bypassed."""
+    folder = Path(cache_dir or os.environ.get("NFAL_CACHE_DIR") or Path.home() / ".cache" / "nfal") / "film_tables"
+    path = folder / f"{cache_key(shape, **settings)}.npy"
+    try:
+        return FilmForceTable(shape, **settings, values=np.load(path))
+    except (OSError, ValueError, InvalidParameterError):
+        pass
+    table = FilmForceTable(shape, **settings)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, suffix=".npy", delete=False) as handle:
+            np.save(handle, table.values)
+        os.replace(handle.name, path)
+    except OSError as exc:
+        logger.debug("film-force table not cached in %s: %s", folder, exc)
+    return table

@@ -10,7 +10,7 @@ from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel
 from nfal.models.errors import InvalidParameterError
 from nfal.models.excitation import parse_shape
-from nfal.models.film_force_table import FilmForceTable
+from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.harmonic_balance import HarmonicBalanceFilm, fourier_differentiation
 from nfal.models.perturbation import first_order_pressure, perturbation_K, radial_grid
 from nfal.models.reynolds import discrete_mean_correction, periodic_film
@@ -112,3 +112,18 @@ def test_averaged_plant_follows_the_coupled_model(tables, name, amplitude, relea
     assert np.max(error[runs[1].time >= transient]) <= 5e-4
     assert np.max(error) <= whole
     assert plant.oscillation(averaged.height[-1], amplitude) == pytest.approx(runs[1].oscillation[-1], rel=0.02)
+
+
+def test_cached_table_is_the_built_one_and_keyed_by_its_settings(tmp_path):
+    settings = dict(nodes=11, harmonics=3, sigmas=6, richardson=False)
+    built = cached_table(SHAPES["piston"], tmp_path, **settings)
+    assert len(list((tmp_path / "film_tables").glob("*.npy"))) == 1
+    loaded = cached_table(SHAPES["piston"], tmp_path, **settings)
+    assert np.array_equal(loaded.values, built.values) and loaded.scalar(50.0, 0.2) == built.scalar(50.0, 0.2)
+    cached_table(SHAPES["paper"], tmp_path, **settings)  # another shape, another entry
+    cached_table(SHAPES["piston"], tmp_path, **{**settings, "harmonics": 4})
+    files = list((tmp_path / "film_tables").glob("*.npy"))
+    assert len(files) == 3
+    for file in files:
+        file.write_bytes(b"not a table")
+    assert np.array_equal(cached_table(SHAPES["piston"], tmp_path, **settings).values, built.values)  # rebuilt
