@@ -5,10 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nfal.fig7 import SIMULATED, loop_metrics, matched_design
+from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
+from nfal.models.errors import InvalidParameterError
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plant import SimplifiedPlant
@@ -95,3 +96,24 @@ def test_reynolds_loop_tracks_like_the_slow_loop(fig7_archives, tmp_path, slow_s
     for step, baseline in zip(metrics["steps"], slow["steps"]):
         assert abs(step["overshoot_percent"] - baseline["overshoot_percent"]) <= 5.0
     assert metrics["saturation"] == []
+
+
+@pytest.mark.parametrize("spec, structure, expected", [
+    ("staircase", "fig7_reynolds", DEFAULT_STAIRCASES["fig7_reynolds"]),
+    ("staircase", "fig7_slow", Staircase()),
+    ("staircase:60e-6,90e-6:0.3:0.2", "fig7_slow", Staircase((60e-6, 90e-6), 0.3, 0.2)),
+    ("reference.csv", "fig7_slow", None)])
+def test_reference_staircase(spec, structure, expected):
+    assert reference_staircase(spec, structure) == expected
+
+
+def test_reference_staircase_rejects_a_bad_spec():
+    with pytest.raises(InvalidParameterError, match="staircase:abc"):
+        reference_staircase("staircase:abc", "fig7_reynolds")
+
+
+@pytest.mark.parametrize("given, added", [({"Plant.shape": "piston"}, "perturbation:piston"),
+                                          ({"Plant.shape": "piston", "Controller.calibration": "paper"}, "paper"),
+                                          ({}, None)])
+def test_matched_design(given, added):
+    assert matched_design(given).get("Controller.calibration") == added
