@@ -80,6 +80,7 @@ from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
+from nfal.models.excitation import parse_shape
 from nfal.models.errors import InvalidParameterError, NfalError, require_positive
 from nfal.models.rig import RigParameters
 
@@ -299,8 +300,9 @@ class NfalSlave(Fmi2Slave):
         for name, start, unit, description in RIG_PARAMETERS:
             self.add_parameter(name, start, unit=unit, description=description)
         self.add_parameter("calibration", "paper", description="K(sigma): 'paper' = eq. (17), 'perturbation' "
-                           "(eqs. 9-11 for the paper's excitation form), or the path of a calibration JSON (with "
-                           "its damping correction of eq. (6), if it has one)")
+                           "(eqs. 9-11 for the paper's excitation form), 'perturbation:SHAPE' (the same for 'piston', "
+                           "'plate:N' or a shape CSV), or the path of a calibration JSON (with its damping correction "
+                           "of eq. (6), if it has one)")
 
     def add_plant_interface(self) -> None:
         """Declare what every plant shares (contract: SlowPlant, ReynoldsPlant, a hardware proxy): inputs
@@ -360,23 +362,24 @@ class NfalSlave(Fmi2Slave):
         return RigParameters(frequency=frequency, **values)
 
     def build_calibration(self) -> CalibrationFunction:
-        """K(sigma) named by ``calibration``: 'paper' (eq. 17), 'perturbation', or a calibration JSON path."""
+        """K(sigma) named by ``calibration``: 'paper' (eq. 17), 'perturbation' (eqs. 9-12 for the Fig. 3 stand-in
+        form), 'perturbation:SHAPE' (the same for an excitation form as ``parse_shape`` reads it: 'piston',
+        'plate:N', a CSV path), or a calibration JSON path."""
         spec = str(self.calibration).strip()
         if spec == "paper":
             return paper_calibration()
-        if spec == "perturbation":
-            from nfal.models.excitation import paper_shape
-
-            return perturbation_calibration(paper_shape())
+        if spec == "perturbation" or spec.startswith("perturbation:"):
+            return perturbation_calibration(parse_shape(spec.partition(":")[2] or "paper"))
         if not spec:
-            raise InvalidParameterError("calibration", spec, f"one of {CALIBRATION_CHOICES} or a calibration JSON path")
+            raise InvalidParameterError("calibration", spec, f"one of {CALIBRATION_CHOICES}, 'perturbation:SHAPE' or a "
+                                        "calibration JSON path")
         return load_calibration(spec)
 
     def build_rig_calibration(self, rig: RigParameters) -> RigCalibration:
         """:meth:`build_calibration` with a calibration file's damping correction (if any); a file
         identified on another rig than ``rig`` is refused."""
         spec = str(self.calibration).strip()
-        if spec in CALIBRATION_CHOICES or not spec:
+        if spec in CALIBRATION_CHOICES or spec.startswith("perturbation:") or not spec:
             return RigCalibration(self.build_calibration())
         return load_rig_calibration(spec, rig)
 

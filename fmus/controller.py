@@ -2,7 +2,8 @@
 
 A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
 
-* gains: ``design = gain-scheduled`` -> :func:`design_schedule` over the work range, cut by
+* gains: ``design = gain-scheduled`` -> :func:`design_schedule` over [reference_min, reference_max]
+  (the work range 50-200 um by default; a film that cannot hold 200 um needs a smaller one), cut by
   :func:`realizable_schedule` when ``realizable_only``; ``design = fixed`` -> :func:`fixed_design`
   at ``design_height``. Both from the rig parameters, the calibration (K and, from an identified
   rig's file, the damping correction of eq. (6)) and Table 2's cut-offs; ``placement`` chooses the
@@ -19,12 +20,19 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
   as :mod:`nfal.models.closed_loop` does.
 * ``drive_voltage`` = ``excitation_command`` / ``metres_per_volt`` (the voltage -> |a| map at
   resonance, an assumption of docs/cosimulation.md).
+* saturation: ``saturated_time`` is how long the held command has been at ``max_excitation`` (through
+  dips shorter than ``SATURATION_GAP_S``); once per such episode longer than ``saturation_warning_time`` a warning goes to the FMU log
+  (the reference is beyond what the film holds with this drive limit). ``nfal run`` lists the episodes in
+  summary.json (``metrics.saturation``).
 """
 
 from __future__ import annotations
 
+import numpy as np
+from pythonfmu.enums import Fmi2Status
+
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import ControllerState, DiscreteControlLaw
+from nfal.models.control_law import SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.errors import InvalidParameterError, require_positive
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
@@ -32,6 +40,10 @@ from nfal.models.stability import realizable_schedule
 
 DESIGNS = ("gain-scheduled", "fixed")
 PLACEMENTS = ("continuous", "sampled")
+#: Design heights of the gain schedule, evenly over [reference_min, reference_max].
+DESIGN_HEIGHTS = 31
+#: A saturation goes on through dips below the limit shorter than this [s] (measurement noise feeds through).
+SATURATION_GAP_S = 0.02
 
 
 
@@ -63,6 +75,10 @@ class Controller(NfalSlave):
         self.add_parameter("metres_per_volt", 0.1e-6, unit="m/V", description="|a| per volt at resonance (assumption)")
         self.add_parameter("reference_min", 50e-6, unit="m", description="smallest accepted reference")
         self.add_parameter("reference_max", 200e-6, unit="m", description="largest accepted reference")
+        self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) when the drive "
+                           "stays saturated at max_excitation this long: the reference is out of the film's reach")
+        self.add_output("saturated_time", unit="s", description="how long the drive has been saturated at "
+                        "max_excitation, through dips under 20 ms (0 when not saturated)", getter=self._saturated_time)
         self.add_rig_parameters()
         self.law: DiscreteControlLaw | None = None
         self._clock: SampleClock | None = None
@@ -70,6 +86,9 @@ class Controller(NfalSlave):
         self._held = 0.0  # the command of the last sample instant
         self._cache: tuple | None = None  # (state, reference, measured, command, next state)
         self._gains: tuple | None = None  # (settings, gains) of the last design
+        self._saturated_since: float | None = None  # start of the current saturation, if any
+        self._last_at_limit = 0.0  # the last sample at the limit
+        self._warned = False  # the current saturation has been reported
 
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -85,13 +104,14 @@ class Controller(NfalSlave):
                           require_positive("filter_cutoff", self.filter_cutoff),
                           sample_rate if self.placement == "sampled" else None)
         design_height = require_positive("design_height", self.design_height) if self.design == "fixed" else None
-        key = (self.design, design_height, bool(self.realizable_only), sample_rate, rig, str(self.calibration), spec)
-        if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
-            self._gains = (key, self._design(design_height, sample_rate, rig, model, spec))
-        gains = self._gains[1]
         low, high = require_positive("reference_min", self.reference_min), require_positive("reference_max", self.reference_max)
-        if low > high:
-            raise InvalidParameterError("reference_max", high, f">= reference_min = {low:g} m")
+        if low >= high:
+            raise InvalidParameterError("reference_max", high, f"> reference_min = {low:g} m")
+        require_positive("saturation_warning_time", self.saturation_warning_time)
+        key = (self.design, design_height, bool(self.realizable_only), sample_rate, rig, str(self.calibration), spec, low, high)
+        if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
+            self._gains = (key, self._design(design_height, sample_rate, rig, model, spec, (low, high)))
+        gains = self._gains[1]
         require_positive("metres_per_volt", self.metres_per_volt)
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
@@ -102,11 +122,13 @@ class Controller(NfalSlave):
         self._held = equilibrium
         self._clock = SampleClock(self.law.period_s, self.start_time)
         self._cache = None
+        self._saturated_since, self._warned = None, False
 
-    def _design(self, design_height, sample_rate, rig, model, spec):
+    def _design(self, design_height, sample_rate, rig, model, spec, reference_range):
         if self.design == "fixed":
             return fixed_design(design_height, rig, model.calibration, spec, damping=model.damping)
-        gains = design_schedule(None, rig, model.calibration, spec, damping=model.damping)
+        gains = design_schedule(np.linspace(*reference_range, DESIGN_HEIGHTS), rig, model.calibration, spec,
+                                damping=model.damping)
         if not self.realizable_only:
             return gains
         # each placement judged by its own map: Fig. 8's forward Euler, or the realised (ZOH) loop
@@ -145,15 +167,39 @@ class Controller(NfalSlave):
         self._checked_reference()
         if self._clock.is_sample(current_time):
             self._held, self._state = self._sample()
+            self._watch_saturation(current_time)
+
+    def _watch_saturation(self, now: float) -> None:
+        """Track how long the drive has been at max_excitation (dips shorter than SATURATION_GAP_S, noise
+        feeding through, do not end it); log a warning once per saturation longer than saturation_warning_time."""
+        if self._held >= self.law.max_excitation_m:
+            if self._saturated_since is None:
+                self._saturated_since = now
+            self._last_at_limit = now
+        elif self._saturated_since is not None and now - self._last_at_limit > SATURATION_GAP_S:
+            self._saturated_since, self._warned = None, False
+        if self._saturated_since is not None and not self._warned \
+                and now - self._saturated_since >= self.saturation_warning_time - 1e-12:
+            self._warned = True
+            self.log(f"drive saturated at |a| = {self.max_excitation * 1e6:.3g} um for {now - self._saturated_since:.3g} s "
+                     f"(since t = {self._saturated_since:.4g} s): the reference {self.reference * 1e6:.4g} um is out of "
+                     f"reach (measured {self.measured_height * 1e6:.4g} um); the film cannot hold it with this drive "
+                     "limit", Fmi2Status.warning)
+
+    def _saturated_time(self) -> float:
+        return 0.0 if self._saturated_since is None else max(0.0, self.time - self._saturated_since)
 
     # --- FMU state ----------------------------------------------------------------------------------
     def get_internal_state(self) -> dict:
         state = self._state
-        return {"held": self._held,
+        return {"held": self._held, "saturated_since": self._saturated_since, "warned": self._warned,
+                "last_at_limit": self._last_at_limit,
                 "law": None if state is None else [state.integrator_m, state.derivative_m_per_s, state.previous_measurement_m]}
 
     def set_internal_state(self, state: dict) -> None:
         self._held = float(state["held"])
+        self._saturated_since, self._warned = state.get("saturated_since"), bool(state.get("warned", False))
+        self._last_at_limit = float(state.get("last_at_limit", 0.0))
         law = state["law"]
         self._state = None if law is None else ControllerState(float(law[0]), float(law[1]), None if law[2] is None else float(law[2]))
         self._cache = None

@@ -21,6 +21,7 @@ within 1e-10 m per 0.5 ms step (|v| <= 5 mm/s, 40-200 um) and over a closed-loop
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -62,11 +63,17 @@ class FixedStepPlant:
         self._gravity = rig.gravity
         self._floor = FALLBACK_FACTOR * plant.rest_gap
         calibration = plant.calibration
-        if isinstance(calibration, PolynomialK):
+        self._free_flight = self._rk4
+        table = getattr(plant, "table", None)  # an AveragedFilmPlant: K(sigma, delta) of the full film
+        if table is not None:
+            self._K = table.scalar
+            if plant.excess_damping is None:  # the same RK4, compiled
+                self._free_flight = functools.partial(plant.free_flight, floor=self._floor)
+        elif isinstance(calibration, PolynomialK):
             coefficients = [float(c) for c in calibration.coefficients[::-1]]
             low, high = calibration.sigma_range
 
-            def K(sigma: float) -> float:
+            def K(sigma: float, delta: float) -> float:
                 sigma = min(max(sigma, low), high)
                 value = 0.0
                 for c in coefficients:  # Horner
@@ -74,7 +81,7 @@ class FixedStepPlant:
                 return value
             self._K = K
         else:
-            self._K = lambda sigma: float(calibration(sigma))
+            self._K = lambda sigma, delta: float(calibration(sigma))
         excess = plant.excess_damping
         if excess is not None:  # chosen here, so that the plain path stays as fast as without the option
             self._factor = excess.factor_scalar
@@ -83,13 +90,13 @@ class FixedStepPlant:
 
     def _acceleration(self, h: float, v: float, a: float) -> float:
         ratio = a / h
-        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h))
+        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio)
                 - self._damping_per_mass / (h * h * h) * v - self._gravity)
 
     def _corrected_acceleration(self, h: float, v: float, a: float) -> float:
         ratio = a / h
         factor = self._factor(h)
-        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h))
+        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio)
                 - self._damping_per_mass / (h * h * h) * factor * v - self._gravity)
 
     def _damping_rate(self, h: float) -> float:
@@ -111,7 +118,7 @@ class FixedStepPlant:
         while elapsed < step:
             rate = self._damping_rate(h)
             ratio = excitation / h
-            drift = self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h)) - self._gravity
+            drift = self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio) - self._gravity
             dt = min(step - elapsed, max(shortest, FAST_HEIGHT_FRACTION * h / max(abs(v), 1e-12)))
             decay = math.exp(-rate * dt)
             terminal = drift / rate  # the velocity at which damping balances the other forces
@@ -148,6 +155,13 @@ class FixedStepPlant:
         substeps = max(MIN_SUBSTEPS, self._substeps(step, lowest, h + max(v, 0.0) * step))
         if substeps > MAX_SUBSTEPS:
             return self._hand_over(state, excitation, step)
+        moved = self._free_flight(h, v, excitation, step, substeps)
+        if moved is None:  # left free flight (near the surface, or not finite)
+            return self._hand_over(state, excitation, step)
+        return PlantState(moved[0], moved[1], False)
+
+    def _rk4(self, h: float, v: float, excitation: float, step: float, substeps: int) -> tuple[float, float] | None:
+        """RK4 over ``step`` in ``substeps``: (h, v), or None when the height falls to the floor."""
         dt = step / substeps
         f = self._acceleration
         for _ in range(substeps):
@@ -158,5 +172,5 @@ class FixedStepPlant:
             h += dt / 6.0 * (k1h + 2.0 * k2h + 2.0 * k3h + k4h)
             v += dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
             if not (h > self._floor and np.isfinite(v)):
-                return self._hand_over(state, excitation, step)
-        return PlantState(h, v, False)
+                return None
+        return h, v

@@ -12,10 +12,46 @@ import dataclasses
 import numpy as np
 
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
+from nfal.models.control_law import SATURATION_WARNING_S
+from nfal.models.errors import InvalidParameterError
 from nfal.models.step_metrics import step_metrics, total_iae
 
 REFERENCE = "Controller.reference"
 PROXY = "proxy"
+#: The staircase of the Reynolds loop: the part of Figs. 9-10's range the film of the Fig. 3 stand-in form
+#: holds with |a| <= 10 um (up to ~107 um; its K is negative above 118 um): the paper's 60 -> 100 and
+#: 100 -> 60 steps (the first and last of Figs. 9-10), three times over the paper's 3.7 s
+#: (docs/cosimulation.md, "A consistent Reynolds loop").
+REYNOLDS_LEVELS_M = (60e-6, 100e-6, 60e-6, 100e-6, 60e-6, 100e-6, 60e-6)
+#: Default staircases by structure name (others: the paper's, Staircase()).
+DEFAULT_STAIRCASES = {"fig7_reynolds": Staircase(REYNOLDS_LEVELS_M)}
+
+
+def reference_staircase(spec: str, structure: str, lead_s: float | None = None) -> Staircase | None:
+    """The staircase ``--reference`` names: 'staircase' (the structure's default, see ``DEFAULT_STAIRCASES``),
+    'staircase:L1,L2,...[:HOLD[:LEAD]]' [m, s], or None for anything else (a CSV). ``lead_s`` replaces
+    the default's first hold (hardware)."""
+    kind, _, rest = spec.partition(":")
+    if kind != "staircase":
+        return None
+    if not rest:
+        default = DEFAULT_STAIRCASES.get(structure, Staircase())
+        return default if lead_s is None else dataclasses.replace(default, lead_s=lead_s)
+    parts = rest.split(":")
+    try:
+        return Staircase(tuple(float(v) for v in parts[0].split(",")), *(float(p) for p in parts[1:3]))
+    except ValueError:
+        raise InvalidParameterError("--reference", spec, "staircase, staircase:L1,L2,...[:HOLD[:LEAD]] (m, s) "
+                                    "or a CSV file") from None
+
+
+def matched_design(parameters: dict) -> dict:
+    """``parameters`` with Controller.calibration = 'perturbation:SHAPE' added when Plant.shape = SHAPE is
+    given and Controller.calibration is not: the Reynolds loop's controller is designed on the film it
+    controls (docs/cosimulation.md)."""
+    if "Plant.shape" in parameters and "Controller.calibration" not in parameters:
+        return {**parameters, "Controller.calibration": f"perturbation:{parameters['Plant.shape']}"}
+    return parameters
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +97,29 @@ def loop_run(table, name: str = "fmu loop", columns: LoopColumns = SIMULATED) ->
 
 
 def loop_metrics(table, reference: Staircase, columns: LoopColumns = SIMULATED) -> dict:
-    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI."""
+    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI, and the
+    drive's long saturations (:func:`saturation_episodes`)."""
     run = loop_run(table, columns=columns)
-    return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)]}
+    return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)],
+            "saturation": saturation_episodes(table)}
+
+
+SATURATED_TIME = "Controller.saturated_time"
+
+
+def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S) -> list[dict]:
+    """Every stretch in which the Controller's drive stayed saturated longer than ``longest_allowed_s``:
+    its start, length and the reference then (what the film could not reach). Empty when the table has
+    no ``Controller.saturated_time`` column (a controller without it)."""
+    if SATURATED_TIME not in table:
+        return []
+    time, saturated = np.asarray(table.time), np.asarray(table[SATURATED_TIME])
+    reference = np.asarray(table[REFERENCE])
+    ends = np.flatnonzero((saturated[:-1] > 0) & (saturated[1:] <= saturated[:-1]))  # the run's last sample
+    if saturated.size and saturated[-1] > 0:
+        ends = np.append(ends, saturated.size - 1)
+    return [{"start_s": float(time[i] - saturated[i]), "duration_s": float(saturated[i]),
+             "reference_m": float(reference[i])} for i in ends if saturated[i] >= longest_allowed_s - 1e-12]
 
 
 #: The proxy's link-health outputs summarised after a hardware-in-the-loop run (their last or worst value).

@@ -1,12 +1,15 @@
 """The Fig. 7 loop as FMUs wired by SSP, checked against the pure-Python loop of the controller issue."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from nfal.fig7 import SIMULATED, loop_metrics
+from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
+from nfal.models.errors import InvalidParameterError
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plant import SimplifiedPlant
@@ -61,3 +64,55 @@ def test_jacobi_adds_delay_but_still_tracks(fig7_archives, tmp_path):
     jacobi = run_fig7(fig7_archives["fig7_slow"], tmp_path / "jacobi", algorithm="jacobi")
     difference = np.max(np.abs(causal[SIMULATED.height] - jacobi[SIMULATED.height]))
     assert 1e-9 < difference < 10e-6
+
+
+SHORT_REYNOLDS = Staircase((60e-6, 100e-6, 60e-6), hold_s=0.4, lead_s=0.1)
+MEASURED_SHAPE = str(Path(__file__).resolve().parents[1] / "examples" / "shapes" / "vibrometer_scan.csv")
+
+
+def hold_ends(table, reference: Staircase, window_s: float = 0.02) -> np.ndarray:
+    """Mean true height over the last ``window_s`` of every hold after the first."""
+    time, height = table.time, table[SIMULATED.height]
+    ends = [*reference.step_times_s[1:], reference.duration_s]
+    return np.array([np.mean(height[(time > end - window_s) & (time <= end)]) for end in ends])
+
+
+@pytest.fixture(scope="module")
+def slow_short(fig7_archives, tmp_path_factory):
+    return run_fig7(fig7_archives["fig7_slow"], tmp_path_factory.mktemp("slow"), SHORT_REYNOLDS)
+
+
+@pytest.mark.parametrize("shape", ["paper", "piston", MEASURED_SHAPE])
+def test_reynolds_loop_tracks_like_the_slow_loop(fig7_archives, tmp_path, slow_short, shape):
+    """fig7_reynolds (harmonic-balance film, controller designed on the numerical K of the same form): every
+    hold ends within 1 % of its reference, each step's overshoot within 5 percentage points of fig7_slow on
+    the same steps, and the drive never saturates long."""
+    parameters = matched_design({"Plant.shape": shape})
+    result = run_fig7(fig7_archives["fig7_reynolds"], tmp_path, SHORT_REYNOLDS, parameters=parameters)
+    table = result.table()
+    assert np.all(np.abs(hold_ends(table, SHORT_REYNOLDS) / SHORT_REYNOLDS.levels_m[1:] - 1) <= 0.01)
+    metrics, slow = loop_metrics(table, SHORT_REYNOLDS), loop_metrics(slow_short.table(), SHORT_REYNOLDS)
+    for step, baseline in zip(metrics["steps"], slow["steps"]):
+        assert abs(step["overshoot_percent"] - baseline["overshoot_percent"]) <= 5.0
+    assert metrics["saturation"] == []
+
+
+@pytest.mark.parametrize("spec, structure, expected", [
+    ("staircase", "fig7_reynolds", DEFAULT_STAIRCASES["fig7_reynolds"]),
+    ("staircase", "fig7_slow", Staircase()),
+    ("staircase:60e-6,90e-6:0.3:0.2", "fig7_slow", Staircase((60e-6, 90e-6), 0.3, 0.2)),
+    ("reference.csv", "fig7_slow", None)])
+def test_reference_staircase(spec, structure, expected):
+    assert reference_staircase(spec, structure) == expected
+
+
+def test_reference_staircase_rejects_a_bad_spec():
+    with pytest.raises(InvalidParameterError, match="staircase:abc"):
+        reference_staircase("staircase:abc", "fig7_reynolds")
+
+
+@pytest.mark.parametrize("given, added", [({"Plant.shape": "piston"}, "perturbation:piston"),
+                                          ({"Plant.shape": "piston", "Controller.calibration": "paper"}, "paper"),
+                                          ({}, None)])
+def test_matched_design(given, added):
+    assert matched_design(given).get("Controller.calibration") == added

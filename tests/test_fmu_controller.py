@@ -13,10 +13,11 @@ from fmpy.validation import validate_fmu
 from test_fmu_base import FMI_FATAL, Instance, build_and_extract
 
 from nfal.fmus.controller import Controller
-from nfal.models.calibration import RigCalibration, paper_calibration
+from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
 from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.models.excitation import parse_shape
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -253,3 +254,30 @@ def test_fmu_state_round_trip(controller):
     controller.fmu.setFMUstate(controller.fmu.deSerializeFMUstate(saved))
     controller.time = time
     assert continuation() == first
+
+
+def test_long_saturation_is_counted_and_warned_once():
+    """Measured far below the reference: the drive sits at max_excitation; saturated_time counts it, one
+    warning goes to the FMU log at saturation_warning_time, and a return below the limit for longer than
+    SATURATION_GAP_S ends the episode."""
+    slave = initialised(reference=100e-6, measured_height=100e-6, saturation_warning_time=0.01, max_excitation=5e-6)
+    logged = []
+    slave.log = lambda message, status=None, *args: logged.append((message, status))
+    slave.measured_height = 20e-6
+    for k in range(40):  # 20 ms at the limit
+        slave.do_step(k * PERIOD, PERIOD)
+    assert slave._saturated_time() == pytest.approx(40 * PERIOD)
+    assert len([m for m, _ in logged if "drive saturated" in m]) == 1
+    assert "reference 100 um is out of reach" in logged[0][0]
+    slave.measured_height = 300e-6  # far above: the command falls to 0
+    for k in range(40, 120):
+        slave.do_step(k * PERIOD, PERIOD)
+    assert slave._saturated_time() == 0.0
+
+
+@pytest.mark.parametrize("calibration, shape", [("perturbation", "paper"), ("perturbation:piston", "piston")])
+def test_perturbation_calibration_names_a_shape(calibration, shape):
+    slave = Controller(instance_name="controller")
+    slave.calibration = calibration
+    expected = perturbation_calibration(parse_shape(shape))
+    assert slave.build_calibration()(96.0) == pytest.approx(float(expected(96.0)), rel=1e-12)

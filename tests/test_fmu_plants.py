@@ -14,6 +14,7 @@ from test_fmu_base import FMI_FATAL, Instance, build_and_extract
 
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.slow_plant import SlowPlant
+from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.calibration import paper_calibration
 from nfal.models.coupled import CoupledModel, GapClosedError
 from nfal.models.errors import InvalidParameterError
@@ -280,7 +281,8 @@ def test_slow_plant_state_round_trip(slow):
 # --- ReynoldsPlant ----------------------------------------------------------------------------------------
 def test_reynolds_plant_steps_like_coupled_model(reynolds, coupled):
     levels = [7e-6, 6.5e-6, 7.5e-6, 7e-6]
-    reynolds.initialize(initial_height=80e-6, excitation_amplitude=levels[0], envelope_following=False)
+    reynolds.initialize(initial_height=80e-6, excitation_amplitude=levels[0], envelope_following=False,
+                        film_solver="time_marching")
     state = coupled.initial_state(80e-6, 0.0, levels[0])
     for level in levels:
         reynolds.set(excitation_amplitude=level)
@@ -290,8 +292,10 @@ def test_reynolds_plant_steps_like_coupled_model(reynolds, coupled):
             (state.height, state.velocity, state.oscillation, False)
 
 
-def test_reynolds_plant_lands_when_the_gap_closes_and_lifts_off_again():
+@pytest.mark.parametrize("solver", ["time_marching", "harmonic_balance"])
+def test_reynolds_plant_lands_when_the_gap_closes_and_lifts_off_again(solver):
     slave = ReynoldsPlant(instance_name="full")
+    slave.film_solver = solver
     slave.initial_height = 12e-6
     slave.setup_experiment(0.0)
     slave.exit_initialization_mode()
@@ -308,6 +312,7 @@ def test_reynolds_plant_lands_when_the_gap_closes_and_lifts_off_again():
 
 def test_reynolds_plant_follows_the_drive_frequency():
     slave = ReynoldsPlant(instance_name="full")
+    slave.film_solver = "time_marching"
     slave.excitation_amplitude = 7e-6
     slave.setup_experiment(0.0)
     slave.exit_initialization_mode()
@@ -333,7 +338,28 @@ def test_reynolds_plant_state_round_trip(reynolds):
     assert reynolds.get("height", "velocity", "oscillation_amplitude") == first
 
 
+def test_reynolds_plant_harmonic_balance_steps_like_the_averaged_plant():
+    """The default film solver: the slow state stepped by FixedStepPlant over AveragedFilmPlant, the
+    drive frequency followed (sigma scales with it, eq. 2)."""
+    slave = ReynoldsPlant(instance_name="averaged")
+    slave.initial_height, slave.excitation_amplitude = 80e-6, 7e-6
+    slave.setup_experiment(0.0)
+    slave.exit_initialization_mode()
+    plant = FixedStepPlant(AveragedFilmPlant(RIG, slave._table))
+    state = PlantState(80e-6)
+    for level, frequency in ((7e-6, RIG.frequency), (6.5e-6, RIG.frequency * 1.01)):
+        slave.excitation_amplitude, slave.drive_frequency = level, frequency
+        slave.do_step(0.0, STEP)
+        if frequency != RIG.frequency:
+            plant = FixedStepPlant(AveragedFilmPlant(RIG.replace(frequency=frequency), slave._table))
+        state = plant.advance(state, level, STEP)
+        assert (slave.height, slave.velocity, slave.resting) == (state.height, state.velocity, False)
+        assert slave.oscillation_amplitude == plant.plant.oscillation(state.height, level) > 0
+
+
 @pytest.mark.parametrize("values, reason", [({"radial_nodes": 3}, "radial_nodes = 3"),
+                                            ({"film_solver": "euler"}, "film_solver = 'euler'"),
+                                            ({"harmonics": 0}, "harmonics = 0"),
                                             ({"shape": "no-such-shape"}, "shape = 'no-such-shape'")])
 def test_reynolds_plant_bad_parameter_is_an_error(reynolds, values, reason):
     with pytest.raises(FMICallException):

@@ -39,10 +39,13 @@ def register(commands) -> None:
     run.add_argument("--step", type=float, default=5e-4, metavar="S", help="communication step [s] (default 5e-4: 2 kHz)")
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                      help="override a parameter or start value (repeatable)")
-    run.add_argument("--reference", default="staircase", metavar="staircase|FILE.csv",
+    run.add_argument("--reference", default="staircase", metavar="staircase[:L1,L2,...[:HOLD[:LEAD]]]|FILE.csv",
                      help="reference on Controller.reference: the built-in staircase of Figs. 9-10 (60-180 um; against "
-                     "hardware its first level is held 1 s, for lift-off from rest) or a CSV of time_s,reference_m (held "
-                     "between rows) (default staircase)")
+                     "hardware its first level is held 1 s, for lift-off from rest; fig7_reynolds: 60-100 um, what the "
+                     "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s; step "
+                     "metrics are reported for it) or a CSV of time_s,reference_m (held between rows) (default staircase). "
+                     "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
+                     "perturbation:SHAPE) unless Controller.calibration is given")
     run.add_argument("--reference-input", default=REFERENCE_INPUT, metavar="ELEMENT.VAR",
                      help=f"the input the reference drives (default {REFERENCE_INPUT}; 'none' for no external input)")
     run.add_argument("--input", action="append", default=[], metavar="ELEMENT.VAR=SIGNAL",
@@ -115,13 +118,12 @@ def _structure_path(args: argparse.Namespace) -> Path:
 HARDWARE_LEAD_S = 1.0
 
 
-def _reference(args: argparse.Namespace, hardware: bool):
-    from nfal.models.closed_loop import Staircase
+def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
+    from nfal.fig7 import reference_staircase
     from nfal.orchestration.signals import csv_signal
 
-    if args.reference == "staircase":
-        return Staircase(lead_s=HARDWARE_LEAD_S) if hardware else Staircase()
-    return csv_signal(args.reference)
+    staircase = reference_staircase(args.reference, structure.stem, HARDWARE_LEAD_S if hardware else None)
+    return csv_signal(args.reference) if staircase is None else staircase
 
 
 def _element_names(structure: Path) -> list[str]:
@@ -134,11 +136,11 @@ def _element_names(structure: Path) -> list[str]:
 def run_run(args: argparse.Namespace) -> int:
     import sys
 
-    from nfal.fig7 import HARDWARE, loop_columns, loop_metrics, response_panels
+    from nfal.fig7 import HARDWARE, loop_columns, loop_metrics, matched_design, response_panels
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration import SimulationError, run_structure
 
-    parameters = dict(parse_parameter(text) for text in args.param)
+    parameters = matched_design(dict(parse_parameter(text) for text in args.param))
     structure = _structure_path(args)
     columns = loop_columns(_element_names(structure))
     if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
@@ -150,7 +152,7 @@ def run_run(args: argparse.Namespace) -> int:
         args.realtime = True
     if args.rt_priority is not None and not args.realtime:
         raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
-    reference = _reference(args, columns is HARDWARE)
+    reference = _reference(args, columns is HARDWARE, structure)
     inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
     stop_time = args.stop_time
@@ -201,6 +203,9 @@ def _print_summary(summary: dict, out: Path) -> None:
     if metrics:
         print(f"IAE {metrics['iae'] * 1e6:.3f} um s")
         print_step_table(metrics["steps"])
+        for episode in metrics.get("saturation", []):
+            print(f"warning: the drive stayed saturated for {episode['duration_s']:.3g} s from t = {episode['start_s']:.4g} s: "
+                  f"the reference {episode['reference_m'] * 1e6:.4g} um is out of the film's reach with this drive limit")
     link = summary.get("link")
     if link:
         print(f"link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} rig "
