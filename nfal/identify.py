@@ -48,6 +48,8 @@ MAX_SILENCE_S = 0.1
 RAMP_DOWN_S = 0.3
 #: A move has arrived when the mean height over this time is within tolerance [s]; its drive is the mean command over it.
 ARRIVAL_S = 0.2
+#: The settling and arrival tests run this often [s] (not at every sample: the host must keep up with the rig).
+CHECK_EVERY_S = 0.01
 #: Samples before a step kept with it (they pin its starting height) [s].
 PRE_STEP_S = 0.05
 #: The CSV's columns.
@@ -107,21 +109,24 @@ class LinkRig:
 
 
 class SampleRecorder:
-    """Every sample in memory (for the fits) and streamed to ``stream`` as CSV (flushed every 0.1 s of rig time)."""
+    """Every sample in memory (for the fits: times and heights in growing arrays, so a view costs nothing) and
+    streamed to ``stream`` as CSV (flushed every 0.1 s of rig time)."""
 
     def __init__(self, stream: TextIO | None = None) -> None:
         self.samples: list[RigSample] = []
-        self.commanded: list[float] = []
-        self.labels: list[str] = []
+        self._times, self._heights = np.empty(1 << 14), np.empty(1 << 14)
         self._writer = None if stream is None else csv.writer(stream)
         self._stream, self._flushed_at = stream, -np.inf
         if self._writer is not None:
             self._writer.writerow(CSV_HEADER)
 
     def add(self, samples: list[RigSample], commanded: float, label: str) -> None:
+        n, count = len(self.samples), len(samples)
+        if n + count > self._times.size:
+            self._times, self._heights = (np.resize(a, 2 * (n + count)) for a in (self._times, self._heights))
+        self._times[n:n + count] = [s.time_s for s in samples]
+        self._heights[n:n + count] = [s.height_m for s in samples]
         self.samples.extend(samples)
-        self.commanded.extend([commanded] * len(samples))
-        self.labels.extend([label] * len(samples))
         if self._writer is None:
             return
         self._writer.writerows((repr(s.time_s), repr(s.height_m), repr(s.drive_frequency_hz), repr(s.applied_voltage_v),
@@ -130,10 +135,10 @@ class SampleRecorder:
             self._stream.flush()
             self._flushed_at = samples[-1].time_s
 
-    def arrays(self, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(times [s], heights [m]) of samples ``start:stop``."""
-        chunk = self.samples[start:stop]
-        return np.array([s.time_s for s in chunk]), np.array([s.height_m for s in chunk])
+    def arrays(self, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(times [s], heights [m]) of the samples from ``start`` on (views: do not keep them across ``add``)."""
+        n = len(self.samples)
+        return self._times[start:n], self._heights[start:n]
 
     @property
     def duration_s(self) -> float:
@@ -196,7 +201,7 @@ class Experiments:
             label = f"equilibrium {i + 1} ({target * 1e6:.0f} um)"
             voltage = self.move_to(target, label)
             times, heights = self.hold(voltage, label)
-            window = heights[times >= times[-1] - self.plan.settle_window_s]
+            window = heights[times >= times[-1] - self.plan.settle_window_s].copy()
             points.append(Equilibrium(voltage, float(window.mean()), float(window.std())))
         return points
 
@@ -212,7 +217,8 @@ class Experiments:
             steps = []
             for k in range(plan.steps):
                 before, after = (low, high) if k % 2 == 0 else (high, low)
-                first = max(0, len(self.recorder.samples) - round(PRE_STEP_S * 2000))
+                times, _ = self.recorder.arrays()
+                first = int(np.searchsorted(times, times[-1] - PRE_STEP_S))
                 self.hold(after, f"{label} step {k + 1}")
                 steps.append(self._step_since(first, before, after))
             result.append(steps)
@@ -223,7 +229,7 @@ class Experiments:
         applied = np.array([s.applied_voltage_v for s in samples])
         at = int(np.argmax(np.abs(applied - after) < 1e-3 * max(after, 1.0)))
         times, heights = self.recorder.arrays(first)
-        return DriveStep(times - times[at], heights, before, after)
+        return DriveStep(times - times[at], heights.copy(), before, after)
 
     # --- moves and holds ---------------------------------------------------------------------------------
     def move_to(self, height: float, label: str) -> float:
@@ -231,7 +237,7 @@ class Experiments:
         law = self.law
         state = law.initial_state(self._last_height(), self.voltage * self.metres_per_volt or self._guess(height))
         first, start = len(self.recorder.samples), self._now()
-        limited_since, commands = None, []
+        limited_since, commands, check_at = None, [], -np.inf
         while True:
             samples = self._exchange(self.voltage, f"{label} move")
             for sample in samples:
@@ -239,8 +245,10 @@ class Experiments:
             self.voltage = min(command / self.metres_per_volt, self.max_voltage)
             now, current = samples[-1].time_s, samples[-1].height_m
             commands.append((now, self.voltage))
-            if now - start >= ARRIVAL_S and self._arrived(first, commands, height):
-                return float(np.mean([v for t, v in commands if t >= now - ARRIVAL_S]))
+            if now >= check_at:
+                check_at = now + CHECK_EVERY_S
+                if now - start >= ARRIVAL_S and self._arrived(first, commands, height):
+                    return float(np.mean([v for t, v in commands if t >= now - ARRIVAL_S]))
             limited_since = (limited_since or now) if self.voltage >= self.max_voltage * 0.999 else None
             if limited_since is not None and now - limited_since > 0.5 and current < height:
                 raise ExperimentError(f"{label}: the drive limit {self.max_voltage:g} V cannot lift the load to "
@@ -265,9 +273,12 @@ class Experiments:
     def hold(self, voltage: float, label: str) -> tuple[np.ndarray, np.ndarray]:
         """Hold ``voltage`` [V] open loop until the height has settled; returns the hold's (times, heights)."""
         self.voltage = min(float(voltage), self.max_voltage)
-        first, start = len(self.recorder.samples), self._now()
+        first, start, check_at = len(self.recorder.samples), self._now(), -np.inf
         while True:
             samples = self._exchange(self.voltage, label)
+            if samples[-1].time_s < check_at:
+                continue
+            check_at = samples[-1].time_s + CHECK_EVERY_S
             times, heights = self.recorder.arrays(first)
             if settled(times, heights, self.plan.settle_window_s, self.plan.settle_drift):
                 self.on_hold()
@@ -300,7 +311,7 @@ class Experiments:
         for sample in samples:
             if sample.watchdog_tripped:
                 raise ExperimentError(f"{label}: the rig's watchdog tripped at rig time {sample.time_s:.3f} s (no DRIVE "
-                                      "reached it in time: the host or the link stalled); the drive is down")
+                                      "reached it in time: the host or the link stalled)")
             low = sample.resting or sample.height_m < TOUCHDOWN_M
             if self.lifted and low:
                 raise ExperimentError(f"{label}: the object touched down (height {sample.height_m * 1e6:.1f} um, "
