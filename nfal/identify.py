@@ -42,8 +42,8 @@ from nfal.models.stability import realizable_schedule
 
 #: Below this clearance after lift-off the object is taken to have touched down [m].
 TOUCHDOWN_M = 15e-6
-#: Longest silence of the rig before the link counts as lost [s].
-MAX_SILENCE_S = 0.1
+#: Longest silence of the rig before the link counts as lost [s] (a loaded host can pause the emulator ~0.1 s).
+MAX_SILENCE_S = 0.5
 #: The drive's ramp to 0 V after the experiments or a fault [s].
 RAMP_DOWN_S = 0.3
 #: A move has arrived when the mean height over this time is within tolerance [s]; its drive is the mean command over it.

@@ -53,6 +53,8 @@ def register(commands) -> None:
                           help="the transducer's amplitude lag 2Q/omega_r in the step fits (default 5.58e-3: Q 500 at 28.5 kHz)")
     identify.add_argument("--connect-timeout", type=float, default=2.0, metavar="SECONDS", help="wait for the rig's "
                           "HELLO_ACK (default 2)")
+    identify.add_argument("--max-silence", type=float, default=0.5, metavar="SECONDS", help="no measurement for this "
+                          "long is a lost link (default 0.5)")
     identify.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_rig_options(identify)
     identify.set_defaults(handler=run_identify)
@@ -89,15 +91,18 @@ def run_identify(args: argparse.Namespace) -> int:
     rig, out = rig_from_args(args), Path(args.out)
     lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
     raw = out.with_name(out.stem + "-raw.csv")
-    with open(raw, "w", encoding="utf-8", newline="") as stream:
+    link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
+    hello = link.hello
+    try:
+        stream = open(raw, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed below, after the experiments
+    except OSError as exc:
+        link.close()
+        raise InvalidParameterError("--out", args.out, f"a writable place for {raw.name}: {exc}") from None
+    with stream, progress_bar(plan.holds(), "identify") as bar:
         recorder = SampleRecorder(stream)
-        link = LinkRig(args.port, connect_timeout_s=args.connect_timeout)
-        hello = link.hello
-        with progress_bar(plan.holds(), "identify") as bar:
-            experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt,
-                                      max_voltage=min(args.max_voltage, hello.max_drive_voltage),
-                                      on_hold=lambda: bar.update(1))
-            equilibria, steps = _run(experiments, link, raw)
+        experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt,
+                                  max_voltage=min(args.max_voltage, hello.max_drive_voltage), on_hold=lambda: bar.update(1))
+        equilibria, steps = _run(experiments, link, raw)
     result = _analyse(equilibria, steps, rig, args, lag, raw)
     provenance = _provenance(args, hello, recorder, raw, lag)
     out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
