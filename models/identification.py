@@ -10,6 +10,7 @@ Pure numerics for ``nfal identify`` (the driving over the link lives in :mod:`nf
   through the transducer's first-order amplitude lag (tau_a = 2 Q / omega_r, models/transducer.py). The
   stiffness comes from the step's own static gain, k = dF / dh_final, so the damping c (the one free
   dynamic parameter) does not lean on the slope of the K fit. The factor over eq. (6) is c / c6(h_mid).
+* :func:`damping_table`: per height, the geometric mean of the steps' factors and its 95 % interval.
 * :class:`DampingTable`: the factors at the identified heights with their 95 % band, interpolated by
   PCHIP on log factor (monotone between points), held constant outside; the calibration file's
   ``damping`` entry.
@@ -157,16 +158,17 @@ class DampingTable:
 
 
 def damping_table(fits_by_height: list[list[StepFit]], confidence: float = 0.95) -> DampingTable:
-    """One row per height from its repeated step fits: mean factor and the ``confidence`` interval of the mean
-    (Student's t over the steps' spread)."""
+    """One row per height from its repeated step fits: the geometric mean factor and the ``confidence`` interval of
+    that mean (Student's t over the steps' spread of log factor). Geometric, since the factor is a multiplier and the
+    up and down steps' linearisation errors are nearly reciprocal (about 0.93 and 1.11 at 50 um for +-3 % steps)."""
     rows = []
     for fits in fits_by_height:
         if len(fits) < 2:
             raise InvalidParameterError("steps per height", len(fits), ">= 2 (the interval needs a spread)")
-        factors = np.array([fit.factor for fit in fits])
-        half = stats.t.ppf(0.5 + confidence / 2, factors.size - 1) * factors.std(ddof=1) / np.sqrt(factors.size)
-        mean = factors.mean()
-        rows.append((np.mean([fit.height for fit in fits]), mean, max(mean - half, 1e-3 * mean), mean + half))
+        logs = np.log([fit.factor for fit in fits])
+        half = stats.t.ppf(0.5 + confidence / 2, logs.size - 1) * logs.std(ddof=1) / np.sqrt(logs.size)
+        mean = logs.mean()
+        rows.append((np.mean([fit.height for fit in fits]), *np.exp([mean, mean - half, mean + half])))
     rows.sort()
     return DampingTable(*(np.array(column) for column in zip(*rows)))
 
