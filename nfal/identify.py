@@ -6,7 +6,8 @@ rig in the tests). :class:`Experiments` sequences an :class:`~nfal.models.identi
 
 * a **move** to a height closes the loop with the controller's own law (eqs. 21-22, the paper's design)
   from wherever the object is (at rest, the first move lifts it off), until the mean height over each half of
-  the last 0.2 s is within the plan's tolerance and the mean drives of the halves agree within 1 %; the drive it needs there is the mean command of that time;
+  the last 0.2 s is within the plan's tolerance and the mean drives of the halves agree within 1 %; the drive
+  it needs there is the mean command of that time;
 * a **hold** keeps a drive constant (open loop) until the height has settled (:func:`settled`, from the
   data) and records it; a move first, then a hold, is how an equilibrium is reached without waiting for
   the slow open-loop rise at large gaps (Sec. 3.3: about 9x slower near 190 um than eq. (6) predicts).
@@ -179,7 +180,8 @@ class Experiments:
     max_voltage : float
         The drive never exceeds this [V].
     law : DiscreteControlLaw, optional
-        The law of the moves (default: the Controller FMU's: the paper's gain schedule realisable at 2 kHz, its limit set by ``max_voltage``).
+        The law of the moves (default: the Controller FMU's, the paper's gain schedule realisable at 2 kHz, with
+        its limit at ``max_voltage``).
     on_hold : callable, optional
         Called after each hold (for a progress bar).
     """

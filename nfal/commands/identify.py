@@ -10,7 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from nfal import __version__
 from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
+from nfal.models.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_finite,
+                                require_positive)
+
+# The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
 
 DESCRIPTION = """Identify a rig over the nfal rig protocol (a rig, or `nfal rig-emulator` on a pty), automatically:
 (1) equilibria: for each height, a closed-loop move with the controller's own law, then the drive it found held
@@ -61,7 +66,7 @@ def register(commands) -> None:
 
 
 def _plan(args: argparse.Namespace):
-    from nfal.models.identification import IdentificationPlan
+    from nfal.models.identification import IdentificationPlan  # scipy: lazy as above
 
     return IdentificationPlan(tuple(np.sort(args.equilibria)), tuple(np.sort(args.damping_heights)[::-1]),
                               step_fraction=args.step_size, steps=args.steps, max_hold_s=args.max_hold)
@@ -79,10 +84,11 @@ def _print_plan(plan) -> None:
 
 def run_identify(args: argparse.Namespace) -> int:
     from nfal.identify import Experiments, LinkRig, SampleRecorder
-    from nfal.models.errors import InvalidParameterError
     from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
 
     plan = _plan(args)
+    for name in ("metres_per_volt", "max_voltage", "max_silence", "connect_timeout"):
+        require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
     if args.dry_run:
         _print_plan(plan)
         return 0
@@ -90,6 +96,8 @@ def run_identify(args: argparse.Namespace) -> int:
         raise InvalidParameterError("--port", args.port, "the rig's port URL (or --dry-run)")
     rig, out = rig_from_args(args), Path(args.out)
     lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
+    if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
+        raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
     raw = out.with_name(out.stem + "-raw.csv")
     link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
     hello = link.hello
@@ -106,7 +114,7 @@ def run_identify(args: argparse.Namespace) -> int:
     result = _analyse(equilibria, steps, rig, args, lag, raw)
     provenance = _provenance(args, hello, recorder, raw, lag)
     out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
-    from nfal.figures.identify import plot_identification  # noqa: PLC0415 - matplotlib is slow to import
+    from nfal.figures.identify import plot_identification
 
     plot_identification(out.with_suffix(".png"), result, rig, lag)
     _report(result, recorder, out, raw, args.json)
@@ -115,8 +123,6 @@ def run_identify(args: argparse.Namespace) -> int:
 
 def _run(experiments, link, raw: Path):
     """The experiments; on any fault or Ctrl-C the drive ramps down and the message says where the data are."""
-    from nfal.models.errors import ExperimentError
-
     try:
         equilibria = experiments.equilibria()
         steps = experiments.damping_steps()
@@ -135,7 +141,6 @@ def _run(experiments, link, raw: Path):
 
 def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
     from nfal.identify import analyse
-    from nfal.models.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
 
     try:
         return analyse(equilibria, steps, rig, metres_per_volt=args.metres_per_volt, lag_s=lag)
@@ -144,8 +149,6 @@ def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
 
 
 def _provenance(args, hello, recorder, raw: Path, lag: float) -> dict:
-    from nfal import __version__
-
     frequencies = [s.drive_frequency_hz for s in recorder.samples]
     return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
             "firmware_version": f"nfal rig protocol {hello.protocol_version} (the protocol reports no firmware version)",
