@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import numpy as np
 
 from nfal.models.calibration import (PAPER_SIGMA_RANGE, TabulatedK, calibration_from_dict, load_calibration,
                                     paper_calibration)
+from nfal.models.errors import NfalError
 from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
 
@@ -86,7 +86,8 @@ def compare(case: dict, document: dict) -> dict:
     truth_factor = ExcessDamping(*case["excess"]).factor(np.array(damping["heights_m"]))
     factor_errors = np.array(damping["factors"]) / truth_factor - 1
     inside = [(lo <= t <= hi) for lo, t, hi in zip(damping["factors_low"], truth_factor, damping["factors_high"])]
-    return {"equilibrium_error_max_percent": 100 * float(np.max(np.abs(errors))),
+    worst = int(np.argmax(np.abs(errors)))
+    return {"equilibrium_error_max_percent": 100 * float(np.max(np.abs(errors))), "worst_at_um": round(heights[worst] * 1e6),
             "damping_error_max_percent": 100 * float(np.max(np.abs(factor_errors))),
             "damping_errors_percent": [round(100 * e, 1) for e in factor_errors],
             "truth_inside_interval": f"{sum(inside)}/{len(inside)}",
@@ -94,15 +95,18 @@ def compare(case: dict, document: dict) -> dict:
 
 
 def main(names: list[str]) -> None:
-    with tempfile.TemporaryDirectory(prefix="nfal-identify-bench-") as tmp:
-        folder = Path(tmp)
-        table = cases(folder)
-        for name in names or list(table):
-            try:
-                result = compare(table[name], identify(table[name], folder, name))
-            except subprocess.CalledProcessError as exc:
-                result = {"failed": f"nfal identify exited {exc.returncode} (its message is above)"}
-            print(name, json.dumps(result), flush=True)
+    folder = Path("runs") / time.strftime("identify-bench-%Y%m%d-%H%M%S")
+    folder.mkdir(parents=True)
+    print(f"calibration files, raw data and figures in {folder}", flush=True)
+    table = cases(folder)
+    for name in names or list(table):
+        try:
+            result = compare(table[name], identify(table[name], folder, name))
+        except subprocess.CalledProcessError as exc:
+            result = {"failed": f"nfal identify exited {exc.returncode} (its message is above)"}
+        except NfalError as exc:
+            result = {"failed": f"the identified model cannot be compared: {exc}"}
+        print(name, json.dumps(result), flush=True)
 
 
 if __name__ == "__main__":

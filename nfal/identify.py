@@ -53,6 +53,8 @@ ARRIVAL_S = 0.2
 CHECK_EVERY_S = 0.01
 #: A move whose mean drive has been near the limit this long, the object still short of its height, cannot lift it [s].
 LIMITED_S = 0.5
+#: An equilibrium settled further than this from its height, relative, is held again at a corrected drive.
+RETARGET = 0.03
 #: Samples before a step kept with it (they pin its starting height) [s].
 PRE_STEP_S = 0.05
 #: The CSV's columns.
@@ -199,14 +201,21 @@ class Experiments:
 
     # --- the experiments ---------------------------------------------------------------------------------
     def equilibria(self) -> list[Equilibrium]:
-        """Each equilibrium height: move there, hold the drive found, record the settled window's statistics."""
+        """Each equilibrium height: move there, hold the drive found, record the settled window's statistics. A hold
+        that settles more than RETARGET off its height (a move that arrived with its drive still on the way) is
+        followed by up to two holds at the drive scaled by target / height (the height goes nearly as the drive):
+        every hold is an equilibrium, and the work range stays covered."""
         points = []
         for i, target in enumerate(self.plan.equilibrium_heights_m):
             label = f"equilibrium {i + 1} ({target * 1e6:.0f} um)"
             voltage = self.move_to(target, label)
-            times, heights = self.hold(voltage, label)
-            window = heights[times >= times[-1] - self.plan.settle_window_s].copy()
-            points.append(Equilibrium(voltage, float(window.mean()), float(window.std())))
+            for attempt in range(3):
+                times, heights = self.hold(voltage, label if attempt == 0 else f"{label} again")
+                window = heights[times >= times[-1] - self.plan.settle_window_s]
+                points.append(Equilibrium(voltage, float(window.mean()), float(window.std())))
+                if abs(points[-1].height / target - 1) <= RETARGET:
+                    break
+                voltage *= target / points[-1].height
         return points
 
     def damping_steps(self) -> list[list[DriveStep]]:
@@ -303,9 +312,10 @@ class Experiments:
                                       f"{self.plan.settle_window_s:g} s (limit: halves' means within "
                                       f"{self.plan.settle_drift * 100:g} % of the height); a drifting or oscillating rig")
 
-    def ramp_down(self) -> None:
-        """Lower the drive to 0 V over RAMP_DOWN_S (the object lands softly); errors of a dead link are ignored."""
-        start = self._now()
+    def ramp_down(self) -> bool:
+        """Lower the drive to 0 V over RAMP_DOWN_S (the object lands softly). False if the link failed meanwhile:
+        then the rig's watchdog ramps the drive down."""
+        start = self.recorder.samples[-1].time_s if self.recorder.samples else 0.0
         level = self.voltage
         try:
             while self.voltage > 0:
@@ -313,7 +323,8 @@ class Experiments:
                 self.voltage = max(0.0, level * (1 - (samples[-1].time_s - start) / RAMP_DOWN_S))
             self._exchange(0.0, "ramp down", guard=False)
         except ExperimentError:
-            pass  # the link is gone: the rig's watchdog ramps the drive down
+            return False
+        return True
 
     # --- the exchange and its guards -----------------------------------------------------------------------
     def _exchange(self, voltage: float, label: str, guard: bool = True) -> list[RigSample]:

@@ -127,13 +127,14 @@ def _run(experiments, link, raw: Path):
         equilibria = experiments.equilibria()
         steps = experiments.damping_steps()
     except (ExperimentError, KeyboardInterrupt) as exc:
-        experiments.ramp_down()
+        ramped = experiments.ramp_down()
         link.close()
+        stopped = "the drive ramped down" if ramped else "no link to ramp the drive down: the rig's watchdog does"
         kept = f"every sample so far is in {raw} ({len(experiments.recorder.samples)} samples)"
         if isinstance(exc, KeyboardInterrupt):
-            print(f"nfal identify: interrupted; the drive ramped down; {kept}", file=sys.stderr)
+            print(f"nfal identify: interrupted; {stopped}; {kept}", file=sys.stderr)
             raise
-        raise ExperimentError(f"{exc}; the drive ramped down; {kept}") from None
+        raise ExperimentError(f"{exc}; {stopped}; {kept}") from None
     experiments.ramp_down()
     link.close()
     return equilibria, steps
