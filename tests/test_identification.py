@@ -159,6 +159,7 @@ def _drifting(t: float) -> float:
     ({"silent_after_s": 1.0}, "link lost"),
     ({"gain": _drifting}, "did not settle"),
     ({"gain": lambda t: 1.0 if t < 1.5 else 0.0}, "touched down"),
+    ({"tripped_after_s": 1.5}, "watchdog tripped"),
 ])
 def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, match):
     plan = IdentificationPlan(SHORT_PLAN.equilibrium_heights_m, SHORT_PLAN.damping_heights_m, steps=2, max_hold_s=1.0)
