@@ -10,6 +10,7 @@ import pytest
 from simulated_rig import SimulatedRig
 
 from nfal.cli import main
+from nfal.commands.identify import _run
 from nfal.identify import Experiments, SampleRecorder, analyse
 from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration
 from nfal.models.errors import DataFormatError, ExperimentError, InvalidParameterError
@@ -174,6 +175,16 @@ def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, ma
     assert experiments.ramp_down() is link_alive
     if link_alive:
         assert recorder.samples[-1].applied_voltage_v == 0.0 and len(recorder.samples) > kept
+
+
+def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path, capsys):
+    rig = SimulatedRig(TRUTH, interrupt_at_s=1.0)
+    recorder = SampleRecorder(io.StringIO())
+    experiments = Experiments(rig, SHORT_PLAN, recorder, metres_per_volt=1e-7, max_voltage=100.0)
+    with pytest.raises(KeyboardInterrupt):
+        _run(experiments, rig, tmp_path / "raw.csv")
+    assert "interrupted; the drive ramped down; every sample so far is in" in capsys.readouterr().err
+    assert recorder.samples[-1].applied_voltage_v == 0.0 and recorder.samples[-1].time_s > 1.0
 
 
 # --- the command line --------------------------------------------------------------------------------------------
