@@ -22,10 +22,10 @@ DESCRIPTION = """Identify a rig over the nfal rig protocol (a rig, or `nfal rig-
 constant until the height has settled (tested on the data); K at each by eq. (16) with |a| = metres_per_volt x V,
 and a quartic fit of the form of eq. (17); (2) damping: at each damping height, drive steps of +-step-size
 (alternately up and down, each held until settled); each step's response fitted by eq. (13) linearised (stiffness
-from the step's own gain, the transducer's amplitude lag included) gives the damping over eq. (6); their mean and
-95 %% interval per height. Writes the calibration file (K as `nfal calibrate` writes it, plus "damping",
+from the step's own gain, the transducer's amplitude lag included) gives the damping over eq. (6); their geometric mean and
+95 % interval per height. Writes the calibration file (K as `nfal calibrate` writes it, plus "damping",
 "equilibria" and "provenance"), the raw samples as CSV next to it (streamed while the experiments run) and a
-figure. Safety: the drive is clamped to --max-voltage; the rig's watchdog stops it if the host stalls; a landing
+figure. Give the load's mass (--mass): K by eq. (16) and the stiffness of each step scale with it. Safety: the drive is clamped to --max-voltage; the rig's watchdog stops it if the host stalls; a landing
 after lift-off, a hold that does not settle, a drive that cannot lift the load, a lost link or Ctrl-C stop the
 experiments, ramp the drive down and keep every sample on disk."""
 
