@@ -126,11 +126,15 @@ class RigLink:
         Poll from a daemon thread (True), or leave :meth:`poll` to the owner (False).
     clock : callable
         The host clock for arrival times (default ``time.perf_counter``).
+    on_sample : callable, optional
+        ``on_sample(sample)`` for every measurement of the session, in order (by the thread that polls): for an
+        owner that records the whole stream, where :meth:`latest` keeps only the newest.
     """
 
     def __init__(self, url: str, *, baudrate: int = 2_000_000, connect_timeout_s: float = 2.0, reconnect: bool = True,
                  reconnect_interval_s: float = 0.05, reader_thread: bool = True,
-                 clock: Callable[[], float] = time.perf_counter) -> None:
+                 clock: Callable[[], float] = time.perf_counter,
+                 on_sample: Callable[[Sample], None] | None = None) -> None:
         if not isinstance(url, str) or not url.strip():
             raise LinkError("no port given: set the URL of the rig's serial port (a device path, a pty, socket://...)")
         self.url = url.strip()
@@ -140,6 +144,7 @@ class RigLink:
         self.reconnect_interval_s = require_positive("reconnect_interval_s", reconnect_interval_s)
         self.reader_thread = bool(reader_thread)
         self.clock = clock
+        self.on_sample = on_sample
         self.decoder = FrameDecoder(RIG_TO_HOST)
         self.counters = LinkCounters()
         self.faults: collections.deque[Fault] = collections.deque(maxlen=FAULT_HISTORY)
@@ -437,6 +442,8 @@ class RigLink:
                 sample = Sample(message, received.seq, now, self.counters.measurements)
                 with self._lock:
                     self._latest = sample
+                if self.on_sample is not None:
+                    self.on_sample(sample)
             elif isinstance(message, RigHeartbeat):
                 self.counters.heartbeats += 1
                 self.rig_status, self.rig_frames_dropped = message.status, message.frames_dropped

@@ -21,6 +21,10 @@ class DataFormatError(NfalError, ValueError):
     """A data file (shape scan, equilibrium measurements, calibration) cannot be read as such."""
 
 
+class ExperimentError(NfalError, RuntimeError):
+    """An experiment on the rig stopped: a fault (link lost, touchdown, no settling, drive limit), named."""
+
+
 class ConvergenceError(NfalError, RuntimeError):
     """An iterative solver did not reach its tolerance."""
 

@@ -7,10 +7,10 @@ import logging
 import sys
 
 from nfal import __version__
-from nfal.commands import control, cosim, hil, physics, sweep
+from nfal.commands import control, cosim, hil, identify, physics, sweep
 from nfal.models.errors import NfalError
 
-COMMAND_GROUPS = (cosim, hil, physics, control, sweep)
+COMMAND_GROUPS = (cosim, hil, identify, physics, control, sweep)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,180 @@
+"""``nfal identify``: identify the rig over its port (K from equilibria, the damping from drive steps)."""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from nfal import __version__
+from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
+from nfal.models.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_finite,
+                                require_positive)
+
+# The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
+
+DESCRIPTION = """Identify a rig over the nfal rig protocol (a rig, or `nfal rig-emulator` on a pty), automatically:
+(1) equilibria: for each height, a closed-loop move with the controller's own law, then the drive it found held
+constant until the height has settled (tested on the data); K at each by eq. (16) with |a| = metres_per_volt x V,
+and a quartic fit of the form of eq. (17); (2) damping: at each damping height, drive steps of +-step-size
+(alternately up and down, each held until settled); each step's response fitted by eq. (13) linearised (stiffness
+from the step's own gain, the transducer's amplitude lag included) gives the damping over eq. (6); their geometric mean and
+95 % interval per height. Writes the calibration file (K as `nfal calibrate` writes it, plus "damping",
+"equilibria" and "provenance"), the raw samples as CSV next to it (streamed while the experiments run) and a
+figure. Give the load's mass (--mass): K by eq. (16) and the stiffness of each step scale with it. Safety: the drive is clamped to --max-voltage; the rig's watchdog stops it if the host stalls; a landing
+after lift-off, a hold that does not settle, a drive that cannot lift the load, a lost link or Ctrl-C stop the
+experiments, ramp the drive down and keep every sample on disk."""
+
+
+def register(commands) -> None:
+    identify = commands.add_parser("identify", help="identify the rig over its port: K(sigma) and the damping (Sec. 3.2.2, 3.3)",
+                                   description=DESCRIPTION,
+                                   epilog="Examples: nfal identify --port /tmp/nfal-rig-k2x9 --dry-run; nfal identify "
+                                   "--port /tmp/nfal-rig-k2x9 --out rig.json (writes rig.json, rig-raw.csv, rig.png).")
+    identify.add_argument("--port", metavar="URL", help="the rig's port: a device, a pty (nfal rig-emulator's first line), "
+                          "socket://host:port")
+    identify.add_argument("--out", default="rig-calibration.json", metavar="FILE.json",
+                          help="the calibration file (default rig-calibration.json); FILE-raw.csv and FILE.png beside it")
+    identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration; open nothing")
+    identify.add_argument("--equilibria", type=number_list, default=np.geomspace(47e-6, 210e-6, 12), metavar="HEIGHTS",
+                          help="equilibrium heights [m], A,B,C or START:STOP:COUNT (default 12 heights spaced "
+                          "geometrically over 47-210 um, a little beyond the 50-200 um work range)")
+    identify.add_argument("--damping-heights", type=number_list, default=number_list("50e-6:200e-6:8"), metavar="HEIGHTS",
+                          help="heights of the drive steps [m] (default 50e-6:200e-6:8)")
+    identify.add_argument("--steps", type=int, default=6, help="fitted steps per damping height, even (default 6)")
+    identify.add_argument("--step-size", type=float, default=0.03, metavar="FRACTION",
+                          help="drive step about the equilibrium drive, relative (default 0.03)")
+    identify.add_argument("--max-hold", type=float, default=5.0, metavar="SECONDS",
+                          help="a hold not settled by then is a fault (default 5)")
+    identify.add_argument("--max-voltage", type=float, default=100.0, metavar="V",
+                          help="the drive never exceeds this (default 100; the rig's own limit applies too)")
+    identify.add_argument("--metres-per-volt", type=float, default=1e-7, metavar="M/V",
+                          help="|a| per volt at resonance, as the Controller's metres_per_volt (default 1e-7)")
+    identify.add_argument("--amplitude-time-constant", type=float, metavar="SECONDS",
+                          help="the transducer's amplitude lag 2Q/omega_r in the step fits (default 5.58e-3: Q 500 at 28.5 kHz)")
+    identify.add_argument("--connect-timeout", type=float, default=2.0, metavar="SECONDS", help="wait for the rig's "
+                          "HELLO_ACK (default 2)")
+    identify.add_argument("--max-silence", type=float, default=0.5, metavar="SECONDS", help="no measurement for this "
+                          "long is a lost link (default 0.5)")
+    identify.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_rig_options(identify)
+    identify.set_defaults(handler=run_identify)
+
+
+def _plan(args: argparse.Namespace):
+    from nfal.models.identification import IdentificationPlan  # scipy: lazy as above
+
+    return IdentificationPlan(tuple(np.sort(args.equilibria)), tuple(np.sort(args.damping_heights)[::-1]),
+                              step_fraction=args.step_size, steps=args.steps, max_hold_s=args.max_hold)
+
+
+def _print_plan(plan) -> None:
+    typical, longest = plan.duration_s()
+    print(f"equilibria: {len(plan.equilibrium_heights_m)} heights "
+          f"{', '.join(f'{h * 1e6:.0f}' for h in plan.equilibrium_heights_m)} um: closed-loop move, then the drive held "
+          f"until settled ({plan.settle_window_s:g} s window, drift < {plan.settle_drift * 100:g} %)")
+    print(f"damping: {len(plan.damping_heights_m)} heights {', '.join(f'{h * 1e6:.0f}' for h in plan.damping_heights_m)} um: "
+          f"move, then {plan.steps} drive steps of +-{plan.step_fraction * 100:g} % each held until settled")
+    print(f"duration: about {typical:.0f} s of rig time (at most {longest:.0f} s if every hold ran to its limit)")
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    from nfal.identify import Experiments, LinkRig, SampleRecorder
+    from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
+
+    plan = _plan(args)
+    for name in ("metres_per_volt", "max_voltage", "max_silence", "connect_timeout"):
+        require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
+    if args.dry_run:
+        _print_plan(plan)
+        return 0
+    if not args.port:
+        raise InvalidParameterError("--port", args.port, "the rig's port URL (or --dry-run)")
+    rig, out = rig_from_args(args), Path(args.out)
+    lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
+    if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
+        raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
+    raw = out.with_name(out.stem + "-raw.csv")
+    link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
+    hello = link.hello
+    try:
+        stream = open(raw, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed below, after the experiments
+    except OSError as exc:
+        link.close()
+        raise InvalidParameterError("--out", args.out, f"a writable place for {raw.name}: {exc}") from None
+    with stream, progress_bar(plan.holds(), "identify") as bar:
+        recorder = SampleRecorder(stream)
+        experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt,
+                                  max_voltage=min(args.max_voltage, hello.max_drive_voltage), on_hold=lambda: bar.update(1))
+        equilibria, steps = _run(experiments, link, raw)
+    result = _analyse(equilibria, steps, rig, args, lag, raw)
+    provenance = _provenance(args, hello, recorder, raw, lag)
+    out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
+    from nfal.figures.identify import plot_identification
+
+    plot_identification(out.with_suffix(".png"), result, rig, lag)
+    _report(result, recorder, out, raw, args.json)
+    return 0
+
+
+def _run(experiments, link, raw: Path):
+    """The experiments; on any fault or Ctrl-C the drive ramps down and the message says where the data are."""
+    try:
+        equilibria = experiments.equilibria()
+        steps = experiments.damping_steps()
+    except (ExperimentError, KeyboardInterrupt) as exc:
+        ramped = experiments.ramp_down()
+        link.close()
+        stopped = "the drive ramped down" if ramped else "no link to ramp the drive down: the rig's watchdog does"
+        kept = f"every sample so far is in {raw} ({len(experiments.recorder.samples)} samples)"
+        if isinstance(exc, KeyboardInterrupt):
+            print(f"nfal identify: interrupted; {stopped}; {kept}", file=sys.stderr)
+            raise
+        raise ExperimentError(f"{exc}; {stopped}; {kept}") from None
+    experiments.ramp_down()
+    link.close()
+    return equilibria, steps
+
+
+def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
+    from nfal.identify import analyse
+
+    try:
+        return analyse(equilibria, steps, rig, metres_per_volt=args.metres_per_volt, lag_s=lag)
+    except (ConvergenceError, DataFormatError, InvalidParameterError) as exc:
+        raise ExperimentError(f"the measurements cannot be fitted: {exc}; the data are in {raw}") from None
+
+
+def _provenance(args, hello, recorder, raw: Path, lag: float) -> dict:
+    frequencies = [s.drive_frequency_hz for s in recorder.samples]
+    return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
+            "firmware_version": f"nfal rig protocol {hello.protocol_version} (the protocol reports no firmware version)",
+            "raw_data": raw.name, "nfal_version": __version__, "rig_time_s": recorder.duration_s,
+            "sample_period_s": hello.sample_period_us * 1e-6, "watchdog_s": hello.watchdog_timeout_us * 1e-6,
+            "rig_max_drive_voltage_v": hello.max_drive_voltage, "max_voltage_v": args.max_voltage,
+            "metres_per_volt": args.metres_per_volt, "amplitude_time_constant_s": lag,
+            "drive_frequency_hz_median": float(np.median(frequencies)),
+            "rig": {"mass_kg": rig_from_args(args).mass, "radius_m": rig_from_args(args).radius},
+            "step_fraction": args.step_size, "steps_per_height": args.steps}
+
+
+def _report(result, recorder, out: Path, raw: Path, as_json: bool) -> None:
+    table = result.damping
+    summary = {"calibration": str(out), "raw_data": str(raw), "figure": str(out.with_suffix(".png")),
+               "rig_time_s": recorder.duration_s, "samples": len(recorder.samples),
+               "K": result.calibration.report(), "damping": table.to_dict()}
+    if as_json:
+        print_json(summary)
+        return
+    report = summary["K"]
+    print(f"identified in {recorder.duration_s:.1f} s of rig time ({len(recorder.samples)} samples): {out}, {raw}, "
+          f"{out.with_suffix('.png')}")
+    print(f"K(sigma) from {len(result.equilibria)} equilibria (eq. 16), quartic as eq. (17): coefficients "
+          f"{', '.join(f'{c:.6g}' for c in report['coefficients'])}; residual rms {report['residual_rms']:.3g}")
+    print("damping over eq. (6), mean and 95 % interval:")
+    for h, f, low, high in zip(table.heights_m, table.factors, table.factors_low, table.factors_high):
+        print(f"  {h * 1e6:6.1f} um: {f:7.3f}  [{low:.3f}, {high:.3f}]")
