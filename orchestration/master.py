@@ -24,7 +24,10 @@ experiment, enter initialisation, set the external inputs at t0 and propagate (p
 initialisation. The master's ``row`` holds every recorded value at the current communication point:
 ``[time, external inputs..., every output of every element...]`` (see ``columns``).
 
-A failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
+Values cross a link as the target's type (Integer -> Real) and through its ``LinearTransformation``,
+if any (:mod:`~nfal.orchestration.resolve`). An FMU that ends its own horizon (fmi2Discard from
+doStep and fmi2Terminated true) sets :attr:`Master.ended` (a :class:`HorizonEnd`), not an error.
+Any other failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
 :class:`~nfal.orchestration.errors.FmuCallError` naming the element, the function, the time and the
 FMU's logged reason. :meth:`Master.close` then frees what can be freed (an instance in error is freed
 without fmi2Terminate; after fmi2Fatal, FMI allows no further call to that FMU, so none is made).
