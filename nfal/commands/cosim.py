@@ -19,7 +19,10 @@ def register(commands) -> None:
         "HardwareProxy) with pythonfmu, self-contained, and pack fig7_slow.ssp, fig7_reynolds.ssp, fig7_hil.ssp and the "
         "rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
     build.add_argument("--out", default="build", metavar="DIR", help="output folder (default build/)")
-    build.add_argument("--json", action="store_true", help="print the built archives as JSON")
+    build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                       help="FMI version: 2 (default; FMUs and SSP archives) or 3 (the same six FMUs as FMI 3.0 "
+                       "co-simulation FMUs, with pythonfmu3, into DIR/fmi3/; no archives: `nfal run` runs FMI 2.0)")
+    build.add_argument("--json", action="store_true", help="print the built archives (FMUs with --fmi 3) as JSON")
     build.set_defaults(handler=run_build)
 
     run = commands.add_parser(
@@ -73,8 +76,9 @@ def register(commands) -> None:
 
 def run_build(args: argparse.Namespace) -> int:
     from nfal.build import build_all
+    from nfal.fmus.build import build_fmus
 
-    archives = build_all(args.out)
+    archives = build_all(args.out) if args.fmi == 2 else build_fmus(Path(args.out) / "fmi3", fmi_version=3)
     if args.json:
         print_json({name: str(path) for name, path in archives.items()})
     else:
