@@ -17,7 +17,9 @@ calls that differ in FMI 3.0 and writes an FMI 3.0 modelDescription.xml:
 pythonfmu3 (0.3.4) calls the same Python entry points (``setup_experiment(start_time)``,
 ``enter/exit_initialization_mode``, ``do_step``, ``_get_fmu_state`` ...) and, like pythonfmu, answers
 a Python exception with a fatal status after dropping its references to the instance: the
-:class:`~nfal.fmus.base.NfalSlave` guard that gives them back serves here unchanged.
+:class:`~nfal.fmus.base.NfalSlave` guard that gives them back serves here too; but the reason cannot
+go through the log queue (:meth:`Fmi3Adapter._fail`), so it reaches the host as the wrapper's fatal
+message, ``Fatal py exception encountered: [<call>] <the exception's repr>``.
 """
 
 from __future__ import annotations
@@ -60,6 +62,14 @@ class Fmi3Adapter:
 
     def set_int32(self, vrs, values) -> None:
         self.set_integer(vrs, values)
+
+    def _fail(self, what: str, exc: BaseException) -> None:
+        """NfalSlave's guard, without leaving the reason in the log queue: pythonfmu3 0.3.4 reads the queue
+        while the exception is still pending (``handle_py_exception`` -> ``cleanPyObject`` ->
+        ``clearLogBuffer``), where every attribute read fails and a queued message crashes the host
+        (SIGSEGV in ``PyObject_IsTrue(NULL)``). Its fatal message carries the exception's repr instead."""
+        super()._fail(what, exc)
+        self.log_queue.clear()  # the list the wrapper holds: only this call's messages are in it
 
     def to_xml(self, model_options: dict | None = None) -> Element:
         """The FMI 3.0 modelDescription of the slave (see the module docstring)."""
