@@ -193,7 +193,7 @@ _FMI2_LAST_SUCCESSFUL_TIME, _FMI2_TERMINATED = 2, 3  # fmi2StatusKind
 
 @dataclasses.dataclass(frozen=True)
 class HorizonEnd:
-    """An FMU ended its own horizon: fmi2Discard from doStep with fmi2Terminated true (FMI 2.0, 4.2.3).
+    """An FMU ended its own horizon: fmi2Discard from doStep, then fmi2Terminated true (FMI 2.0).
 
     ``time_s`` is its last successful time; ``step_completed`` whether that is the end of the step.
     """
