@@ -1,4 +1,4 @@
-"""Build the nfal FMUs with pythonfmu, self-contained: :func:`build_fmus`.
+"""Build the nfal FMUs with pythonfmu (FMI 2.0) or pythonfmu3 (FMI 3.0), self-contained: :func:`build_fmus`.
 
 Each FMU of :data:`FMU_SCRIPTS` is one slave script of ``fmus/``. pythonfmu puts the FMU's
 ``resources/`` folder first on ``sys.path`` and imports the script from there, so the build copies in
@@ -13,6 +13,11 @@ everything the slave imports from nfal, under the same import names as in the in
         nfal/fmus/__init__.py   and nfal/fmus/base.py (the NfalSlave base class)
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
     binaries/linux64/<Model>.so, binaries/win64/<Model>.dll   pythonfmu's FMI wrapper
+
+``fmi_version=3`` builds the same slave as an FMI 3.0 FMU with pythonfmu3: the layout above (the FMI 3.0
+binary under ``binaries/x86_64-linux/``), plus ``pythonfmu/`` (pythonfmu's Python side, which NfalSlave
+builds on), ``pythonfmu3/`` (added by pythonfmu3) and the generated slave module ``nfal3_<script>.py``
+(:func:`nfal.fmus.fmi3.fmi3_script`), named in ``slavemodule.txt``.
 
 Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from the Python environment that
 runs the FMU, as with every pythonfmu FMU. If the host process has already imported ``nfal`` (for
