@@ -1,4 +1,4 @@
-"""Build the nfal FMUs with pythonfmu, self-contained: :func:`build_fmus`.
+"""Build the nfal FMUs with pythonfmu (FMI 2.0) or pythonfmu3 (FMI 3.0), self-contained: :func:`build_fmus`.
 
 Each FMU of :data:`FMU_SCRIPTS` is one slave script of ``fmus/``. pythonfmu puts the FMU's
 ``resources/`` folder first on ``sys.path`` and imports the script from there, so the build copies in
@@ -13,6 +13,11 @@ everything the slave imports from nfal, under the same import names as in the in
         nfal/fmus/__init__.py   and nfal/fmus/base.py (the NfalSlave base class)
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
     binaries/linux64/<Model>.so, binaries/win64/<Model>.dll   pythonfmu's FMI wrapper
+
+``fmi_version=3`` builds the same slave as an FMI 3.0 FMU with pythonfmu3: the layout above (the FMI 3.0
+binary under ``binaries/x86_64-linux/``), plus ``pythonfmu/`` (pythonfmu's Python side, which NfalSlave
+builds on), ``pythonfmu3/`` (added by pythonfmu3) and the generated slave module ``nfal3_<script>.py``
+(:func:`nfal.fmus.fmi3.fmi3_script`), named in ``slavemodule.txt``.
 
 Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from the Python environment that
 runs the FMU, as with every pythonfmu FMU. If the host process has already imported ``nfal`` (for
@@ -48,9 +53,11 @@ FMU_SCRIPTS: dict[str, str] = {
     "HardwareProxy": "hardware_proxy.py",
 }
 #: What every FMU copies from fmus/ beside its script.
-FMUS_SUPPORT = ("__init__.py", "base.py")
-#: Prefix of the slave module inside the FMU.
-MODULE_PREFIX = "nfal_"
+FMUS_SUPPORT = ("__init__.py", "base.py", "fmi3.py")
+#: Prefix of the slave module inside the FMU (of the generated FMI 3.0 script: FMI3_PREFIX).
+MODULE_PREFIX, FMI3_PREFIX = "nfal_", "nfal3_"
+#: The FMI versions ``build_fmu`` makes: 2 with pythonfmu, 3 with pythonfmu3 (fmus/fmi3.py).
+FMI_VERSIONS = (2, 3)
 #: Capabilities written into modelDescription.xml (NfalSlave saves its whole state as JSON) ...
 BUILD_OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
 #: ... except where an FMU says otherwise (hardware cannot be rewound).
@@ -138,9 +145,37 @@ def _stage(name: str, stage: Path) -> Path:
     return staged
 
 
-def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False) -> Path:
-    """Build the FMU ``name`` into ``out_dir``/``name``.fmu (kept if up to date unless ``force``)."""
-    from pythonfmu import FmuBuilder
+def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]:
+    """Add the FMI 3.0 script around the staged FMI 2.0 one, and pythonfmu's Python side (which the
+    slave's base class needs; pythonfmu3 adds its own); return the script and the project files."""
+    import pythonfmu
+
+    from nfal.fmus.fmi3 import fmi3_script
+
+    runtime = stage / "pythonfmu"
+    runtime.mkdir()
+    for module in Path(pythonfmu.__file__).parent.glob("*.py"):
+        shutil.copy2(module, runtime / module.name)
+    script = stage / f"{FMI3_PREFIX}{script_path(name).stem}.py"
+    script.write_text(fmi3_script(name, staged.stem, f"see {staged.name}"), encoding="utf-8")
+    return script, [stage / "nfal", runtime, staged]
+
+
+def _fmi3_options(options: dict[str, bool]) -> dict[str, bool]:
+    from nfal.fmus.fmi3 import COSIMULATION_ATTRIBUTES
+
+    return {COSIMULATION_ATTRIBUTES.get(key, key): value for key, value in options.items()}
+
+
+def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi_version: int = 2) -> Path:
+    """Build the FMU ``name`` into ``out_dir``/``name``.fmu (kept if up to date unless ``force``),
+    FMI 2.0 (pythonfmu) or, with ``fmi_version=3``, FMI 3.0 (pythonfmu3, fmus/fmi3.py)."""
+    if fmi_version not in FMI_VERSIONS:
+        raise InvalidParameterError("fmi_version", fmi_version, f"one of {FMI_VERSIONS}")
+    if fmi_version == 3:
+        from pythonfmu3 import FmuBuilder
+    else:
+        from pythonfmu import FmuBuilder
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -152,11 +187,15 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False) -> 
         stage = Path(temp) / "stage"
         stage.mkdir()
         staged = _stage(name, stage)
+        script, project_files = staged, [stage / "nfal"]
+        options = {**BUILD_OPTIONS, **FMU_BUILD_OPTIONS.get(name, {})}
+        if fmi_version == 3:
+            script, project_files = _fmi3_stage(name, stage, staged)
+            options = _fmi3_options(options)
         path_before = list(sys.path)
         sys.modules.pop(staged.stem, None)  # a slave module of a loaded FMU must not stand in for the new script
         try:
-            built = FmuBuilder.build_FMU(staged, dest=Path(temp) / f"{name}.fmu", project_files=[stage / "nfal"],
-                                         **{**BUILD_OPTIONS, **FMU_BUILD_OPTIONS.get(name, {})})
+            built = FmuBuilder.build_FMU(script, dest=Path(temp) / f"{name}.fmu", project_files=project_files, **options)
         finally:
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)
@@ -167,7 +206,8 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False) -> 
     return target
 
 
-def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *, force: bool = False) -> dict[str, Path]:
+def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *, force: bool = False,
+               fmi_version: int = 2) -> dict[str, Path]:
     """Build the FMUs ``names`` (default: all of :data:`FMU_SCRIPTS`) into ``out_dir``.
 
     Parameters
@@ -178,6 +218,8 @@ def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *
         Model identifiers, e.g. ``["SlowPlant", "Controller"]``.
     force : bool
         Rebuild even the FMUs newer than their sources.
+    fmi_version : {2, 3}
+        FMI 2.0 (pythonfmu) or FMI 3.0 co-simulation (pythonfmu3; the same slaves, :mod:`nfal.fmus.fmi3`).
 
     Returns
     -------
@@ -187,4 +229,4 @@ def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *
     names = list(FMU_SCRIPTS) if names is None else list(names)
     for name in names:
         script_path(name)  # unknown names fail before anything is built
-    return {name: build_fmu(name, out_dir, force=force) for name in names}
+    return {name: build_fmu(name, out_dir, force=force, fmi_version=fmi_version) for name in names}

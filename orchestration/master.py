@@ -24,7 +24,10 @@ experiment, enter initialisation, set the external inputs at t0 and propagate (p
 initialisation. The master's ``row`` holds every recorded value at the current communication point:
 ``[time, external inputs..., every output of every element...]`` (see ``columns``).
 
-A failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
+Values cross a link as the target's type (Integer -> Real) and through its ``LinearTransformation``,
+if any (:mod:`~nfal.orchestration.resolve`). An FMU that ends its own horizon (fmi2Discard from
+doStep and fmi2Terminated true) sets :attr:`Master.ended` (a :class:`HorizonEnd`), not an error.
+Any other failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
 :class:`~nfal.orchestration.errors.FmuCallError` naming the element, the function, the time and the
 FMU's logged reason. :meth:`Master.close` then frees what can be freed (an instance in error is freed
 without fmi2Terminate; after fmi2Fatal, FMI allows no further call to that FMU, so none is made).
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 import collections
 import ctypes
+import dataclasses
 import itertools
 import logging
 import shutil
@@ -54,6 +58,7 @@ from nfal.models.errors import InvalidParameterError, require_positive
 from .errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, TypeMismatchError,
                      UnknownConnectorError, UnsupportedFeatureError)
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
+from .ssp import LinearTransformation
 from .results import Column
 from .schedule import Action, causal_sweep
 from .signals import as_signal
@@ -139,17 +144,22 @@ class _Slave:
 class _Transfer:
     """One fmi2Set<Type> or fmi2Get<Type> call: value references, a value buffer and row columns."""
 
-    __slots__ = ("slave", "kind", "type", "names", "vr", "n", "buffer", "function", "component", "pairs", "run")
+    __slots__ = ("slave", "kind", "type", "names", "vr", "n", "buffer", "function", "component", "pairs", "scaled",
+                 "run")
 
     def __init__(self, slave: _Slave, kind: str, type_: str, names: tuple[str, ...], columns: tuple[int, ...],
-                 immediate: bool) -> None:
+                 immediate: bool, transformations: tuple[LinearTransformation | None, ...] = ()) -> None:
         variables = slave.element.variables
         self.slave, self.kind, self.type, self.names = slave, kind, type_, names
         self.n = len(names)
         self.vr = (fmi2ValueReference * self.n)(*(variables[n].valueReference for n in names))
         self.buffer = (_CTYPES[type_] * self.n)()
         self.function = getattr(slave.fmu, f"fmi2{kind.capitalize()}{type_}")
-        self.pairs = tuple(enumerate(columns))
+        transformations = transformations or (None,) * self.n
+        # set: most values are copied; a connection's LinearTransformation is applied on the way
+        self.pairs = tuple((j, c) for j, (c, f) in enumerate(zip(columns, transformations)) if f is None)
+        self.scaled = tuple((j, c, f.factor, f.offset) for j, (c, f) in enumerate(zip(columns, transformations))
+                            if f is not None)
         self.component = None
         # get: read into the row; set: (causal) copy from the row and set now, (jacobi) set what was loaded
         self.run = self.get if kind == "get" else (self.load_and_push if immediate else self.push)
@@ -167,6 +177,8 @@ class _Transfer:
         buffer = self.buffer
         for j, column in self.pairs:
             buffer[j] = row[column]
+        for j, column, factor, offset in self.scaled:
+            buffer[j] = factor * row[column] + offset
 
     def push(self, row: list | None = None) -> None:
         self.function(self.component, self.vr, self.n, self.buffer)
@@ -174,6 +186,27 @@ class _Transfer:
     def load_and_push(self, row: list) -> None:
         self.load(row)
         self.function(self.component, self.vr, self.n, self.buffer)
+
+
+_FMI2_LAST_SUCCESSFUL_TIME, _FMI2_TERMINATED = 2, 3  # fmi2StatusKind
+
+
+@dataclasses.dataclass(frozen=True)
+class HorizonEnd:
+    """An FMU ended its own horizon: fmi2Discard from doStep, then fmi2Terminated true (FMI 2.0).
+
+    ``time_s`` is its last successful time; ``step_completed`` whether that is the end of the step.
+    """
+
+    element: str
+    time_s: float
+    step_completed: bool
+    messages: list[str] = dataclasses.field(default_factory=list)
+
+    @property
+    def note(self) -> str:
+        return (f"{self.element} ended its own horizon at t = {self.time_s:g} s (fmi2Discard from fmi2DoStep, "
+                f"fmi2Terminated); the run stops there" + (f": {self.messages[-1]}" if self.messages else ""))
 
 
 class Master:
@@ -211,6 +244,7 @@ class Master:
         self.elements = {e.name: e for e in system.elements}
         self._slaves: dict[str, _Slave] = {}
         self._folders: list[str] = []
+        self.ended: HorizonEnd | None = None
         self._plan_columns(dict(inputs or {}))
         self._plan_exchange()
         self.row: list = [0.0] * len(self.columns)
@@ -253,12 +287,15 @@ class Master:
                     continue
                 self.output_columns[(element.name, output)] = len(self.columns)
                 self.columns.append(Column(f"{element.name}.{output}", variable_unit(variable), kind))
+        self.transformations: dict[tuple[str, str], LinearTransformation] = {}
         for link in self.system.links:
             key = (link.source.element, link.source.name)
             if key not in self.output_columns:
                 raise UnsupportedFeatureError(f"connection {link.source.path} -> {link.target.path}: "
                                               f"{link.source.type} connections are not supported")
             self.sources[(link.target.element, link.target.name)] = self.output_columns[key]
+            if link.transformation is not None:
+                self.transformations[(link.target.element, link.target.name)] = link.transformation
         self.columns = tuple(self.columns)
 
     def _input_targets(self, name: str, linked: Mapping) -> list:
@@ -375,7 +412,9 @@ class Master:
                     continue
                 table = self.output_columns if action.kind == "get" else self.sources
                 columns = tuple(table[(action.element, n)] for n in names)
-                transfer = _Transfer(slave, action.kind, kind, names, columns, immediate)
+                transformations = tuple(self.transformations.get((action.element, n)) for n in names) \
+                    if action.kind == "set" else ()
+                transfer = _Transfer(slave, action.kind, kind, names, columns, immediate, transformations)
                 transfer.bind()
                 self.sweep.append(transfer)
         self.sets = [t for t in self.sweep if t.kind == "set"]
@@ -441,20 +480,28 @@ class Master:
             slave.state = "running"
 
     def step(self) -> None:
-        """Advance every FMU by one communication step: ``row`` then holds the values at the new ``time``."""
+        """Advance every FMU by one communication step: ``row`` then holds the values at the new ``time``.
+
+        An FMU that ends its own horizon (fmi2Discard from doStep, then fmi2Terminated true) sets
+        :attr:`ended`; if its last successful time is short of the step's end, the step is not taken
+        and ``row`` keeps the values at the current ``time``.
+        """
         t, dt = self.time, self.step_size
         row = self.row
         if self.algorithm == "jacobi":
             self._run(self.sets)
         slave = None
         clock = time.perf_counter
-        try:
-            for slave in self.slaves:
-                started = clock()
+        for slave in self.slaves:
+            started = clock()
+            try:
                 slave.fmu.fmi2DoStep(slave.component, t, dt, fmi2True)
+            except FMICallException as exc:
+                self.ended = self._horizon_end(slave, exc, t + dt)
+                if not self.ended.step_completed:
+                    return
+            finally:
                 slave.step_time += clock() - started
-        except FMICallException as exc:
-            raise self._failure(slave, exc) from None
         self.step_index += 1
         self._update_signals()
         if self.algorithm == "causal":
@@ -463,6 +510,28 @@ class Master:
             self._run(self.gets)
             for transfer in self.sets:
                 transfer.load(row)
+
+    def _horizon_end(self, slave: _Slave, exc: FMICallException, step_end: float) -> "HorizonEnd":
+        """A discarded doStep is the end of the FMU's horizon if it says it has terminated (FMI 2.0,
+        fmi2GetBooleanStatus(fmi2Terminated)); anything else is a failure."""
+        if exc.status != 2:
+            raise self._failure(slave, exc) from None
+        terminated, reached = fmi2Boolean(0), fmi2Real(0.0)
+        try:
+            slave.fmu.fmi2GetBooleanStatus(slave.component, _FMI2_TERMINATED, ctypes.byref(terminated))
+        except FMICallException:
+            terminated.value = 0
+        if not terminated.value:
+            raise self._failure(slave, exc) from None
+        try:
+            slave.fmu.fmi2GetRealStatus(slave.component, _FMI2_LAST_SUCCESSFUL_TIME, ctypes.byref(reached))
+            last = reached.value
+        except FMICallException:  # unknown: the step is not taken
+            last = self.time
+        ended = HorizonEnd(slave.name, last, abs(last - step_end) <= 1e-9 * max(1.0, abs(step_end)),
+                           list(slave.messages))
+        logger.warning("%s", ended.note)
+        return ended
 
     def refresh(self) -> None:
         """Read the external inputs again at the current time and redo the exchange there (an input that

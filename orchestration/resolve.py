@@ -14,10 +14,16 @@ the element and connector: a connector the FMU does not declare, a kind that con
 variable's causality, two ends of a link with different types or units, a connector whose unit is
 not the FMU's, a parameter value of the wrong type or unit.
 
+Types: both ends of a link have the same transport type, except that an Integer output may feed a
+Real input (converted at the connection, exactly). Nothing else is converted: Real -> Integer would
+round, and a Boolean has no agreed number.
+
 Units compare by name first; different names are compatible when both have definitions (SSD
 ``ssd:Units``, ``ssv:Units`` or the FMU's ``UnitDefinitions``) with the same base-unit exponents,
 factor and offset. A side that declares no unit is compatible with any unit. No unit conversion is
-ever made.
+ever made; a link with an ``ssc:LinearTransformation`` is the user's own conversion, so its units are
+not compared (its ends must be Real, or Integer -> Real). Transformations along a chain of system
+connectors compose.
 
 Outputs without a ``dependencies`` attribute: FMI 2.0 reads that as "depends on every input";
 docs/cosimulation.md (and pythonfmu, which writes none) as "depends on no input". The default,
@@ -39,7 +45,8 @@ from nfal.models.errors import InvalidParameterError
 
 from .errors import (CausalityError, StructureError, TypeMismatchError, UnitMismatchError, UnknownConnectorError,
                      UnknownElementError, UnsupportedFeatureError)
-from .ssp import BASE_UNITS, Component, Connector, ParameterBinding, ParameterValue, System, SystemStructure, Unit
+from .ssp import (BASE_UNITS, Component, Connector, LinearTransformation, ParameterBinding, ParameterValue, System,
+                  SystemStructure, Unit)
 
 logger = logging.getLogger(__name__)
 
@@ -105,11 +112,15 @@ class Element:
 
 @dataclasses.dataclass(frozen=True)
 class Link:
-    """Data flow from an element output to an element input; ``via`` lists the system connectors passed."""
+    """Data flow from an element output to an element input; ``via`` lists the system connectors passed.
+
+    ``transformation``: the target receives ``factor * source + offset`` (None: the source's value).
+    """
 
     source: Port
     target: Port
     via: tuple[str, ...] = ()
+    transformation: LinearTransformation | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -282,6 +293,7 @@ class _Node:
     component: str | None = None  # the element name when this is an FMU variable
     source: "_Node | None" = None
     source_text: str = ""
+    transformation: LinearTransformation | None = None  # of the connection from ``source``
 
     @property
     def path(self) -> str:
@@ -385,8 +397,9 @@ class _Resolver:
             if target.source is not None:
                 raise CausalityError(f"{here}: {target.path} already has a source, {target.source.path} "
                                      f"({target.source_text}); an input takes one connection")
-            self._check_pair(source, target, here)
+            self._check_pair(source, target, here, connection.transformation)
             target.source, target.source_text = source, here
+            target.transformation = connection.transformation
 
     @staticmethod
     def _direction(a: _Node, a_own: bool, b: _Node, b_own: bool, where: str) -> tuple[_Node, _Node]:
@@ -415,9 +428,12 @@ class _Resolver:
     def _unit_table(self, node: _Node) -> Mapping[str, Unit]:
         return self.units[node.component] if node.component else self.structure.units
 
-    def _check_pair(self, source: _Node, target: _Node, where: str) -> None:
-        if source.type and target.type and TRANSPORT.get(source.type) != TRANSPORT.get(target.type):
-            raise TypeMismatchError(f"{where}: {source.path} is {source.type}, {target.path} is {target.type}")
+    def _check_pair(self, source: _Node, target: _Node, where: str,
+                    transformation: LinearTransformation | None = None) -> None:
+        check_link_types(source.type, target.type, transformation is not None,
+                         f"{where}: {source.path} is {source.type}, {target.path} is {target.type}")
+        if transformation is not None:
+            return
         if not units_compatible(source.unit, self._unit_table(source), target.unit, self._unit_table(target)):
             raise UnitMismatchError(f"{where}: unit mismatch: {source.path} is in {source.unit!r}, "
                                     f"{target.path} in {target.unit!r} (no conversion is made)")
@@ -533,17 +549,19 @@ class _Resolver:
         for node in self.nodes.values():
             if node.component is None or node.source is None:
                 continue
-            via, source = [], node.source
+            via, source, transformation = [], node.source, node.transformation
             while source.component is None and source.source is not None:
                 via.append(source.path)
+                transformation = _compose(source.transformation, transformation)
                 source = source.source
             where = f"{source.path} -> {' -> '.join(via) + ' -> ' if via else ''}{node.path}"
-            self._check_pair(source, node, where)
+            self._check_pair(source, node, where, transformation)
             target = Port(node.component, node.name, node.type, node.unit)
             if node.kind != "input":  # a parameter fed by a system connector: its value was set before
                 logger.debug("%s: a %s, set from %s before initialisation only", node.path, node.kind, source.path)
             elif source.component is not None:
-                links.append(Link(Port(source.component, source.name, source.type, source.unit), target, tuple(via)))
+                links.append(Link(Port(source.component, source.name, source.type, source.unit), target, tuple(via),
+                                  transformation))
             elif source.owner == "" and source.kind == "input":
                 targets.setdefault(source.name, []).append(target)
             else:
@@ -586,6 +604,22 @@ class _Resolver:
                         ", ".join(undeclared), "all" if self.undeclared == "all" else "no")
         return Element(name, self.components[name].source, md, variables, dict(self.starts[name]),
                        dict(self.origins[name]), feedthrough, tuple(undeclared))
+
+
+def check_link_types(source: str | None, target: str | None, transformed: bool, where: str) -> None:
+    """Refuse a link between these FMU/connector types (see the module docstring); None: not declared."""
+    source_kind, target_kind = TRANSPORT.get(source, source), TRANSPORT.get(target, target)
+    widening = source == "Integer" and target == "Real"
+    if source and target and source_kind != target_kind and not widening:
+        raise TypeMismatchError(f"{where}: only Integer -> Real is converted at a connection")
+    if transformed and not ({source, target} <= {"Real", None} or widening):
+        raise TypeMismatchError(f"{where}: a LinearTransformation needs Real ends (or Integer -> Real)")
+
+
+def _compose(earlier: LinearTransformation | None, later: LinearTransformation | None) -> LinearTransformation | None:
+    if earlier is None or later is None:
+        return earlier or later
+    return earlier.then(later)
 
 
 def _join(path: str, name: str) -> str:

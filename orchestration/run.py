@@ -21,7 +21,7 @@ from pathlib import Path
 from nfal.models.errors import InvalidParameterError, require_positive
 
 from .errors import SimulationError
-from .master import ALGORITHMS, Master
+from .master import ALGORITHMS, HorizonEnd, Master
 from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority, require_realtime_priority
 from .resolve import resolve
 from .results import CsvWriter, PlotPanel, ResultTable, plot_response, read_results, write_summary
@@ -72,6 +72,13 @@ def _step_count(start: float, stop: float, step: float) -> int:
     if count < 1:
         raise InvalidParameterError("stop_time", stop, f"at least one step ({step:g} s) after the start time {start:g} s")
     return count
+
+
+def _horizon_note(ended: HorizonEnd, end_time: float) -> dict:
+    """Summary entries for a run that an FMU ended at its own horizon (not a failure)."""
+    return {"ended_early": {"element": ended.element, "fmu_last_successful_time_s": ended.time_s,
+                            "run_end_time_s": end_time, "messages": list(ended.messages)},
+            "note": ended.note}
 
 
 def _panels(plot) -> list[PlotPanel] | None:
@@ -144,6 +151,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     Returns
     -------
     RunResult
+        An FMU that ends its own horizon (fmi2Discard from doStep, then fmi2Terminated) ends the run
+        at its last complete communication point: status "ok", ``note`` and ``ended_early`` in the summary.
 
     Raises
     ------
@@ -223,11 +232,15 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                         master.step()
                         if pacer is not None:
                             pacer.done(k)
+                        if master.ended is not None and not master.ended.step_completed:
+                            break
                         writer.write(row)
                         completed = k + 1
                         if completed % chunk == 0:
                             bar.update(chunk)
-                    if pacer is not None:
+                        if master.ended is not None:
+                            break
+                    if pacer is not None and master.ended is None:
                         pacer.sleep_until(steps)
                 loop_time = time.perf_counter() - loop_start
                 timing = master.timing()
@@ -243,7 +256,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         summary.update({
             "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
             "error": None if error is None else str(error) or type(error).__name__,
-            "steps_completed": completed, "rows_written": writer.rows, "wall_time_s": wall,
+            "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows,
+            "wall_time_s": wall,
             "initialization_wall_time_s": init_time, "loop_wall_time_s": loop_time,
             "real_time_factor": (completed * step) / loop_time if loop_time > 0 else None,
             "do_step_wall_time_s": do_step_total,
@@ -251,6 +265,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
             "timing": timing,
             "realtime": pacer.report() if pacer is not None else None,
         })
+        if master.ended is not None:
+            summary.update(_horizon_note(master.ended, summary["end_time_s"]))
         if error is not None and hasattr(error, "element"):
             summary["error_detail"] = {"element": error.element, "function": error.function, "status": error.status,
                                        "time_s": error.time, "messages": list(error.messages)}

@@ -11,8 +11,9 @@ is checked later, by :func:`nfal.orchestration.resolve.resolve`.
 Namespaces (SSP 1.0): ``ssd`` http://ssp-standard.org/SSP1/SystemStructureDescription, ``ssc``
 .../SystemStructureCommon, ``ssv`` .../SystemStructureParameterValues. Geometry, graphics and
 annotations are ignored, except the OSP annotation ``FixedStepAlgorithm baseStepSize``, read as
-the default step size. Valid SSP 1.0 features that are not implemented (signal dictionaries,
-parameter mappings, connection transformations, parameter connections between elements) raise
+the default step size. A connection may carry an ``ssc:LinearTransformation`` (factor, offset).
+Valid SSP 1.0 features that are not implemented (signal dictionaries, parameter mappings, the other
+connection transformations, parameter connections between elements) raise
 :class:`~nfal.orchestration.errors.UnsupportedFeatureError` rather than being silently dropped.
 """
 
@@ -119,16 +120,33 @@ class ParameterBinding:
 
 
 @dataclasses.dataclass(frozen=True)
+class LinearTransformation:
+    """``ssc:LinearTransformation`` of a connection: the target receives ``factor * source + offset``.
+
+    Applied in the direction of the data flow, as OSP libcosim does.
+    """
+
+    factor: float = 1.0
+    offset: float = 0.0
+
+    def then(self, later: "LinearTransformation") -> "LinearTransformation":
+        """This transformation followed by ``later`` (a chain of connections through system connectors)."""
+        return LinearTransformation(later.factor * self.factor, later.factor * self.offset + later.offset)
+
+
+@dataclasses.dataclass(frozen=True)
 class Connection:
     """An ``ssd:Connection``. An element of None means a connector of the enclosing system.
 
     Start and end do not give the direction of the data flow (SSP 1.0): the connectors' kinds do.
+    ``transformation`` is the connection's ``ssc:LinearTransformation``, if any.
     """
 
     start_element: str | None
     start_connector: str
     end_element: str | None
     end_connector: str
+    transformation: LinearTransformation | None = None
 
     @property
     def start(self) -> str:
@@ -546,9 +564,9 @@ class _SsdReader:
         here = f"{where}: connection {connection.start} -> {connection.end}"
         if not connection.start_connector or not connection.end_connector:
             raise StructureError(f"{here}, line {element.sourceline}: startConnector and endConnector are required")
-        for child in element:
-            if isinstance(child.tag, str) and etree.QName(child).localname.endswith("Transformation"):
-                raise UnsupportedFeatureError(f"{here}: {etree.QName(child).localname} is not supported")
+        transformation = _transformation(element, here)
+        if transformation is not None:
+            connection = dataclasses.replace(connection, transformation=transformation)
         for owner, connector in ((connection.start_element, connection.start_connector),
                                  (connection.end_element, connection.end_connector)):
             if owner is None:
@@ -562,3 +580,17 @@ class _SsdReader:
             if isinstance(target, System) and target.connector(connector) is None:
                 raise UnknownElementError(f"{here}: system {owner!r} has no connector {connector!r}")
         return connection
+
+
+def _transformation(connection, where: str) -> LinearTransformation | None:
+    """The ``ssc:LinearTransformation`` child of an ``ssd:Connection``; other transformations are refused."""
+    found = None
+    for child in connection:
+        if not (isinstance(child.tag, str) and etree.QName(child).localname.endswith("Transformation")):
+            continue
+        if child.tag != _q(SSC_NS, "LinearTransformation"):
+            raise UnsupportedFeatureError(f"{where}: {etree.QName(child).localname} is not supported (only "
+                                          "ssc:LinearTransformation)")
+        found = LinearTransformation(_float(child.get("factor", "1"), f"{where}: LinearTransformation factor"),
+                                     _float(child.get("offset", "0"), f"{where}: LinearTransformation offset"))
+    return found

@@ -250,7 +250,7 @@ def test_referenced_ssd_is_read_as_a_nested_system(tmp_path, toys):
 @pytest.mark.parametrize("change, feature", [
     (('<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u"/>',
       '<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u">'
-      '<ssc:LinearTransformation factor="2"/></ssd:Connection>'), "LinearTransformation"),
+      '<ssc:BooleanMappingTransformation/></ssd:Connection>'), "BooleanMappingTransformation"),
     (('source="resources/Gain.fmu"', 'source="resources/Gain.fmu" implementation="ModelExchange"'), "ModelExchange"),
     (('source="resources/Gain.fmu"', 'source="http://example.com/Gain.fmu"'), "file: URIs"),
 ])

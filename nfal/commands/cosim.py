@@ -19,7 +19,10 @@ def register(commands) -> None:
         "HardwareProxy) with pythonfmu, self-contained, and pack fig7_slow.ssp, fig7_reynolds.ssp, fig7_hil.ssp and the "
         "rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
     build.add_argument("--out", default="build", metavar="DIR", help="output folder (default build/)")
-    build.add_argument("--json", action="store_true", help="print the built archives as JSON")
+    build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                       help="FMI version: 2 (default; FMUs and SSP archives) or 3 (the same six FMUs as FMI 3.0 "
+                       "co-simulation FMUs, with pythonfmu3, into DIR/fmi3/; no archives: `nfal run` runs FMI 2.0)")
+    build.add_argument("--json", action="store_true", help="print the built archives (FMUs with --fmi 3) as JSON")
     build.set_defaults(handler=run_build)
 
     run = commands.add_parser(
@@ -27,7 +30,9 @@ def register(commands) -> None:
         description="Run an SSP system structure with the fixed-step master over fmpy. Without STRUCTURE, builds "
         "what is missing and runs fig7_slow (gain-scheduled PID, slow plant, resonance tracker, sensor chain) on the "
         "reference of Figs. 9-10, writing runs/<name>/results.csv, summary.json and response.png, and printing the "
-        "step metrics.",
+        "step metrics. Start, stop and step come from the structure's ssd:DefaultExperiment (startTime, stopTime; the "
+        "step from its OSP FixedStepAlgorithm baseStepSize annotation) unless --start-time, --stop-time or --step is "
+        "given. An FMU that ends its own horizon (fmi2Discard, then fmi2Terminated) ends the run there, with a note.",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
         "nfal run --reference my_reference.csv --realtime; hardware in the loop against `nfal rig-emulator` or the rig: "
@@ -35,8 +40,13 @@ def register(commands) -> None:
     run.add_argument("structure", nargs="?", default="fig7_slow",
                      help="a built-in structure (fig7_slow, fig7_reynolds, fig7_hil) or an .ssp archive, .ssd file or SSP folder "
                      "(default fig7_slow)")
-    run.add_argument("--stop-time", type=float, metavar="S", help="stop time [s] (default: the structure's, 3.7 s for Fig. 7)")
-    run.add_argument("--step", type=float, default=5e-4, metavar="S", help="communication step [s] (default 5e-4: 2 kHz)")
+    run.add_argument("--start-time", type=float, metavar="S",
+                     help="start time [s] (default: the structure's DefaultExperiment startTime, else 0)")
+    run.add_argument("--stop-time", type=float, metavar="S",
+                     help="stop time [s] (default: the built-in staircase's length when it drives the reference, 3.7 s "
+                     "(4.7 s against hardware); else the structure's DefaultExperiment stopTime)")
+    run.add_argument("--step", type=float, metavar="S", help="communication step [s] (default: the structure's "
+                     "DefaultExperiment FixedStepAlgorithm baseStepSize annotation, 5e-4 s (2 kHz) for Fig. 7)")
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                      help="override a parameter or start value (repeatable)")
     run.add_argument("--reference", default="staircase", metavar="staircase[:L1,L2,...[:HOLD[:LEAD]]]|FILE.csv",
@@ -46,8 +56,9 @@ def register(commands) -> None:
                      "metrics are reported for it) or a CSV of time_s,reference_m (held between rows) (default staircase). "
                      "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
                      "perturbation:SHAPE) unless Controller.calibration is given")
-    run.add_argument("--reference-input", default=REFERENCE_INPUT, metavar="ELEMENT.VAR",
-                     help=f"the input the reference drives (default {REFERENCE_INPUT}; 'none' for no external input)")
+    run.add_argument("--reference-input", metavar="ELEMENT.VAR",
+                     help=f"the input the reference drives (default {REFERENCE_INPUT} if the structure has a Controller "
+                     "element, else none; 'none' for no external input)")
     run.add_argument("--input", action="append", default=[], metavar="ELEMENT.VAR=SIGNAL",
                      help="drive another input (repeatable): SIGNAL is constant:V, step:INITIAL,FINAL,AT_S, "
                      "staircase:L1,L2,...[:HOLD[:LEAD]] or a CSV of time_s,value; e.g. "
@@ -68,8 +79,9 @@ def register(commands) -> None:
 
 def run_build(args: argparse.Namespace) -> int:
     from nfal.build import build_all
+    from nfal.fmus.build import build_fmus
 
-    archives = build_all(args.out)
+    archives = build_all(args.out) if args.fmi == 2 else build_fmus(Path(args.out) / "fmi3", fmi_version=3)
     if args.json:
         print_json({name: str(path) for name, path in archives.items()})
     else:
@@ -142,7 +154,8 @@ def run_run(args: argparse.Namespace) -> int:
 
     parameters = matched_design(dict(parse_parameter(text) for text in args.param))
     structure = _structure_path(args)
-    columns = loop_columns(_element_names(structure))
+    names = _element_names(structure)
+    columns = loop_columns(names)
     if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a device "
                                     "path or socket://host:port); no rig? start `nfal rig-emulator` and give the path "
@@ -153,18 +166,20 @@ def run_run(args: argparse.Namespace) -> int:
     if args.rt_priority is not None and not args.realtime:
         raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
     reference = _reference(args, columns is HARDWARE, structure)
-    inputs = {} if args.reference_input == "none" else {args.reference_input: reference}
+    reference_input = args.reference_input or (REFERENCE_INPUT if "Controller" in names else "none")
+    inputs = {} if reference_input == "none" else {reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
     stop_time = args.stop_time
-    if stop_time is None and isinstance(reference, Staircase):
-        stop_time = reference.duration_s
+    if stop_time is None and reference_input != "none" and isinstance(reference, Staircase):
+        stop_time = reference.duration_s  # the staircase's steps complete (against hardware, after its lead)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
-    fig7 = args.reference_input == REFERENCE_INPUT
+    fig7 = reference_input == REFERENCE_INPUT
     completed = reference.completed_by(stop_time) if fig7 and isinstance(reference, Staircase) else None
     metrics = None if completed is None else (lambda table: loop_metrics(table, completed, columns))
     try:
-        result = run_structure(structure, stop_time=stop_time, step_size=args.step, inputs=inputs, parameters=parameters,
+        result = run_structure(structure, start_time=args.start_time, stop_time=stop_time, step_size=args.step,
+                               inputs=inputs, parameters=parameters,
                                algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
                                rt_priority=args.rt_priority,
                                plot=response_panels(columns) if fig7 else None, metrics=metrics)
@@ -197,8 +212,10 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"{summary.get('structure')}: {summary.get('status')} after {summary.get('steps_completed')} of "
               f"{summary.get('steps')} steps; the results up to there are in {out}")
         return
-    print(f"{summary.get('structure')}: {summary.get('stop_time_s'):g} s in {summary.get('wall_time_s', 0.0):.2f} s "
+    print(f"{summary.get('structure')}: {summary.get('end_time_s', summary.get('stop_time_s')):g} s in {summary.get('wall_time_s', 0.0):.2f} s "
           f"wall time ({summary.get('algorithm')}, step {summary.get('step_size_s'):g} s) -> {out}")
+    if summary.get("note"):
+        print(f"note: {summary['note']}")
     metrics = summary.get("metrics")
     if metrics:
         print(f"IAE {metrics['iae'] * 1e6:.3f} um s")

@@ -1,0 +1,67 @@
+"""Exit codes of the ecos command line (ecospy 0.7.2, a non-Python host) running each FMU alone, N times.
+
+    python bench/ecos_exit_codes.py [--runs N] [--fmi 2 3] [--out DIR]
+
+Builds the FMUs (FMI 2.0 and FMI 3.0, ``nfal build``), then runs ``ecos simulate`` on each (0.01 s at
+0.5 ms, no CSV) with libpython preloaded, and prints a markdown table of exit codes per FMU: 0 is a
+clean exit, -11 a segmentation fault (issue 15, item 1: the embedded interpreter's teardown). The
+HardwareProxy is left out (it needs a rig). Needs ecospy and Debian's libtbb12.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import shutil
+import stat
+import subprocess
+import tempfile
+from pathlib import Path
+
+import ecospy
+
+from nfal.fmus.build import FMU_SCRIPTS, build_fmus
+from nfal.orchestration.libcosim import preload_environment
+
+FMUS = [name for name in FMU_SCRIPTS if name != "HardwareProxy"]
+
+
+def ecos_executable(folder: Path) -> Path:
+    """A runnable copy of the ``ecos`` binary ecospy ships (its wheel installs it without the x bit)."""
+    target = folder / "ecos"
+    shutil.copy2(Path(ecospy.__file__).parent / "binaries" / "ecos", target)
+    target.chmod(target.stat().st_mode | stat.S_IXUSR)
+    return target
+
+
+def exit_codes(ecos: Path, fmu: Path, runs: int) -> collections.Counter:
+    environment, codes = preload_environment(), collections.Counter()
+    for _ in range(runs):
+        with tempfile.TemporaryDirectory() as work:
+            done = subprocess.run([str(ecos), "simulate", "--path", str(fmu), "--stopTime", "0.01", "--stepSize",
+                                   "0.0005", "--noCsv"], env=environment, cwd=work, capture_output=True, timeout=600)
+        codes[done.returncode] += 1
+    return codes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=10, help="runs per FMU (default 10)")
+    parser.add_argument("--fmi", type=int, nargs="+", choices=(2, 3), default=[2, 3], help="FMI versions (default 2 3)")
+    parser.add_argument("--out", type=Path, help="build folder (default: a temporary one)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as temp:
+        out = args.out or Path(temp)
+        ecos = ecos_executable(Path(temp))
+        print("| FMU | FMI | runs | clean exits | crashes at exit (SIGSEGV) | other |")
+        print("|---|---|---|---|---|---|")
+        for version in args.fmi:
+            built = build_fmus(out / f"fmi{version}", FMUS, fmi_version=version)
+            for name, fmu in built.items():
+                codes = exit_codes(ecos, fmu, args.runs)
+                other = sum(n for code, n in codes.items() if code not in (0, -11))
+                print(f"| {name} | {version}.0 | {args.runs} | {codes[0]} | {codes[-11]} | {other} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
