@@ -33,7 +33,9 @@ public:
 
     void log(fmi2Status s, const std::string& category, const std::string& message)
     {
-        if (debugLogging_) {
+        if (s >= fmi2Error) {  // nfal: errors are always reported
+            debugLog(s, category, message);
+        } else if (debugLogging_) {
             if (categories_.empty() || std::find(categories_.begin(), categories_.end(), category) != categories_.end()) {
                 debugLog(s, category, message);
             }

@@ -63,11 +63,10 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
         Py_XDECREF(pResult);
     } else {
         PyErr_Print(); // Handle compilation error
-        Py_Finalize();
-        Py_DECREF(pGlobals);
+        // nfal: no Py_Finalize here (the interpreter is not ours to end), no decref of the borrowed
+        // pGlobals, none of the null pCode.
         Py_DECREF(pyModule);
         Py_DECREF(pLocals);
-        Py_DECREF(pCode);
         file.close();
         return nullptr;
     }
@@ -91,19 +90,25 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
             for (Py_ssize_t i = 0; i < PyList_Size(pMROList); ++i) {
                 PyObject* pItem = PyList_GetItem(pMROList, i);
                 std::smatch match;
-                const char* className = PyBytes_AsString(PyUnicode_AsUTF8String(PyObject_Repr(pItem)));
-
-                std::string str(className);
+                // nfal: the repr and its bytes were leaked
+                PyObject* pRepr = PyObject_Repr(pItem);
+                PyObject* pBytes = PyUnicode_AsUTF8String(pRepr);
+                std::string str(PyBytes_AsString(pBytes));
+                Py_DECREF(pBytes);
+                Py_DECREF(pRepr);
                 const bool isMatch = std::regex_search(str, match, pattern);
 
                 // If regex match is successfull, and found Fmi2Slave at the deepest level then update state
                 if (isMatch && i > deepestChain && match[1] == "Fmi2Slave") {
-                    deepestFile = PyBytes_AsString(PyUnicode_AsUTF8String(key));
+                    PyObject* pKey = PyUnicode_AsUTF8String(key);  // nfal: was leaked
+                    deepestFile = PyBytes_AsString(pKey);
+                    Py_DECREF(pKey);
                     deepestChain = i;
                 }
             }
+            Py_DECREF(pMROList);  // nfal: leaked a reference to every class of the MRO per instance
         }
-        Py_DECREF(pMroAttribute);
+        Py_XDECREF(pMroAttribute);
     }
 
     PyObject* pyClassName = Py_BuildValue("s", deepestFile.c_str());
@@ -113,7 +118,9 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
     Py_DECREF(pCode);
     Py_DECREF(pLocals);
     Py_DECREF(pyModule);
-    Py_DECREF(pGlobals);
+    // nfal: pGlobals is borrowed (PyModule_GetDict); upstream's Py_DECREF(pGlobals) here freed the slave
+    // module's __dict__ one reference early, a use-after-free when the interpreter is finalised: the
+    // crash at exit in non-Python hosts (docs/cosimulation.md, "Crash at exit").
     file.close();
     Py_DECREF(pyClassName);
     return pyClass;
@@ -572,7 +579,7 @@ public:
 private:
     fmu_data data_;
 
-    PyObject* pClass_;
+    PyObject* pClass_{};
     PyObject* pInstance_{};
     PyObject* pMessages_{};
 
@@ -625,38 +632,34 @@ private:
     }
 
 
+    // nfal: upstream released pClass_, pInstance_ and pMessages_ here (and again in the destructor, a
+    // double release) and threw fatal_error (fmi2Fatal). Here the slave's log messages are delivered,
+    // the exception's str() becomes the error (fmi2.cpp logs it and answers fmi2Error), and the
+    // instance stays usable and can be freed.
     void handle_py_exception(const std::string& what, PyGILState_STATE gilState) const
     {
-        const auto err = PyErr_Occurred();
-        if (err != nullptr) {
-            cleanPyObject();
-
-            PyObject *pExcType, *pExcValue, *pExcTraceback;
-            PyErr_Fetch(&pExcType, &pExcValue, &pExcTraceback);
-
-            std::ostringstream oss;
-            oss << "Fatal py exception encountered: ";
-            oss << what << "\n";
-            if (pExcValue != nullptr) {
-                PyObject* pRepr = PyObject_Repr(pExcValue);
-                PyObject* pyStr = PyUnicode_AsEncodedString(pRepr, "utf-8", nullptr);
-                oss << PyBytes_AsString(pyStr);
-                Py_DECREF(pyStr);
-                Py_DECREF(pRepr);
-            } else {
-                oss << "unknown error";
-            }
-
-            PyErr_Clear();
-
-            Py_XDECREF(pExcType);
-            Py_XDECREF(pExcValue);
-            Py_XDECREF(pExcTraceback);
-
-            PyGILState_Release(gilState);
-
-            throw fatal_error(oss.str());
+        if (PyErr_Occurred() == nullptr) {
+            return;
         }
+        PyObject *pExcType, *pExcValue, *pExcTraceback;
+        PyErr_Fetch(&pExcType, &pExcValue, &pExcTraceback);
+        std::string message = what + ": unknown error";
+        if (pExcValue != nullptr) {
+            PyObject* pStr = PyObject_Str(pExcValue);
+            PyObject* pBytes = pStr != nullptr ? PyUnicode_AsEncodedString(pStr, "utf-8", "replace") : nullptr;
+            if (pBytes != nullptr) {
+                message = PyBytes_AsString(pBytes);
+            }
+            Py_XDECREF(pBytes);
+            Py_XDECREF(pStr);
+        }
+        PyErr_Clear();
+        Py_XDECREF(pExcType);
+        Py_XDECREF(pExcValue);
+        Py_XDECREF(pExcTraceback);
+        clearLogBuffer();
+        PyGILState_Release(gilState);
+        throw std::runtime_error(message);
     }
 };
 

@@ -67,8 +67,9 @@ namespace pythonfmu
                     auto lock = std::unique_lock{ mutex_ };
                     conditionalVariable_.wait(lock, [&] { return destroyRequested_; });
 
-                    PyEval_RestoreThread(mainPyThread);
-                    Py_Finalize();
+                    // nfal: the interpreter is left running, not finalised: numpy and scipy cannot be
+                    // loaded again into a re-initialised interpreter (a host that frees and loads
+                    // the FMU again), and the process's end frees everything anyway.
                 }
         }
 

@@ -109,7 +109,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName,
         auto component = std::make_unique<Fmi2Component>(std::move(instance), std::move(logger));
         return component.release();
     } catch (const std::exception& e) {
-        logger->log(fmi2Fatal, e.what());
+        logger->log(fmi2Error, e.what());  // nfal: Error, as the standard's other failed calls
         return nullptr;
     }
 }
