@@ -23,10 +23,20 @@ public:
     { }
 
 protected:
+    // nfal: the message is a printf format for the host's logger, so a '%' in it is escaped (upstream
+    // passed it raw: "0.2 %" made the host read a missing argument); an error without a category
+    // gets the standard's "logStatusError" (upstream passed a null category).
     void debugLog(fmi2Status s, const std::string& category, const std::string& message) override
     {
+        std::string escaped;
+        for (const char c : message) {
+            escaped += c;
+            if (c == '%') escaped += '%';
+        }
+        std::string name = category;
+        if (name.empty() && s >= fmi2Error) name = "logStatusError";
         f_->logger(f_->componentEnvironment, instanceName_.c_str(),
-            s, category.empty() ? nullptr : category.c_str(), message.c_str());
+            s, name.empty() ? nullptr : name.c_str(), escaped.c_str());
     }
 
 private:

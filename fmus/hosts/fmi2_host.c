@@ -1,7 +1,7 @@
 /* A minimal FMI 2.0 co-simulation host, as the FMI Compliance Checker (fmuCheck) drives an FMU:
  * dlopen the binary, instantiate, set up, initialise, step to the stop time, read the outputs,
  * terminate, free, dlclose, exit. A crash anywhere (also in the library's teardown at exit) shows
- * in the exit code. tests/test_host_compatibility.py compiles and runs it.
+ * in the exit code. nfal.fmus.host_check compiles and runs it (tests/test_host_compatibility.py, bench/host_compat.py).
  *
  * usage: fmi2_host BINARY GUID RESOURCES_URI STOP_TIME STEP_SIZE [VR ...]
  * prints "t=<stop>" and then "vr=<value>" (%.17g) for each Real value reference VR;
