@@ -33,10 +33,11 @@ FMI_ERROR = 3  # what our patched runtime (fmus/runtime/) answers a Python excep
 class Instance:
     """One FMU instance over fmpy's low-level FMU2Slave: variables by name, log messages captured."""
 
-    def __init__(self, fmu_path: Path, unzipped: str, name: str = "instance", logging_on: bool = True) -> None:
+    def __init__(self, fmu_path: Path, unzipped: str, name: str = "instance", logging_on: bool = True,
+                 messages: list | None = None) -> None:
         description = read_model_description(str(fmu_path))
         self.variables = {v.name: v for v in description.modelVariables}
-        self.messages: list[tuple[int, str]] = []
+        self.messages: list[tuple[int, str]] = [] if messages is None else messages  # (status, message)
 
         def log(_env, _instance, status, _category, message):
             self.messages.append((int(status), message.decode("utf-8", "replace")))

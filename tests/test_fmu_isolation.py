@@ -90,3 +90,16 @@ def test_two_versions_of_one_fmu_in_one_process(tmp_path_factory, monkeypatch, o
         assert instance.get("minor") == float(minor)
     for instance in instances:
         instance.free()
+
+
+@pytest.mark.parametrize("module, pip_name", [("control", "control"), ("scipy", "scipy")])
+def test_a_missing_host_package_is_one_logged_line_naming_it(tmp_path_factory, monkeypatch, module, pip_name):
+    """fmi2Instantiate fails with the package and its pip command in the host's log, not a traceback."""
+    fmu = build.build_fmus(tmp_path_factory.mktemp("missing"), ["Controller"])["Controller"]
+    monkeypatch.setitem(sys.modules, module, None)  # what Python does for a package that is not installed
+    messages = []
+    with pytest.raises(Exception, match="Failed to instantiate"):
+        Instance(fmu, extract(str(fmu)), messages=messages)
+    assert messages == [(3, f"the Controller FMU needs the Python package '{pip_name}' in the Python that runs it "
+                            f"({sys.executable}): pip install {pip_name}")]
+
