@@ -76,8 +76,11 @@ def _run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
 
 
 def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time: float = 0.01,
-                  step_size: float = 5e-4, workers: int = 2) -> HostRuns:
-    """Run ``fmu`` ``runs`` times in the C host from its default start values; read every Real output."""
+                  step_size: float = 5e-4, workers: int = 2, runtime: Path | None = None) -> HostRuns:
+    """Run ``fmu`` ``runs`` times in the C host from its default start values; read every Real output.
+
+    ``runtime``: a library to run in place of the FMU's binary (e.g. pythonfmu's stock one, to compare).
+    """
     folder = Path(work_dir) / fmu.stem
     with zipfile.ZipFile(fmu) as archive:
         archive.extractall(folder)
@@ -85,6 +88,8 @@ def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time
     outputs = {str(v.valueReference): v.name for v in description.modelVariables
                if v.causality == "output" and v.type == "Real"}
     binary = folder / "binaries" / "linux64" / f"{description.coSimulation.modelIdentifier}.so"
+    if runtime is not None:
+        shutil.copy2(runtime, binary)
     command = [str(host), str(binary), description.guid, (folder / "resources").as_uri(), repr(stop_time),
                repr(step_size), *outputs]
     first = _run(command, folder)  # alone: it fills numba's on-disk cache in the extracted folder
