@@ -32,12 +32,17 @@ def fmus(tmp_path_factory):
     return build.build_fmus(tmp_path_factory.mktemp("hosts"), FIG7_FMUS)
 
 
-@pytest.fixture(scope="module")
-def c_host(tmp_path_factory):
+def host_or_skip(make, folder):
+    """The host ``make(folder)`` builds, or a skip naming what this machine lacks (compiler, libtbb12)."""
     try:
-        return compile_c_host(tmp_path_factory.mktemp("c_host"))
+        return make(folder)
     except HostUnavailableError as exc:
         pytest.skip(str(exc))
+
+
+@pytest.fixture(scope="module")
+def c_host(tmp_path_factory):
+    return host_or_skip(compile_c_host, tmp_path_factory.mktemp("c_host"))
 
 
 @pytest.mark.parametrize("name", FIG7_FMUS)
@@ -65,10 +70,7 @@ def test_an_error_in_a_c_host_is_one_logged_line_and_fmi2error(fmus, c_host, tmp
 
 @pytest.fixture(scope="module")
 def ecos(tmp_path_factory):
-    try:
-        return ecos_executable(tmp_path_factory.mktemp("ecos"))
-    except HostUnavailableError as exc:
-        pytest.skip(str(exc))
+    return host_or_skip(ecos_executable, tmp_path_factory.mktemp("ecos"))
 
 
 def test_the_fig7_archive_runs_in_ecos_without_a_crash(fmus, ecos, tmp_path):
