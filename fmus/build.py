@@ -14,7 +14,8 @@ everything the slave imports from nfal, under the same import names as in the in
         nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
     binaries/linux64/<Model>.so   the patched pythonfmu runtime built from fmus/runtime/ (fmus/export_runtime.py)
-    binaries/win64/<Model>.dll    pythonfmu's own (not patched: no crash-at-exit fix, exceptions are Fatal)
+    binaries/win64/<Model>.dll    pythonfmu's own, not patched and not tested (Fatal on an exception, and the
+                                  instance is released twice: freeing a failed one may crash the host)
 
 Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from
 the Python environment that runs the FMU, as with every pythonfmu FMU; a missing one fails
