@@ -13,16 +13,12 @@ thin adapter over :mod:`nfal.models`:
 * **Direct feedthrough.** An output declared with a ``getter`` and ``depends_on=("an_input", ...)``
   is computed when it is read, from the current inputs and state; an output without a getter reads
   the attribute of the same name, which the slave sets from its state (no dependencies).
-* **Errors.** Every entry point pythonfmu's C wrapper calls (setters, getters, initialisation,
-  ``do_step``, FMU state) is guarded: an exception is logged through ``self.log`` with status
-  ``Fmi2Status.error`` (category ``logStatusError``, message ``"<what>: <reason>"``) and re-raised.
-  pythonfmu 0.7.0 answers *every* Python exception with **fmi2Fatal** (there is no path to fmi2Error:
-  its ``handle_py_exception`` throws ``pythonfmu::fatal_error``); FMPy raises ``FMICallException``.
-  The wrapper also drops one reference to the class, the instance and its log queue per exception
-  and again when the instance is freed, which frees the instance under the wrapper's feet (a crash
-  at the next call or at ``fmi2FreeInstance``). The guard gives those references back when it runs
-  inside the wrapper (it was passed a ``logger``), so a failed FMU can still be freed, or even be
-  used again, without crashing the host process.
+* **Errors.** Every entry point the FMU runtime calls (setters, getters, initialisation, ``do_step``,
+  FMU state) is guarded. Inside the runtime (the instance was passed a ``logger``) an exception
+  becomes :class:`FmuCallError` ``"<instance>: <call> failed: <reason>"``, which our patched runtime
+  (``fmus/runtime/``, ``fmus/export_runtime.py``) logs once with status fmi2Error and answers with
+  **fmi2Error**; the instance stays usable and can be freed. As a Python object (tests, the rig
+  emulator) the reason is logged (``logging`` and ``self.log``) and the original exception re-raised.
 * **Parameters checked at the end of initialisation.** Setters only store (with type coercion and,
   for Real inputs, a finiteness check); :meth:`setup` (abstract) validates and builds the models in
   ``exit_initialization_mode``. A ``fixed`` parameter set after initialisation is an error.
@@ -65,7 +61,6 @@ must not change state (it may be read any number of times).
 from __future__ import annotations
 
 import abc
-import ctypes
 import copy
 import json
 import logging
@@ -78,6 +73,7 @@ from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
+from nfal import __version__
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
@@ -89,7 +85,7 @@ FREQUENCY_TOLERANCE = 1e-9
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
+__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "FmuCallError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
            "DefaultExperiment", "SAMPLE_TOLERANCE"]
 
 #: SI base-unit exponents of every unit an nfal FMU declares (FMI 2.0 ``<BaseUnit>`` attributes).
@@ -134,6 +130,10 @@ class FmuStateError(NfalError, ValueError):
     """An FMU state that cannot be restored (not from this FMU, or damaged bytes)."""
 
 
+class FmuCallError(NfalError, RuntimeError):
+    """An FMI call that failed, as the host's logger shows it: ``"<instance>: <call> failed: <reason>"``."""
+
+
 class SampleClock:
     """Sample instants t0 + k T of a sampled block (Controller, SensorChain, PLL), per the contract.
 
@@ -166,10 +166,16 @@ class SampleClock:
         return self.index(time_s) is not None
 
     def check_step(self, step_size_s: float) -> None:
-        """Raise :class:`InvalidParameterError` if a communication step is longer than the period."""
-        if step_size_s > self.period_s * (1.0 + SAMPLE_TOLERANCE):
+        """Raise :class:`InvalidParameterError` unless a communication step divides the period.
+
+        A longer step would skip samples; one that does not divide the period would meet the sample
+        instants only at common multiples and silently lower the sample rate (0.3 ms on 0.5 ms: 667 Hz).
+        """
+        ratio = self.period_s / step_size_s
+        if abs(ratio - round(ratio)) > SAMPLE_TOLERANCE * ratio or round(ratio) < 1:
             raise InvalidParameterError("communication step size", step_size_s,
-                                        f"at most the sample period {self.period_s:.6g} s")
+                                        f"the sample period {self.period_s:.6g} s divided by a whole number "
+                                        f"(e.g. {self.period_s:.6g} s or {self.period_s / 2:.6g} s)")
 
 
 class _Declaration:
@@ -202,8 +208,6 @@ class NfalSlave(Fmi2Slave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        from nfal import __version__
-
         self.version = __version__
         self.modelName = type(self).__name__
         # pythonfmu's C wrapper passes the FMI logger; a slave made in Python (tests) gets none.
@@ -408,16 +412,13 @@ class NfalSlave(Fmi2Slave):
             raise
 
     def _fail(self, what: str, exc: BaseException) -> None:
-        """Log why a call fails and keep the wrapper's reference counting from freeing the instance."""
+        """Say why a call fails: in the runtime, raise FmuCallError (logged once, fmi2Error); else log."""
         reason = str(exc) or type(exc).__name__
         message = f"{self.instance_name}: {what} failed: {reason}"
+        if self._in_wrapper:
+            raise FmuCallError(message) from exc
         logger.error(message)
         self.log(message, Fmi2Status.error)
-        if self._in_wrapper:
-            # pythonfmu's handle_py_exception Py_XDECREFs pClass_, pInstance_ and pMessages_, which the
-            # destructor decrefs again (verified: without this the host dies at the next call or at free).
-            for obj in (type(self), self, self.log_queue):
-                ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
 
     def setup_experiment(self, start_time: float, stop_time=None, tolerance=None) -> None:
         def run():

@@ -5,23 +5,27 @@ Each FMU of :data:`FMU_SCRIPTS` is one slave script of ``fmus/``. pythonfmu puts
 everything the slave imports from nfal, under the same import names as in the installed package::
 
     resources/
-        nfal_<script>.py        the slave script (prefixed: module names are process-wide in the host)
+        nfal_<script>.py        fmus/bundle_loader.py + "<Model> = load_slave(...)": the module pythonfmu
+                                imports; it loads this FMU's own nfal/, isolated from any other
         slavemodule.txt         "nfal_<script>" (pythonfmu's loader reads it)
         pythonfmu/              pythonfmu's Python side (added by pythonfmu)
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
-        nfal/fmus/__init__.py   and nfal/fmus/base.py (the NfalSlave base class)
+        nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
-    binaries/linux64/<Model>.so, binaries/win64/<Model>.dll   pythonfmu's FMI wrapper
+    binaries/linux64/<Model>.so   the patched pythonfmu runtime built from fmus/runtime/ (fmus/export_runtime.py)
+    binaries/win64/<Model>.dll    pythonfmu's own, not patched and not tested (Fatal on an exception, and the
+                                  instance is released twice: freeing a failed one may crash the host)
 
 ``fmi_version=3`` builds the same slave as an FMI 3.0 FMU with pythonfmu3: the layout above (the FMI 3.0
-binary under ``binaries/x86_64-linux/``), plus ``pythonfmu/`` (pythonfmu's Python side, which NfalSlave
-builds on), ``pythonfmu3/`` (added by pythonfmu3) and the generated slave module ``nfal3_<script>.py``
-(:func:`nfal.fmus.fmi3.fmi3_script`), named in ``slavemodule.txt``.
+binary under ``binaries/x86_64-linux/``, pythonfmu3's own, not patched), plus ``pythonfmu/`` (pythonfmu's
+Python side, which NfalSlave builds on), ``pythonfmu3/`` (added by pythonfmu3) and the generated slave module
+``nfal3_<script>.py`` (:func:`nfal.fmus.fmi3.fmi3_script`), named in ``slavemodule.txt``.
 
-Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from the Python environment that
-runs the FMU, as with every pythonfmu FMU. If the host process has already imported ``nfal`` (for
-instance a test run under an editable install), that copy serves: Python keeps one module per name.
+Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from
+the Python environment that runs the FMU, as with every pythonfmu FMU; a missing one fails
+fmi2Instantiate with a logged line naming it and its pip command. Every FMU runs the nfal code it
+carries, whatever else the host process has imported (``fmus/bundle_loader.py``).
 
 An FMU is rebuilt only when it is missing or older than one of its sources (the script, the copied
 files, this file); ``force=True`` rebuilds regardless. Builds go to a temporary file that replaces
@@ -35,9 +39,11 @@ import os
 import shutil
 import sys
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Iterable
 
+from nfal.fmus.export_runtime import PLATFORM, RUNTIME_SOURCES, runtime_library
 from nfal.models.errors import InvalidParameterError
 
 logger = logging.getLogger(__name__)
@@ -54,7 +60,9 @@ FMU_SCRIPTS: dict[str, str] = {
 }
 #: What every FMU copies from fmus/ beside its script.
 FMUS_SUPPORT = ("__init__.py", "base.py", "fmi3.py")
-#: Prefix of the slave module inside the FMU (of the generated FMI 3.0 script: FMI3_PREFIX).
+#: The slave module's loader (the module pythonfmu imports; fmus/bundle_loader.py).
+BUNDLE_LOADER = "bundle_loader.py"
+#: Prefix of the loader module inside the FMU (of the generated FMI 3.0 script: FMI3_PREFIX).
 MODULE_PREFIX, FMI3_PREFIX = "nfal_", "nfal3_"
 #: The FMI versions ``build_fmu`` makes: 2 with pythonfmu, 3 with pythonfmu3 (fmus/fmi3.py).
 FMI_VERSIONS = (2, 3)
@@ -100,8 +108,9 @@ def script_path(name: str) -> Path:
 
 def sources(name: str) -> list[Path]:
     """Every file the FMU ``name`` is built from (its staleness is judged against these)."""
-    return [script_path(name), Path(__file__).resolve(), *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(),
-            *_hil_files(name)]
+    runtime = sorted(p for p in RUNTIME_SOURCES.rglob("*") if p.is_file())
+    return [script_path(name), Path(__file__).resolve(), FMUS_DIR / BUNDLE_LOADER, FMUS_DIR / "export_runtime.py",
+            *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name), *runtime]
 
 
 def is_up_to_date(fmu: Path, name: str) -> bool:
@@ -120,7 +129,7 @@ def _minimal_package_init() -> str:
 
 
 def _stage(name: str, stage: Path) -> Path:
-    """Lay out the script and the nfal package in ``stage``; return the staged script."""
+    """Lay out the nfal package with the script, and the loader module, in ``stage``; return the loader."""
     script = script_path(name)
     if not script.is_file():
         raise InvalidParameterError(f"script of {name}", str(script), "an existing slave script")
@@ -140,9 +149,22 @@ def _stage(name: str, stage: Path) -> Path:
         (package / "hil").mkdir()
         for source in hil:
             shutil.copy2(source, package / "hil" / source.name)
+    shutil.copy2(script, package / "fmus" / script.name)
     staged = stage / f"{MODULE_PREFIX}{script.stem}.py"
-    shutil.copy2(script, staged)
+    loader = (FMUS_DIR / BUNDLE_LOADER).read_text(encoding="utf-8")
+    staged.write_text(f'{loader}\n\n{name} = load_slave(__file__, "nfal.fmus.{script.stem}", "{name}")\n',
+                      encoding="utf-8")
     return staged
+
+
+def _with_runtime(built: Path, name: str, target: Path) -> None:
+    """Copy the FMU ``built`` to ``target`` with the patched runtime as its Linux binary."""
+    binary = f"binaries/{PLATFORM}/{name}.so"
+    with zipfile.ZipFile(built) as source, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as out:
+        for item in source.infolist():
+            if item.filename != binary:
+                out.writestr(item, source.read(item))
+        out.write(runtime_library(), binary)
 
 
 def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]:
@@ -200,7 +222,10 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)
         partial = out / f".{name}.fmu.partial-{os.getpid()}"
-        shutil.copy2(built, partial)
+        if fmi_version == 2:
+            _with_runtime(built, name, partial)
+        else:  # pythonfmu3's own binary (the patched runtime is FMI 2.0's)
+            shutil.copy2(built, partial)
         os.replace(partial, target)
     logger.info("built %s", target)
     return target

@@ -15,6 +15,10 @@ from scipy import integrate, interpolate, optimize, special
 from .csvdata import read_numeric_csv
 from .errors import DataFormatError, InvalidParameterError
 
+#: This package's data folder, resolved once at import: an FMU carrying its own copy of nfal.models
+#: reads its own file, not that of another copy the process holds under the same name (fmus/bundle_loader.py).
+_DATA = resources.files(__package__) / "data"
+
 PAPER_SHAPE_FILE = "fig3_mode_shape_standin.csv"
 
 
@@ -142,7 +146,7 @@ class TabulatedShape(ExcitationShape):
 
 def paper_shape() -> TabulatedShape:
     """The stand-in for the paper's measured form of Fig. 3 (shipped with the package)."""
-    with resources.as_file(resources.files("nfal.models") / "data" / PAPER_SHAPE_FILE) as path:
+    with resources.as_file(_DATA / PAPER_SHAPE_FILE) as path:
         shape = TabulatedShape.from_csv(path)
     shape.name = "paper (Fig. 3 stand-in)"
     return shape

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from test_fmu_base import FMI_FATAL, Instance, build_and_extract
+from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 
 from nfal.fmus.controller import Controller
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
@@ -217,7 +217,7 @@ def test_fmu_bad_input_is_an_error(controller, inputs, reason):
     with pytest.raises(FMICallException) as raised:
         controller.set(**inputs)
         controller.get("excitation_command")
-    assert raised.value.status == FMI_FATAL
+    assert raised.value.status == FMI_ERROR
     assert any(reason in message for message in controller.errors()), controller.messages
 
 
@@ -227,11 +227,17 @@ def test_fmu_bad_parameter_is_an_error(controller):
     assert any("design = 'adaptive' is invalid" in message for message in controller.errors())
 
 
-def test_fmu_rejects_a_step_longer_than_the_sample_period(controller):
+@pytest.mark.parametrize("step_s", [1e-3, 3e-4])
+def test_fmu_rejects_a_step_that_does_not_divide_the_sample_period(controller, step_s):
+    """Longer: samples skipped; 0.3 ms: sampled only every 1.5 ms (667 Hz). One logged line, fmi2Error."""
     controller.initialize()
-    with pytest.raises(FMICallException):
-        controller.step(1e-3)
-    assert any("at most the sample period" in message for message in controller.errors())
+    with pytest.raises(FMICallException) as raised:
+        controller.step(step_s)
+    assert raised.value.status == FMI_ERROR
+    assert controller.errors() == [f"instance: doStep at t = 0 s failed: communication step size = {step_s:g} is "
+                                   "invalid: must be the sample period 0.0005 s divided by a whole number "
+                                   "(e.g. 0.0005 s or 0.00025 s)"]
+    controller.step(PERIOD)  # the instance is whole: a valid step goes on
 
 
 def test_fmu_state_round_trip(controller):

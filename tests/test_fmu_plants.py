@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from test_fmu_base import FMI_FATAL, Instance, build_and_extract
+from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.slow_plant import SlowPlant
@@ -239,7 +239,7 @@ def test_plant_fmus_validate(fmus, name):
 def test_slow_plant_bad_parameter_is_an_error(slow, values, reason):
     with pytest.raises(FMICallException) as raised:
         slow.initialize(**values)
-    assert raised.value.status == FMI_FATAL
+    assert raised.value.status == FMI_ERROR
     assert any(reason in message for message in slow.errors()), slow.messages
 
 

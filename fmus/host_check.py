@@ -1,0 +1,150 @@
+"""Run nfal FMUs in non-Python hosts many times and count the crashes (docs/cosimulation.md, "Crash at exit").
+
+Two hosts nobody here wrote the runtime for: a minimal C host (``fmus/hosts/fmi2_host.c``, what the
+FMI Compliance Checker does: dlopen, instantiate, set up, step, terminate, free, dlclose, exit),
+compiled with the system's C compiler, and the ``ecos`` command line that comes with the ``ecospy``
+wheel (needs Debian's ``libtbb12``). Both load the FMUs' binaries with libpython preloaded and the
+running Python's packages on ``PYTHONPATH`` (:func:`host_environment`, as the README shows). A run
+counts as a crash when its exit code is not 0, whatever it printed.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+import stat
+import subprocess
+import sysconfig
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fmpy import read_model_description
+
+from nfal.models.errors import NfalError
+from nfal.orchestration.libcosim import preload_environment
+
+#: The C host's source.
+C_HOST_SOURCE = Path(__file__).resolve().parent / "hosts" / "fmi2_host.c"
+HOST_TIMEOUT_S = 600
+
+
+class HostUnavailableError(NfalError, RuntimeError):
+    """A host cannot run here (no C compiler, ecospy or libtbb12 missing)."""
+
+
+@dataclass
+class HostRuns:
+    """What N runs of one FMU or structure in one host gave."""
+
+    exit_codes: list[int] = field(default_factory=list)
+    #: {name: value} of the outputs at the stop time, per run that exited with 0.
+    outputs: list[dict[str, float]] = field(default_factory=list)
+    #: stdout + stderr of the first failed run ("" when none failed).
+    first_failure: str = ""
+
+    @property
+    def crashes(self) -> int:
+        """Runs whose exit code was not 0 (a signal shows as a negative code)."""
+        return sum(code != 0 for code in self.exit_codes)
+
+
+def host_environment() -> dict[str, str]:
+    """This environment plus libpython in ``LD_PRELOAD`` and this Python's packages first on ``PYTHONPATH``."""
+    env = preload_environment()
+    packages = sysconfig.get_paths()["purelib"]
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (packages, env.get("PYTHONPATH", "")) if p)
+    return env
+
+
+def compile_c_host(out_dir: Path) -> Path:
+    """Compile ``fmus/hosts/fmi2_host.c`` into ``out_dir``; return the executable."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
+    executable = Path(out_dir) / "fmi2_host"
+    subprocess.run([compiler, "-O1", "-Wall", "-o", str(executable), str(C_HOST_SOURCE), "-ldl"], check=True,
+                   capture_output=True, text=True)
+    return executable
+
+
+def _run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(command, cwd=cwd, env=host_environment(), capture_output=True, text=True,
+                          timeout=HOST_TIMEOUT_S)
+
+
+def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time: float = 0.01,
+                  step_size: float = 5e-4, workers: int = 2, runtime: Path | None = None) -> HostRuns:
+    """Run ``fmu`` ``runs`` times in the C host from its default start values; read every Real output.
+
+    ``runtime``: a library to run in place of the FMU's binary (e.g. pythonfmu's stock one, to compare).
+    """
+    folder = Path(work_dir) / fmu.stem
+    with zipfile.ZipFile(fmu) as archive:
+        archive.extractall(folder)
+    description = read_model_description(str(folder))
+    outputs = {str(v.valueReference): v.name for v in description.modelVariables
+               if v.causality == "output" and v.type == "Real"}
+    binary = folder / "binaries" / "linux64" / f"{description.coSimulation.modelIdentifier}.so"
+    if runtime is not None:
+        shutil.copy2(runtime, binary)
+    command = [str(host), str(binary), description.guid, (folder / "resources").as_uri(), repr(stop_time),
+               repr(step_size), *outputs]
+    first = _run(command, folder)  # alone: it fills numba's on-disk cache in the extracted folder
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        done = [first, *pool.map(lambda _: _run(command, folder), range(runs - 1))]
+    result = HostRuns()
+    for run in done:
+        result.exit_codes.append(run.returncode)
+        if run.returncode == 0:
+            pairs = (line.split("=", 1) for line in run.stdout.splitlines() if "=" in line and line[0].isdigit())
+            result.outputs.append({outputs[vr]: float(value) for vr, value in pairs})
+        elif not result.first_failure:
+            result.first_failure = run.stdout + run.stderr
+    return result
+
+
+def ecos_executable(cache_dir: Path) -> Path:
+    """The ``ecos`` command line of the installed ecospy wheel, copied to ``cache_dir`` with its exec bit set
+    (the wheel ships it without)."""
+    try:
+        import ecospy  # noqa: F401 - loads libecosc: fails here without libtbb12
+    except ImportError as exc:
+        raise HostUnavailableError("ecos needs the ecospy package: pip install ecospy") from exc
+    except OSError as exc:
+        raise HostUnavailableError(f"ecos needs Debian's libtbb12: apt-get install libtbb12 ({exc})") from exc
+    binaries = Path(ecospy.__file__).resolve().parent / "binaries"
+    target = Path(cache_dir) / "ecos"
+    target.mkdir(parents=True, exist_ok=True)
+    for name in ("ecos", "proxyfmu", "libecosc.so"):
+        shutil.copy2(binaries / name, target / name)
+        (target / name).chmod((target / name).stat().st_mode | stat.S_IXUSR)
+    return target / "ecos"
+
+
+def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: float,
+                step_size: float = 5e-4) -> HostRuns:
+    """Simulate ``ssp`` ``runs`` times with ``ecos simulate``; ``outputs`` holds each run's CSV columns."""
+    result = HostRuns()
+    for k in range(runs):
+        folder = Path(work_dir) / f"ecos_{k}"
+        folder.mkdir(parents=True)
+        run = _run([str(ecos), "simulate", "--path", str(ssp), "--stopTime", repr(stop_time), "--stepSize",
+                    repr(step_size)], folder)
+        result.exit_codes.append(run.returncode)
+        if run.returncode == 0:
+            result.outputs.append(read_ecos_csv(folder / f"{ssp.stem}.csv"))
+        elif not result.first_failure:
+            result.first_failure = run.stdout + run.stderr
+    return result
+
+
+def read_ecos_csv(path: Path) -> dict[str, list[float]]:
+    """ecos's CSV as {"Element::variable": values} for its Real columns (written with 6 decimals)."""
+    with open(path, newline="", encoding="utf-8") as handle:
+        rows = list(csv.reader(handle, skipinitialspace=True))
+    header = [name.strip() for name in rows[0]]
+    columns = {name.removesuffix("[REAL]"): i for i, name in enumerate(header) if name.endswith("[REAL]") or name == "time"}
+    return {name: [float(row[i]) for row in rows[1:] if row] for name, i in columns.items()}

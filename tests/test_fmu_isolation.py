@@ -1,0 +1,105 @@
+"""Each FMU runs the nfal code and data it carries (fmus/bundle_loader.py), whatever else the host loaded.
+
+Python keeps one module per name in a process. Before the loader, the first nfal FMU a host loaded
+served ``nfal`` to every other: SlowPlant then ReynoldsPlant in one FMPy process failed (the second
+read its mode-shape file through the first one's folder, which FMPy had deleted), and two builds of
+different nfal versions silently ran the first one's code.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from fmpy import extract
+
+import nfal
+from nfal.fmus import build
+from test_fmu_base import Instance
+
+HIDE_EDITABLE_INSTALL = textwrap.dedent('''
+    import sys
+    sys.meta_path[:] = [f for f in sys.meta_path if not getattr(f, "__module__", "").startswith("__editable__")]
+    sys.path_hooks[:] = [h for h in sys.path_hooks if not getattr(h, "__module__", "").startswith("__editable__")]
+    sys.path_importer_cache.clear()
+''')
+
+ONE_AFTER_THE_OTHER = HIDE_EDITABLE_INSTALL + textwrap.dedent('''
+    import fmpy
+    for fmu in sys.argv[1:]:  # fmpy extracts each FMU to a new folder and deletes it after the run
+        result = fmpy.simulate_fmu(fmu, stop_time=0.002, step_size=5e-4, output_interval=5e-4,
+                                   start_values={"excitation_amplitude": 5e-6})
+        print(fmu.rsplit("/", 1)[-1], len(result), result["height"][-1])
+''')
+
+
+def test_two_different_nfal_fmus_in_one_process(tmp_path_factory, tmp_path):
+    """SlowPlant, then ReynoldsPlant (which reads its excitation-form CSV), then SlowPlant again."""
+    fmus = build.build_fmus(tmp_path_factory.mktemp("pair"), ["SlowPlant", "ReynoldsPlant"])
+    order = [fmus["SlowPlant"], fmus["ReynoldsPlant"], fmus["SlowPlant"]]
+    done = subprocess.run([sys.executable, "-c", ONE_AFTER_THE_OTHER, *map(str, order)], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:] + done.stdout[-2000:]
+    lines = done.stdout.split("\n")[:3]
+    assert [line.split()[0] for line in lines] == ["SlowPlant.fmu", "ReynoldsPlant.fmu", "SlowPlant.fmu"]
+    for line in lines:
+        _, samples, height = line.split()
+        assert int(samples) == 5 and 50e-6 < float(height) < 100e-6
+
+
+STAMP_SCRIPT = '''
+"""Test slave: its output is the minor version of the nfal package the FMU carries."""
+from nfal import __version__
+from nfal.fmus.base import NfalSlave
+
+
+class Stamp(NfalSlave):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.add_output("minor", unit="1", description="nfal's minor version", getter=self.minor_version)
+
+    @staticmethod
+    def minor_version():
+        return float(__version__.split(".")[-1])
+
+    def setup(self):
+        pass
+
+    def step(self, current_time, step_size):
+        pass
+'''
+
+
+@pytest.mark.parametrize("order", [(1, 2), (2, 1)])
+def test_two_versions_of_one_fmu_in_one_process(tmp_path_factory, monkeypatch, order):
+    """Two builds with different nfal versions, alive side by side: each answers with its own."""
+    script = tmp_path_factory.mktemp("stamp") / "stamp.py"
+    script.write_text(STAMP_SCRIPT, encoding="utf-8")
+    monkeypatch.setitem(build.FMU_SCRIPTS, "Stamp", str(script))
+    instances = []
+    for minor in order:
+        monkeypatch.setattr(nfal, "__version__", f"9.0.{minor}")  # what the build writes into the FMU's nfal
+        fmu = build.build_fmu("Stamp", tmp_path_factory.mktemp(f"v{minor}"))
+        instance = Instance(fmu, extract(str(fmu)), name=f"v{minor}")
+        instance.initialize()
+        instances.append(instance)
+    for minor, instance in zip(order, instances):
+        instance.step(1e-3)
+        assert instance.get("minor") == float(minor)
+    for instance in instances:
+        instance.free()
+
+
+@pytest.mark.parametrize("module, pip_name", [("control", "control"), ("scipy", "scipy")])
+def test_a_missing_host_package_is_one_logged_line_naming_it(tmp_path_factory, monkeypatch, module, pip_name):
+    """fmi2Instantiate fails with the package and its pip command in the host's log, not a traceback."""
+    fmu = build.build_fmus(tmp_path_factory.mktemp("missing"), ["Controller"])["Controller"]
+    monkeypatch.setitem(sys.modules, module, None)  # what Python does for a package that is not installed
+    messages = []
+    with pytest.raises(Exception, match="Failed to instantiate"):
+        Instance(fmu, extract(str(fmu)), messages=messages)
+    assert messages == [(3, f"the Controller FMU needs the Python package '{pip_name}' in the Python that runs it "
+                            f"({sys.executable}): pip install {pip_name}")]
+
