@@ -4,10 +4,30 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
 import numpy as np
 from tqdm import tqdm
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number (``nan``, ``inf`` and words are usage errors, exit code 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    value = finite_float(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number > 0")
+    return value
 
 
 def number_list(text: str) -> np.ndarray:
@@ -17,12 +37,15 @@ def number_list(text: str) -> np.ndarray:
             start, stop, count = text.split(":")
             if int(count) < 1:
                 raise ValueError
-            return np.linspace(float(start), float(stop), int(count))
-        values = np.array([float(item) for item in text.split(",") if item.strip()])
+            values = np.linspace(float(start), float(stop), int(count))
+        else:
+            values = np.array([float(item) for item in text.split(",") if item.strip()])
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a list 'A,B,C' nor a range 'START:STOP:COUNT'") from None
     if values.size == 0:
         raise argparse.ArgumentTypeError("an empty list")
+    if not np.all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be a finite number")
     return values
 
 
@@ -80,7 +103,7 @@ def add_rig_options(parser: argparse.ArgumentParser) -> None:
     defaults = RigParameters()
     group = parser.add_argument_group("rig (SI; defaults: the paper's rig)")
     for name, unit, text in RIG_OPTIONS:
-        group.add_argument(f"--{name.replace('_', '-')}", dest=f"rig_{name}", type=float, metavar=unit,
+        group.add_argument(f"--{name.replace('_', '-')}", dest=f"rig_{name}", type=finite_float, metavar=unit,
                            help=f"{text} [{unit}] (default {getattr(defaults, name):g})")
 
 
