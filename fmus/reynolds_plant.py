@@ -24,9 +24,9 @@ import numpy as np
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.coupled import CoupledModel, CoupledState, GapClosedError
-from nfal.models.errors import InvalidParameterError
 from nfal.models.excitation import parse_shape
 from nfal.models.plant import SimplifiedPlant
+from nfal.models.reynolds import check_grid
 
 #: Lift-off clearance margin over the surface's largest excursion |a| max eps_hat.
 LIFT_OFF_MARGIN = 1.05
@@ -56,9 +56,7 @@ class ReynoldsPlant(NfalSlave):
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
         rest_gap, height, velocity = self.checked_release()
-        for name, lowest in (("radial_nodes", 5), ("steps_per_period", 8)):
-            if getattr(self, name) < lowest:
-                raise InvalidParameterError(name, getattr(self, name), f"a whole number >= {lowest}")
+        check_grid(self.radial_nodes, self.steps_per_period, names=("radial_nodes", "steps_per_period"))
         self._shape = parse_shape(str(self.shape))
         self._largest_excursion = float(np.max(np.abs(self._shape(np.linspace(0.0, 1.0, 401)))))
         self._lift_off = SimplifiedPlant(self.build_rig(), self.build_calibration(), rest_gap=rest_gap)
