@@ -143,6 +143,18 @@ def load_calibration(path: str | os.PathLike) -> CalibrationFunction:
     """Read a calibration JSON file written by :meth:`CalibrationFunction.save` or ``nfal calibrate``."""
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: not JSON, or not UTF-8 text at all
         raise DataFormatError(f"cannot read calibration {path}: {exc}") from None
-    return calibration_from_dict(data)
+    if not isinstance(data, dict):
+        raise DataFormatError(f"{path}: not a calibration description (a JSON object with 'kind')")
+    return require_lift(calibration_from_dict(data), str(path))
+
+
+def require_lift(calibration: CalibrationFunction, where: str) -> CalibrationFunction:
+    """Return ``calibration`` unless K(sigma) <= 0 over its whole sigma range (the film never pushes: eq. (16)
+    has no equilibrium anywhere), which :class:`DataFormatError` refuses."""
+    low, high = calibration.sigma_range
+    if not np.any(calibration(np.geomspace(low, high, 200)) > 0.0):
+        raise DataFormatError(f"{where}: K(sigma) <= 0 over the whole range sigma = {low:g}-{high:g}: the film never "
+                              "pushes, no object levitates (eq. 16); K > 0 is needed at the work heights")
+    return calibration
