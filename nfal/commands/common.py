@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -28,6 +30,26 @@ def positive_float(text: str) -> float:
     if value <= 0.0:
         raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number > 0")
     return value
+
+
+#: Figure formats --plot writes (by the file's extension).
+PLOT_FORMATS = (".png", ".pdf", ".svg")
+
+
+def output_file(*suffixes: str):
+    """An argparse type: a file to write, ending in one of ``suffixes``, in a folder that exists and is writable
+    (checked before any work is done, so a long computation does not end in a failed write)."""
+    def check(text: str) -> str:
+        path = Path(text)
+        if path.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"{text!r}: the file must end in {' or '.join(suffixes)}")
+        folder = path.parent if str(path.parent) else Path(".")
+        if not folder.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r}: no folder {str(folder)!r} to write it in")
+        if not os.access(folder, os.W_OK) or path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot be written (folder not writable, or a folder by that name)")
+        return text
+    return check
 
 
 def number_list(text: str) -> np.ndarray:
@@ -83,7 +105,8 @@ def progress_bar(total: int, description: str) -> tqdm:
 
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON on stdout")
-    parser.add_argument("--plot", metavar="FILE", help="write a PNG figure to FILE")
+    parser.add_argument("--plot", metavar="FILE", type=output_file(*PLOT_FORMATS),
+                        help=f"write a figure to FILE ({', '.join(f[1:].upper() for f in PLOT_FORMATS)}, by its extension)")
 
 
 RIG_OPTIONS = (

@@ -7,7 +7,7 @@ import signal
 import sys
 from pathlib import Path
 
-from nfal.commands.common import finite_float, print_json
+from nfal.commands.common import finite_float, output_file, print_json
 
 
 def register(commands) -> None:
@@ -57,7 +57,7 @@ def register(commands) -> None:
                           "Ctrl-C or SIGTERM)")
     emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
                           "(default build/)")
-    emulator.add_argument("--record", metavar="FILE.csv", help="write every measurement the rig takes in a session "
+    emulator.add_argument("--record", metavar="FILE.csv", type=output_file(".csv"), help="write every measurement the rig takes in a session "
                           "(before fault injection), with the applied voltage and the true height")
     emulator.add_argument("--rt-priority", type=int, metavar="1-99", help="run the rig under SCHED_FIFO at this "
                           "priority, so the host's busy loop beside it cannot delay its ticks (Linux; needs root, "

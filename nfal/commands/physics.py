@@ -6,7 +6,8 @@ import argparse
 
 import numpy as np
 
-from nfal.commands.common import add_output_options, add_rig_options, finite_float, number_list, print_json, progress_bar, rig_from_args
+from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file, print_json,
+                                  progress_bar, rig_from_args)
 
 SHAPE_HELP = "excitation form: piston, plate:N (free circular plate, N nodal circles), paper (Fig. 3 stand-in) or a CSV of R,eps_hat"
 
@@ -30,7 +31,7 @@ def register(commands) -> None:
     numerical.add_argument("--delta", type=finite_float, default=0.01, help="excitation norm delta for time-marching (default 0.01)")
     numerical.add_argument("--nodes", type=int, help="radial nodes (default 401 perturbation, 101 time-marching)")
     numerical.add_argument("--steps-per-period", type=int, default=256, help="time steps per excitation period (time-marching)")
-    numerical.add_argument("--out", metavar="FILE.json", help="write the result as a calibration file for the plant")
+    numerical.add_argument("--out", metavar="FILE.json", type=output_file(".json"), help="write the result as a calibration file for the plant")
     add_output_options(numerical)
     numerical.set_defaults(handler=calibrate_numerical)
 
@@ -44,7 +45,7 @@ def register(commands) -> None:
     voltage = experimental.add_mutually_exclusive_group()
     voltage.add_argument("--metres-per-volt", type=finite_float, help="linear map |a| = gain * V for voltage_v data [m/V]")
     voltage.add_argument("--voltage-map", metavar="MAP.csv", help="measured (voltage_v, amplitude_m) table for voltage_v data")
-    experimental.add_argument("--out", metavar="FILE.json", help="write the fitted calibration file for the plant")
+    experimental.add_argument("--out", metavar="FILE.json", type=output_file(".json"), help="write the fitted calibration file for the plant")
     add_rig_options(experimental)
     add_output_options(experimental)
     experimental.set_defaults(handler=calibrate_experimental)
