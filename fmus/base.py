@@ -78,6 +78,7 @@ from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_c
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
 from nfal.models.errors import InvalidParameterError, NfalError, require_positive
+from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from nfal.models.rig import RigParameters
 
 #: Relative change of a plant's drive_frequency input that rebuilds its model.
@@ -324,8 +325,9 @@ class NfalSlave(Fmi2Slave):
 
     def checked_release(self) -> tuple[float, float, float]:
         """(rest_gap, initial_height, initial_velocity) of the plant interface, checked."""
-        rest_gap = require_positive("rest_gap", self.rest_gap)
+        rest_gap = require_plausible("rest_gap", require_positive("rest_gap", self.rest_gap), MAX_CLEARANCE_M, "m")
         height = require_positive("initial_height", self.initial_height)
+        require_plausible("initial_height", height, MAX_CLEARANCE_M, "m")
         if height < rest_gap:
             raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
         if not math.isfinite(self.initial_velocity):
@@ -337,7 +339,7 @@ class NfalSlave(Fmi2Slave):
         value = float(self.excitation_amplitude)
         if not (math.isfinite(value) and value >= 0.0):
             raise InvalidParameterError("excitation_amplitude", value, "a finite amplitude >= 0 m")
-        return value
+        return require_plausible("excitation_amplitude", value, MAX_EXCITATION_M, "m")
 
     def checked_frequency(self) -> float:
         """The ``drive_frequency`` input [Hz], checked."""

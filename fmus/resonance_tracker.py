@@ -19,10 +19,12 @@ import dataclasses
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import pll as pll_model
-from nfal.models.errors import InvalidParameterError
+from nfal.models.errors import InvalidParameterError, require_finite
 from nfal.models.transducer import METRES_PER_VOLT, QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ, Transducer
 
 INPUTS = ("drive_voltage", "resonance_shift")
+#: Largest drive voltage amplitude [V]: piezo drivers stop well below 1 kV (the rig emulator's default limit: 150 V).
+MAX_DRIVE_VOLTAGE_V = 1000.0
 
 
 class ResonanceTracker(NfalSlave):
@@ -80,7 +82,18 @@ class ResonanceTracker(NfalSlave):
     def setup(self) -> None:
         self._tracker = self._clock = self._state = None
         self._build()
+        self._check_inputs()
         self._state = self._tracker.initial_state(self.drive_voltage, self.resonance_shift)
+
+    def _check_inputs(self) -> None:
+        """``drive_voltage`` in [0, MAX_DRIVE_VOLTAGE_V] V; ``resonance_shift`` within half the resonance frequency."""
+        voltage = require_finite("drive_voltage", self.drive_voltage, f"a finite voltage in [0, {MAX_DRIVE_VOLTAGE_V:g}] V")
+        if not 0.0 <= voltage <= MAX_DRIVE_VOLTAGE_V:
+            raise InvalidParameterError("drive_voltage", voltage, f"in [0, {MAX_DRIVE_VOLTAGE_V:g}] V (a piezo driver's range)")
+        limit = 0.5 * float(self.resonance_frequency)
+        if not abs(require_finite("resonance_shift", self.resonance_shift)) < limit:
+            raise InvalidParameterError("resonance_shift", self.resonance_shift,
+                                        f"within +-{limit:g} Hz (half the resonance frequency)")
 
     def _outputs(self) -> pll_model.TrackerOutputs:
         if self._state is None:  # before initialisation ends: the start values
@@ -89,12 +102,14 @@ class ResonanceTracker(NfalSlave):
         cached = self._last_outputs
         if cached is None or cached[0][0] is not key[0] or cached[0][1:] != key[1:]:
             # once per (state, inputs, time): a master reads the four outputs one by one
+            self._check_inputs()
             cached = self._last_outputs = (key, self._tracker.outputs(
                 self._state, self.drive_voltage, self.resonance_shift, at_sample=self._clock.is_sample(self.time)))
         return cached[1]
 
     def step(self, current_time: float, step_size: float) -> None:
         self._clock.check_step(step_size)
+        self._check_inputs()
         self._state = self._tracker.advance(self._state, self.drive_voltage, self.resonance_shift, step_size,
                                             at_sample=self._clock.is_sample(current_time))
 

@@ -34,11 +34,12 @@ import numpy as np
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel, CoupledState, GapClosedError
-from nfal.models.errors import InvalidParameterError
 from nfal.models.excitation import parse_shape
+from nfal.models.errors import InvalidParameterError
 from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.fixed_step_plant import NEAR_SURFACE, FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant
+from nfal.models.reynolds import check_grid
 
 #: Lift-off clearance margin over the surface's largest excursion |a| max eps_hat.
 LIFT_OFF_MARGIN = 1.05
@@ -76,9 +77,9 @@ class ReynoldsPlant(NfalSlave):
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
         rest_gap, height, velocity = self.checked_release()
-        for name, lowest in (("radial_nodes", 5), ("steps_per_period", 8), ("harmonics", 1)):
-            if getattr(self, name) < lowest:
-                raise InvalidParameterError(name, getattr(self, name), f"a whole number >= {lowest}")
+        check_grid(self.radial_nodes, self.steps_per_period, names=("radial_nodes", "steps_per_period"))
+        if self.harmonics < 1:
+            raise InvalidParameterError("harmonics", self.harmonics, "a whole number >= 1")
         for name, choices in (("film_solver", FILM_SOLVERS), ("near_surface", NEAR_SURFACE)):
             if str(getattr(self, name)) not in choices:
                 raise InvalidParameterError(name, getattr(self, name), f"one of {', '.join(choices)}")

@@ -21,13 +21,24 @@ from .link import READ_ERRORS, LinkError, open_port
 READ_CHUNK = 65536
 
 
+def _require_free_link_path(path: Path) -> None:
+    if not os.path.lexists(path):
+        return
+    if path.is_symlink() and os.readlink(path).startswith("/dev/pts/") and not path.exists():
+        return  # a stale link of a pty that is gone: an earlier emulator's
+    raise LinkError(f"--link {path}: something is there already; give a path that does not exist (the emulator "
+                    "puts a symlink there and removes it at exit)")
+
+
 class PtyPort:
     """A pty whose other end the host opens at :attr:`path` (a symlink to the current ``/dev/pts/N``).
 
     Parameters
     ----------
     path : path-like, optional
-        Where to put the symlink; default a new name in the temporary folder.
+        Where to put the symlink; default a new name in the temporary folder. Refused (LinkError) if
+        something is there already, other than a pty link an earlier emulator left behind: the symlink is
+        removed at exit, and a user's file must not be.
     """
 
     def __init__(self, path: str | os.PathLike | None = None) -> None:
@@ -37,6 +48,7 @@ class PtyPort:
             os.unlink(name)
             path = name
         self.path = Path(path)
+        _require_free_link_path(self.path)
         self.bytes_dropped = 0
         self.failures, self.last_error = 0, ""  # the master side of a pty does not fail (UrlPort's may)
         self._master = self._slave = None
@@ -51,7 +63,7 @@ class PtyPort:
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line editing: a byte pipe, as pyserial would set it anyway
         os.set_blocking(master, False)
-        temporary = self.path.with_name(self.path.name + ".new")
+        temporary = self.path.with_name(f".{self.path.name}.{os.getpid()}.new")
         try:
             temporary.unlink(missing_ok=True)
             os.symlink(os.ttyname(slave), temporary)

@@ -249,10 +249,11 @@ def load_rig_calibration(path: str | os.PathLike, rig: RigParameters | None = No
     """
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: not JSON, or not UTF-8 text at all
         raise DataFormatError(f"cannot read calibration {path}: {exc}") from None
     try:
         loaded = rig_calibration_from_dict(data)
+        require_lift(loaded.calibration, "K")
     except DataFormatError as exc:
         raise DataFormatError(f"calibration {path}: {exc}") from None
     if rig is not None:
@@ -263,3 +264,13 @@ def load_rig_calibration(path: str | os.PathLike, rig: RigParameters | None = No
 def load_calibration(path: str | os.PathLike) -> CalibrationFunction:
     """K(sigma) of a calibration file (its damping, rig and provenance, if any, are read and dropped)."""
     return load_rig_calibration(path).calibration
+
+
+def require_lift(calibration: CalibrationFunction, where: str) -> CalibrationFunction:
+    """Return ``calibration`` unless K(sigma) <= 0 over its whole sigma range (the film never pushes: eq. (16)
+    has no equilibrium anywhere), which :class:`DataFormatError` refuses."""
+    low, high = calibration.sigma_range
+    if not np.any(calibration(np.geomspace(low, high, 200)) > 0.0):
+        raise DataFormatError(f"{where}: K(sigma) <= 0 over the whole range sigma = {low:g}-{high:g}: the film never "
+                              "pushes, no object levitates (eq. 16); K > 0 is needed at the work heights")
+    return calibration

@@ -34,7 +34,7 @@ import numpy as np
 from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .excitation import ExcitationShape
 from .perturbation import first_order_pressure, radial_grid
-from .reynolds import discrete_mean_correction
+from .reynolds import check_grid, discrete_mean_correction
 from .rig import RigParameters
 
 logger = logging.getLogger(__name__)
@@ -316,10 +316,7 @@ class CoupledModel:
             raise InvalidParameterError("rig", rig, "a RigParameters")
         if not callable(shape) or not hasattr(shape, "slope"):
             raise InvalidParameterError("shape", shape, "an ExcitationShape")
-        if isinstance(nodes, bool) or not isinstance(nodes, (int, np.integer)) or nodes < 5:
-            raise InvalidParameterError("nodes", nodes, "a whole number >= 5")
-        if isinstance(steps_per_period, bool) or not isinstance(steps_per_period, (int, np.integer)) or steps_per_period < 8:
-            raise InvalidParameterError("steps_per_period", steps_per_period, "a whole number >= 8")
+        check_grid(nodes, steps_per_period)
         if not isinstance(envelope, bool):
             raise InvalidParameterError("envelope", envelope, "True or False")
         self.envelope = envelope

@@ -37,6 +37,9 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     names = None
     if not _is_numeric(records[0]):
         names, records = [cell.lower() for cell in records[0]], records[1:]
+        repeated = sorted({name for name in names if names.count(name) > 1})
+        if repeated:
+            raise DataFormatError(f"{path}: column(s) {', '.join(repeated)} appear more than once in the header")
     width = len(names) if names else len(records[0])
     rows = []
     for number, record in enumerate(records, start=2 if names else 1):

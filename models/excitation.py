@@ -70,6 +70,10 @@ class PistonShape(ExcitationShape):
         return np.zeros_like(R)
 
 
+#: Most nodal circles of a plate mode: 50 circles on a 401-node grid leave 8 nodes per half-wave.
+MAX_NODAL_CIRCLES = 50
+
+
 class PlateModeShape(ExcitationShape):
     """n-th axisymmetric mode of a free-edge Kirchhoff circular plate: n nodal circles.
 
@@ -78,8 +82,9 @@ class PlateModeShape(ExcitationShape):
     """
 
     def __init__(self, n: int = 2, poisson_ratio: float = 0.3) -> None:
-        if not isinstance(n, (int, np.integer)) or n < 1:
-            raise InvalidParameterError("n", n, "a whole number >= 1 (the count of nodal circles)")
+        if not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_NODAL_CIRCLES:
+            raise InvalidParameterError("n", n, f"a whole number in [1, {MAX_NODAL_CIRCLES}] (the count of nodal circles; "
+                                        "more are not resolved by the film's radial grid)")
         if not 0.0 <= poisson_ratio < 0.5:
             raise InvalidParameterError("poisson_ratio", poisson_ratio, "in [0, 0.5)")
         self.n, self.poisson_ratio = int(n), float(poisson_ratio)

@@ -16,6 +16,7 @@ import numpy as np
 from .calibration import PolynomialK
 from .csvdata import read_numeric_csv
 from .errors import DataFormatError, InvalidParameterError, require_positive
+from .plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from .rig import RigParameters
 
 
@@ -69,6 +70,10 @@ class EquilibriumData:
             raise DataFormatError("equilibrium data needs >= 2 rows with a height and an excitation each")
         if np.any(self.height <= 0) or np.any(self.excitation <= 0):
             raise DataFormatError("measured heights and excitations must all be > 0")
+        if not (np.all(np.isfinite(self.excitation)) and np.all(np.isfinite(self.magnetic_force))):
+            raise DataFormatError("measured excitations and magnetic forces must be finite numbers")
+        require_plausible("measured height", float(np.max(self.height)), MAX_CLEARANCE_M, "m")
+        require_plausible("measured excitation", float(np.max(self.excitation)), MAX_EXCITATION_M, "m")
 
     @classmethod
     def from_csv(cls, path: str | os.PathLike, voltage_map: VoltageAmplitudeMap | None = None) -> "EquilibriumData":

@@ -26,13 +26,17 @@ from .excitation import ExcitationShape
 DEFAULT_NODES = 401
 
 
+#: Most radial nodes of a film grid: K converges to 1e-6 by about 401 (docs/film_solvers.md).
+MAX_GRID_NODES = 20_001
+
+
 def radial_grid(nodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nodes R_n = n / (N - 1), their faces and control volumes int R dR of the finite-volume scheme.
 
     Returns ``(R, faces, volumes)``; ``faces[n]`` is R at the face between nodes n and n + 1.
     """
-    if not isinstance(nodes, (int, np.integer)) or nodes < 5:
-        raise InvalidParameterError("nodes", nodes, "a whole number >= 5")
+    if not isinstance(nodes, (int, np.integer)) or not 5 <= nodes <= MAX_GRID_NODES:
+        raise InvalidParameterError("nodes", nodes, f"a whole number in [5, {MAX_GRID_NODES}]")
     R = np.linspace(0.0, 1.0, nodes)
     step = R[1]
     faces = R[:-1] + 0.5 * step

@@ -200,6 +200,20 @@ class PeriodicFilm:
     change_estimate: float
 
 
+#: Grid ceilings: 2001 nodes and 8192 steps per period resolve any film of the paper far past convergence
+#: (its results use 101 and 256); beyond them a run only costs memory and hours.
+MAX_NODES, MAX_STEPS_PER_PERIOD = 2001, 8192
+
+
+def check_grid(nodes, steps_per_period, names: tuple[str, str] = ("nodes", "steps_per_period")) -> None:
+    """Raise :class:`InvalidParameterError` (naming the value by ``names``) unless ``nodes`` is in [5, MAX_NODES]
+    and ``steps_per_period`` in [8, MAX_STEPS_PER_PERIOD] (whole numbers)."""
+    for name, value, low, high in ((names[0], nodes, 5, MAX_NODES), (names[1], steps_per_period, 8,
+                                                                     MAX_STEPS_PER_PERIOD)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+            raise InvalidParameterError(name, value, f"a whole number in [{low}, {high}]")
+
+
 def _check_settings(delta, nodes, steps_per_period, tolerance, max_periods) -> tuple[float, int, int, float, int]:
     try:
         delta_value = float(delta)
@@ -207,10 +221,7 @@ def _check_settings(delta, nodes, steps_per_period, tolerance, max_periods) -> t
         raise InvalidParameterError("delta", delta, "a number with 0 < delta < 1") from None
     if not 0.0 < delta_value < 1.0:
         raise InvalidParameterError("delta", delta, "a number with 0 < delta < 1")
-    if isinstance(nodes, bool) or not isinstance(nodes, (int, np.integer)) or nodes < 5:
-        raise InvalidParameterError("nodes", nodes, "a whole number >= 5")
-    if isinstance(steps_per_period, bool) or not isinstance(steps_per_period, (int, np.integer)) or steps_per_period < 8:
-        raise InvalidParameterError("steps_per_period", steps_per_period, "a whole number >= 8")
+    check_grid(nodes, steps_per_period)
     try:
         tol = float(tolerance)
     except (TypeError, ValueError):

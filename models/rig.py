@@ -8,6 +8,10 @@ import math
 import numpy as np
 
 from .errors import require_positive
+from .plausibility import MAX_CLEARANCE_M, MAX_MASS_KG, MAX_RADIUS_M, require_plausible
+
+#: Fields with a plausibility ceiling (:mod:`nfal.models.plausibility`): name -> (ceiling, unit).
+_CEILINGS = {"mass": (MAX_MASS_KG, "kg"), "radius": (MAX_RADIUS_M, "m"), "reference_clearance": (MAX_CLEARANCE_M, "m")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +52,8 @@ class RigParameters:
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
             object.__setattr__(self, field.name, require_positive(field.name, getattr(self, field.name)))
+        for name, (ceiling, unit) in _CEILINGS.items():
+            require_plausible(name, getattr(self, name), ceiling, unit)
 
     def replace(self, **changes: float) -> "RigParameters":
         """A copy with some fields changed (validated like the original)."""

@@ -32,7 +32,19 @@ def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES + R
     logger.info("FMUs in %s: %s", out, ", ".join(sorted(fmus)))
     sources = structure_sources()
     archives = {}
+    inputs = [*fmus.values(), *sources.glob("*.ssv")]
     for name in structures:
-        archives[name] = pack(sources / f"{name}.ssd", out, out / f"{name}.ssp")
+        ssd, archive = sources / f"{name}.ssd", out / f"{name}.ssp"
+        if _newer_than(archive, [ssd, *inputs]):  # a read-only build/ that is up to date still runs
+            archives[name] = archive
+            continue
+        archives[name] = pack(ssd, out, archive)
         logger.info("packed %s", archives[name])
     return archives
+
+
+def _newer_than(target: Path, sources: list[Path]) -> bool:
+    if not target.is_file():
+        return False
+    built = target.stat().st_mtime
+    return all(Path(source).stat().st_mtime < built for source in sources)

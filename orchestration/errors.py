@@ -20,6 +20,10 @@ class StructureError(OrchestrationError, ValueError):
     """An SSP/SSD cannot be read, or what it describes cannot be run (the message says where)."""
 
 
+class ResultsExistError(OrchestrationError, FileExistsError):
+    """A result folder holds a previous run's files, and replacing them was not asked for."""
+
+
 class UnknownElementError(StructureError):
     """A connection or parameter names an element the system does not have."""
 

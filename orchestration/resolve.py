@@ -33,6 +33,7 @@ docs/cosimulation.md (and pythonfmu, which writes none) as "depends on no input"
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import logging
 import math
 from collections.abc import Mapping
@@ -200,6 +201,21 @@ def load_model_description(name: str, source: Path) -> ModelDescription:
     return md
 
 
+#: Similarity (difflib ratio) above which a parameter name that matches no variable is taken for a typo of one.
+MISSPELLING_CUTOFF = 0.85
+
+#: The range of fmi2Integer (a C int): a larger value would reach the FMU cut to 32 bits.
+INT32_RANGE = (-2**31, 2**31 - 1)
+
+
+def _int32(value: int, variable: ModelVariable, where: str) -> int:
+    low, high = INT32_RANGE
+    if not low <= value <= high:
+        raise InvalidParameterError(f"{where}: {variable.name}", value, f"a whole number in [{low}, {high}] "
+                                    "(an FMI Integer is 32 bits)")
+    return value
+
+
 def coerce_value(variable: ModelVariable, value: object, where: str, *, strict_type: str | None = None) -> object:
     """``value`` as the Python type that the FMU's ``variable`` takes (float, int, bool or str).
 
@@ -234,9 +250,9 @@ def coerce_value(variable: ModelVariable, value: object, where: str, *, strict_t
         if isinstance(value, float):
             if not (math.isfinite(value) and value == int(value)):
                 raise bad
-            return int(value)
+            value = int(value)
         if isinstance(value, int):
-            return int(value)
+            return _int32(value, variable, where)
         raise bad
     if kind == "Boolean":
         if isinstance(value, bool):
@@ -468,8 +484,20 @@ class _Resolver:
                     missing.append(name)
                     continue
                 self._assign(target, value.value, f"{origin}: {value.name!r}", value, binding)
-            if missing:
-                self.unmatched.extend(f"{origin}: {name}" for name in missing)
+            for name in missing:
+                self._refuse_misspelling(name, component, origin)
+            self.unmatched.extend(f"{origin}: {name}" for name in missing)
+
+    def _refuse_misspelling(self, name: str, component: str | None, origin: str) -> None:
+        """A parameter name matching no variable is ignored (SSP 1.0: one parameter set may serve several
+        components), unless it is a near miss of a variable it can bind: then it is a typo, and an error."""
+        if component is not None:
+            candidates = list(self.variables[component])
+        else:
+            candidates = [f"{element}.{variable}" for element, variables in self.variables.items() for variable in variables]
+        close = difflib.get_close_matches(name, candidates, n=1, cutoff=MISSPELLING_CUTOFF)
+        if close:
+            raise UnknownConnectorError(f"{origin}: {name!r} matches no variable; did you mean {close[0]!r}?")
 
     def _lookup(self, full: str) -> tuple[str, str] | None:
         """A hierarchical name -> (element, variable) or (system path, connector) ("" for the top)."""

@@ -18,9 +18,10 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.models.errors import InvalidParameterError, require_finite, require_positive
 
-from .errors import SimulationError
+from .errors import ResultsExistError, SimulationError
+from .interrupts import deferred_interrupts
 from .master import ALGORITHMS, HorizonEnd, Master
 from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority, require_realtime_priority
 from .resolve import resolve
@@ -31,6 +32,10 @@ from .ssp import read_ssp
 logger = logging.getLogger(__name__)
 
 RESULTS_CSV, SUMMARY_JSON, RESPONSE_PNG = "results.csv", "summary.json", "response.png"
+
+#: The most communication steps a run takes unless told otherwise: 5000 s of Fig. 7 at 2 kHz, a
+#: results.csv of about 1 GB. A mistyped --stop-time 1e9 or --step 1e-9 is refused before it starts.
+MAX_STEPS = 10_000_000
 
 
 @dataclasses.dataclass
@@ -80,6 +85,25 @@ def _horizon_note(ended: HorizonEnd, end_time: float) -> dict:
                             "run_end_time_s": end_time, "messages": list(ended.messages)},
             "note": ended.note}
 
+def _require_step_count(steps: int, stop: float, step: float, max_steps: int) -> None:
+    if steps > max_steps:
+        raise InvalidParameterError(
+            "stop_time / step_size", f"{stop:g} s / {step:g} s",
+            f"at most {max_steps:,} steps, not {steps:,} (one results row each); check the units, or allow "
+            "more with --max-steps (max_steps=)")
+
+
+def _claim_results_folder(out: Path, overwrite: bool) -> None:
+    """Create ``out``; refuse it if it holds a previous run's files, unless ``overwrite`` (then remove them,
+    so that a run failing at start-up leaves no older plot or summary beside its own)."""
+    ours = [out / name for name in (RESULTS_CSV, SUMMARY_JSON, RESPONSE_PNG) if (out / name).exists()]
+    if ours and not overwrite:
+        raise ResultsExistError(f"{out} already holds {', '.join(p.name for p in ours)}: give a new --out folder, "
+                                "or --overwrite to replace them")
+    out.mkdir(parents=True, exist_ok=True)
+    for path in ours:
+        path.unlink()
+
 
 def _panels(plot) -> list[PlotPanel] | None:
     if plot is None:
@@ -105,7 +129,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                   out_dir: str | os.PathLike | None = None, realtime: bool | float = False,
                   progress: bool | None = None, plot: Sequence | bool | None = None,
                   metrics: Callable[[ResultTable], Mapping] | None = None, undeclared_dependencies: str = "none",
-                  fmu_logging: str = "on", flush_interval_s: float = 0.25, rt_priority: int | None = None) -> RunResult:
+                  fmu_logging: str = "on", flush_interval_s: float = 0.25, rt_priority: int | None = None,
+                  overwrite: bool = False, max_steps: int | None = None) -> RunResult:
     """Run an SSP 1.0 system structure of FMI 2.0 co-simulation FMUs with a fixed step.
 
     Parameters
@@ -124,7 +149,12 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     algorithm : {"causal", "jacobi"}
         See :mod:`nfal.orchestration.master`.
     out_dir : path-like, optional
-        Result folder (created); default a new temporary folder.
+        Result folder (created); default a new temporary folder. Refused (:class:`ResultsExistError`)
+        if it holds a previous run's results.csv, summary.json or response.png, unless ``overwrite``.
+    overwrite : bool
+        Replace (first remove) a previous run's files in ``out_dir``.
+    max_steps : int, optional
+        Refuse a run of more communication steps (default :data:`MAX_STEPS`).
     realtime : bool or float
         True: release step k at wall time t0 + k dt and report overruns and jitter
         (:mod:`nfal.orchestration.pacing`); a number: the same at that many simulated seconds per wall
@@ -186,10 +216,11 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         if step is None:
             raise InvalidParameterError("step_size", None, "given, since the SSD has no FixedStepAlgorithm baseStepSize")
         step = require_positive("step_size", step)
-        steps = _step_count(start, float(stop), step)
+        steps = _step_count(require_finite("start_time", start), require_finite("stop_time", stop), step)
+        _require_step_count(steps, float(stop), step, MAX_STEPS if max_steps is None else max_steps)
         master = Master(system, step_size=step, algorithm=algorithm, inputs=inputs, fmu_logging=fmu_logging)
         out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="nfal-run-"))
-        out.mkdir(parents=True, exist_ok=True)
+        _claim_results_folder(out, overwrite)
         summary: dict = {
             "structure": str(path), "system": system.name, "algorithm": algorithm, "start_time_s": start,
             "stop_time_s": start + steps * step, "step_size_s": step, "steps": steps, "steps_completed": 0,
@@ -215,7 +246,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         completed = 0
         writer = CsvWriter(csv_path, master.columns, flush_interval_s=flush_interval_s)
         try:
-            with master:
+            with master, deferred_interrupts() as stop_request:
                 master.instantiate()
                 master.initialize(start, start + steps * step)
                 writer.write(master.row)
@@ -236,6 +267,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                             break
                         writer.write(row)
                         completed = k + 1
+                        stop_request.check()
                         if completed % chunk == 0:
                             bar.update(chunk)
                         if master.ended is not None:
@@ -249,7 +281,10 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
             loop_time = time.perf_counter() - wall_start - init_time
             timing = master.timing()
         finally:
-            writer.close()
+            try:
+                writer.close()
+            except OSError as exc:  # e.g. a full disk on the last flush: the run failed, and the summary says why
+                error = error or exc
             bar.close()
         wall = time.perf_counter() - wall_start
         do_step_total = sum(t["do_step_total_s"] for t in timing.values())

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import tempfile
 import urllib.parse
@@ -50,6 +51,12 @@ SSD_TYPE = "application/x-ssp-definition"
 SSP_TYPE = "application/x-ssp-package"
 PARAMETER_SET_TYPE = "application/x-ssp-parameter-set"
 #: Exponents of a unit's base units, in this order (FMI 2.0 and SSP 1.0 BaseUnit attributes).
+#: Most bytes an .ssp archive may unpack to (the Fig. 7 archives: about 30 MiB), and an SSD or SSV may hold.
+MAX_UNPACKED_BYTES = 1 << 30
+MAX_XML_BYTES = 64 << 20
+#: Deepest nesting of SSDs referencing SSDs (a structure that references itself through copies stops here).
+MAX_NESTING = 16
+
 BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
 
@@ -288,15 +295,17 @@ def _locate_ssd(path: Path, ssd_name: str, temporary: list) -> Path:
             raise StructureError(f"{path}: a folder without {ssd_name}; expected an SSP folder, .ssp archive or .ssd file")
         return ssd
     if not path.is_file():
-        raise StructureError(f"{path}: no such file or folder")
+        raise StructureError(f"{path}: not a regular file" if path.exists() else f"{path}: no such file or folder")
     if zipfile.is_zipfile(path):
         holder = tempfile.TemporaryDirectory(prefix="nfal-ssp-", ignore_cleanup_errors=True)  # removed when collected
         temporary.append(holder)
         folder = Path(holder.name)
         try:
             with zipfile.ZipFile(path) as archive:
+                _check_archive(path, archive)
                 archive.extractall(folder)
-        except (zipfile.BadZipFile, OSError) as exc:
+        except (zipfile.BadZipFile, OSError, NotImplementedError, RuntimeError) as exc:
+            # NotImplementedError: a compression method zipfile lacks; RuntimeError: an encrypted entry
             raise StructureError(f"{path}: cannot unpack the SSP archive: {exc}") from None
         ssd = folder / ssd_name
         if not ssd.is_file():
@@ -305,11 +314,29 @@ def _locate_ssd(path: Path, ssd_name: str, temporary: list) -> Path:
     return path
 
 
+def _check_archive(path: Path, archive: zipfile.ZipFile) -> None:
+    """Refuse, before unpacking, an archive with encrypted entries or more than MAX_UNPACKED_BYTES in all."""
+    entries = archive.infolist()
+    encrypted = [entry.filename for entry in entries if entry.flag_bits & 0x1]
+    if encrypted:
+        raise StructureError(f"{path}: encrypted entries ({', '.join(encrypted[:3])}); SSP archives are not encrypted")
+    total = sum(entry.file_size for entry in entries)
+    if total > MAX_UNPACKED_BYTES:
+        raise StructureError(f"{path}: unpacks to {total / 2**20:,.0f} MiB, more than the {MAX_UNPACKED_BYTES / 2**20:,.0f} "
+                             "MiB an SSP archive may hold (FMUs are a few MiB); unzip it yourself and run the folder "
+                             "if it is right")
+
+
 def _q(namespace: str, tag: str) -> str:
     return f"{{{namespace}}}{tag}"
 
 
 def _parse_xml(path: Path, what: str):
+    if not path.is_file():
+        raise StructureError(f"{path}: the {what} is not a regular file")
+    if path.stat().st_size > MAX_XML_BYTES:
+        raise StructureError(f"{path}: {path.stat().st_size / 2**20:,.0f} MiB, more than the {MAX_XML_BYTES >> 20} MiB "
+                             f"a {what} may hold")
     try:
         return etree.parse(str(path), etree.XMLParser(remove_comments=True, resolve_entities=False)).getroot()
     except OSError as exc:
@@ -332,9 +359,12 @@ def _float(text: str | None, where: str) -> float | None:
     if text is None:
         return None
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         raise StructureError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise StructureError(f"{where}: {text!r}; must be a finite number")
+    return value
 
 
 def _boolean(text: str, where: str) -> bool:
@@ -413,6 +443,8 @@ class _SsdReader:
 
     def read(self, ssd_path: Path) -> SystemStructure:
         ssd_path = ssd_path.resolve()
+        if len(self._stack) >= MAX_NESTING:
+            raise StructureError(f"{ssd_path}: nested more than {MAX_NESTING} deep ({' -> '.join(p.name for p in self._stack)})")
         if ssd_path in self._stack:
             raise StructureError(f"{ssd_path}: references itself (through {' -> '.join(p.name for p in self._stack)})")
         self._stack.append(ssd_path)
@@ -435,6 +467,15 @@ class _SsdReader:
                                    self._default_experiment(root, ssd_path), ssd_path, ssd_path)
         finally:
             self._stack.pop()
+
+    def _inside_archive(self, path: Path, base: Path, where: str) -> Path:
+        """``path``, unless an SSD unpacked from an archive (``base`` in its folder) points outside that archive."""
+        for holder in self.temporary:
+            root = Path(holder.name).resolve()
+            if base.resolve().is_relative_to(root) and not path.resolve().is_relative_to(root):
+                raise StructureError(f"{where}: {path} is outside the .ssp archive; an archive loads only its own files "
+                                     "(unzip it to a folder to use files beside it)")
+        return path
 
     def _merge_units(self, units: Mapping[str, Unit], where: Path) -> None:
         for name, unit in units.items():
@@ -509,13 +550,15 @@ class _SsdReader:
             raise StructureError(f"{where}, line {element.sourceline}: a component needs a name and a source")
         here = f"{where}: element {name!r}"
         kind = element.get("type", FMU_TYPE)
-        path = _resolve_uri(source, base, here)
+        path = self._inside_archive(_resolve_uri(source, base, here), base, here)
         if kind in (SSD_TYPE, SSP_TYPE) or path.suffix.lower() in (".ssd", ".ssp"):
             return self._referenced_system(element, name, path, here)
         if kind != FMU_TYPE:
             raise UnsupportedFeatureError(f"{here}: component type {kind!r}; only FMUs ({FMU_TYPE}) and SSDs are supported")
         if not path.exists():
             raise MissingFmuError(f"{here}: FMU {source!r} not found (looked for {path})")
+        if not (path.is_file() or path.is_dir()):
+            raise StructureError(f"{here}: FMU {source!r} ({path}) is not a regular file nor an unpacked FMU folder")
         implementation = element.get("implementation", "any")
         if implementation == "ModelExchange":
             raise UnsupportedFeatureError(f"{here}: implementation='ModelExchange'; only co-simulation FMUs are run")
@@ -542,7 +585,7 @@ class _SsdReader:
                 if binding.get("sourceBase", "SSD") != "SSD":
                     raise UnsupportedFeatureError(f"{where}: parameter binding {source!r} with sourceBase="
                                                   f"{binding.get('sourceBase')!r}; only sources relative to the SSD")
-                path = _resolve_uri(source, base, where)
+                path = self._inside_archive(_resolve_uri(source, base, where), base, where)
                 if not path.is_file():
                     raise StructureError(f"{where}: parameter values {source!r} not found (looked for {path})")
                 root = _parse_xml(path, "parameter set")

@@ -361,8 +361,8 @@ def _client(scheduler: str | None, workers: int | None):
     if scheduler:
         try:
             return Client(scheduler, timeout="20s"), None
-        except (OSError, TimeoutError) as exc:
-            raise SweepError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address (no port, unknown protocol)
+            raise SweepError(f"cannot reach the Dask scheduler at {scheduler!r} (expected tcp://host:port): {exc}") from None
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                            silence_logs=logging.ERROR)

@@ -123,6 +123,8 @@ def load_spec(path: str | os.PathLike) -> SweepSpec:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise SweepSpecError(f"{path}: cannot read the sweep spec ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise SweepSpecError(f"{path}: not a text file; a sweep spec is TOML (UTF-8)") from None
     except tomllib.TOMLDecodeError as exc:
         raise SweepSpecError(f"{path}: not valid TOML: {exc}") from None
     return parse_spec(data, base_dir=path.parent, source=str(path))
@@ -166,8 +168,28 @@ def parse_spec(data: dict, *, base_dir: str | os.PathLike = ".", source: str = "
         raise SweepSpecError(f"{source}: [random] has draws/seed but no distributions")
     if not grid and not random:
         raise SweepSpecError(f"{source}: nothing to sweep; give a [grid] (name = [values]) or a [random] table")
-    name = sweep.get("name", Path(source).stem)
-    return SweepSpec(str(name), kind, settings, grid, random, int(draws or 1), seed, Path(base_dir))
+    _check_run_count(math.prod(len(values) for values in grid.values()) * int(draws or 1), source)
+    name = _checked_name(sweep.get("name", Path(source).stem), source)
+    return SweepSpec(name, kind, settings, grid, random, int(draws or 1), seed, Path(base_dir))
+
+
+#: The most runs a spec may expand to (a grid of 10 values in each of 5 parameters is 100 000).
+MAX_RUNS = 100_000
+
+
+def _check_run_count(count: int, source: str) -> None:
+    if count > MAX_RUNS:
+        raise SweepSpecError(f"{source}: the spec expands to {count:,} runs; at most {MAX_RUNS:,} (fewer grid values "
+                             "or draws, or several specs)")
+
+
+def _checked_name(name: object, source: str) -> str:
+    """The sweep's name names its default folder runs/sweep-NAME: one plain folder name, nothing that leaves runs/."""
+    text = str(name)
+    if not text.strip() or text in (".", "..") or any(c in text for c in "/\\\0") or Path(text).is_absolute():
+        raise SweepSpecError(f"{source}: [sweep] name = {name!r}; must be a plain folder name (no '/', '\\', "
+                             "'..' or empty name)")
+    return text
 
 
 def _table(value, name: str, source: str, required: bool = False) -> dict:

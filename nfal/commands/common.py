@@ -4,10 +4,52 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number (``nan``, ``inf`` and words are usage errors, exit code 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    value = finite_float(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number > 0")
+    return value
+
+
+#: Figure formats --plot writes (by the file's extension).
+PLOT_FORMATS = (".png", ".pdf", ".svg")
+
+
+def output_file(*suffixes: str):
+    """An argparse type: a file to write, ending in one of ``suffixes``, in a folder that exists and is writable
+    (checked before any work is done, so a long computation does not end in a failed write)."""
+    def check(text: str) -> str:
+        path = Path(text)
+        if path.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"{text!r}: the file must end in {' or '.join(suffixes)}")
+        folder = path.parent if str(path.parent) else Path(".")
+        if not folder.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r}: no folder {str(folder)!r} to write it in")
+        if not os.access(folder, os.W_OK) or path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot be written (folder not writable, or a folder by that name)")
+        return text
+    return check
 
 
 def number_list(text: str) -> np.ndarray:
@@ -17,12 +59,15 @@ def number_list(text: str) -> np.ndarray:
             start, stop, count = text.split(":")
             if int(count) < 1:
                 raise ValueError
-            return np.linspace(float(start), float(stop), int(count))
-        values = np.array([float(item) for item in text.split(",") if item.strip()])
+            values = np.linspace(float(start), float(stop), int(count))
+        else:
+            values = np.array([float(item) for item in text.split(",") if item.strip()])
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a list 'A,B,C' nor a range 'START:STOP:COUNT'") from None
     if values.size == 0:
         raise argparse.ArgumentTypeError("an empty list")
+    if not np.all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be a finite number")
     return values
 
 
@@ -60,7 +105,8 @@ def progress_bar(total: int, description: str) -> tqdm:
 
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON on stdout")
-    parser.add_argument("--plot", metavar="FILE", help="write a PNG figure to FILE")
+    parser.add_argument("--plot", metavar="FILE", type=output_file(*PLOT_FORMATS),
+                        help=f"write a figure to FILE ({', '.join(f[1:].upper() for f in PLOT_FORMATS)}, by its extension)")
 
 
 RIG_OPTIONS = (
@@ -80,7 +126,7 @@ def add_rig_options(parser: argparse.ArgumentParser) -> None:
     defaults = RigParameters()
     group = parser.add_argument_group("rig (SI; defaults: the paper's rig)")
     for name, unit, text in RIG_OPTIONS:
-        group.add_argument(f"--{name.replace('_', '-')}", dest=f"rig_{name}", type=float, metavar=unit,
+        group.add_argument(f"--{name.replace('_', '-')}", dest=f"rig_{name}", type=finite_float, metavar=unit,
                            help=f"{text} [{unit}] (default {getattr(defaults, name):g})")
 
 

@@ -6,7 +6,7 @@ import argparse
 import datetime
 from pathlib import Path
 
-from nfal.commands.common import print_json, print_step_table
+from nfal.commands.common import finite_float, positive_float, print_json, print_step_table
 from nfal.models.errors import InvalidParameterError
 
 REFERENCE_INPUT = "Controller.reference"
@@ -40,12 +40,12 @@ def register(commands) -> None:
     run.add_argument("structure", nargs="?", default="fig7_slow",
                      help="a built-in structure (fig7_slow, fig7_reynolds, fig7_hil) or an .ssp archive, .ssd file or SSP folder "
                      "(default fig7_slow)")
-    run.add_argument("--start-time", type=float, metavar="S",
+    run.add_argument("--start-time", type=finite_float, metavar="S",
                      help="start time [s] (default: the structure's DefaultExperiment startTime, else 0)")
-    run.add_argument("--stop-time", type=float, metavar="S",
+    run.add_argument("--stop-time", type=positive_float, metavar="S",
                      help="stop time [s] (default: the built-in staircase's length when it drives the reference, 3.7 s "
                      "(4.7 s against hardware); else the structure's DefaultExperiment stopTime)")
-    run.add_argument("--step", type=float, metavar="S", help="communication step [s] (default: the structure's "
+    run.add_argument("--step", type=positive_float, metavar="S", help="communication step [s] (default: the structure's "
                      "DefaultExperiment FixedStepAlgorithm baseStepSize annotation, 5e-4 s (2 kHz) for Fig. 7)")
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                      help="override a parameter or start value (repeatable)")
@@ -71,7 +71,11 @@ def register(commands) -> None:
     run.add_argument("--rt-priority", type=int, metavar="1-99", help="with --realtime (on by itself against hardware): "
                      "run the paced loop under SCHED_FIFO at this priority, so other processes cannot delay its steps "
                      "(Linux; needs root, CAP_SYS_NICE or an rtprio limit; e.g. 50)")
-    run.add_argument("--out", metavar="DIR", help="result folder (default runs/<structure>-<date-time>)")
+    run.add_argument("--out", metavar="DIR", help="result folder (default runs/<structure>-<date-time>); refused if it "
+                     "holds a previous run's results.csv, summary.json or response.png, unless --overwrite")
+    run.add_argument("--overwrite", action="store_true", help="replace the results of a previous run in --out")
+    run.add_argument("--max-steps", type=int, metavar="N", help="refuse a run of more communication steps than this "
+                     "(default 10 000 000: about 1 GB of results for Fig. 7)")
     run.add_argument("--build-dir", default="build", metavar="DIR", help="where built-in structures are built (default build/)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(handler=run_run)
@@ -181,7 +185,7 @@ def run_run(args: argparse.Namespace) -> int:
         result = run_structure(structure, start_time=args.start_time, stop_time=stop_time, step_size=args.step,
                                inputs=inputs, parameters=parameters,
                                algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
-                               rt_priority=args.rt_priority,
+                               rt_priority=args.rt_priority, overwrite=args.overwrite, max_steps=args.max_steps,
                                plot=response_panels(columns) if fig7 else None, metrics=metrics)
     except SimulationError as exc:
         if exc.result is not None:

@@ -7,7 +7,7 @@ import signal
 import sys
 from pathlib import Path
 
-from nfal.commands.common import print_json
+from nfal.commands.common import finite_float, output_file, print_json
 
 
 def register(commands) -> None:
@@ -36,28 +36,28 @@ def register(commands) -> None:
     emulator.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                           help="override a parameter of the truth (repeatable), e.g. Plant.mass=0.15, "
                           "SensorChain.noise_peak=0")
-    emulator.add_argument("--drop", type=float, default=0.0, metavar="RATE", help="drop this share of outgoing frames")
-    emulator.add_argument("--corrupt", type=float, default=0.0, metavar="RATE",
+    emulator.add_argument("--drop", type=finite_float, default=0.0, metavar="RATE", help="drop this share of outgoing frames")
+    emulator.add_argument("--corrupt", type=finite_float, default=0.0, metavar="RATE",
                           help="flip one bit in this share of outgoing frames")
-    emulator.add_argument("--duplicate", type=float, default=0.0, metavar="RATE",
+    emulator.add_argument("--duplicate", type=finite_float, default=0.0, metavar="RATE",
                           help="send this share of outgoing frames twice")
-    emulator.add_argument("--delay", type=float, default=0.0, metavar="SECONDS", help="hold every outgoing frame this long")
-    emulator.add_argument("--disconnect-at", type=float, metavar="SECONDS",
+    emulator.add_argument("--delay", type=finite_float, default=0.0, metavar="SECONDS", help="hold every outgoing frame this long")
+    emulator.add_argument("--disconnect-at", type=finite_float, metavar="SECONDS",
                           help="drop the port this long after the first session opened (the host's reads fail)")
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
                           help="reconnect the port this long after --disconnect-at (default 1.0)")
     emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
-    emulator.add_argument("--watchdog", type=float, default=0.02, metavar="SECONDS",
+    emulator.add_argument("--watchdog", type=finite_float, default=0.02, metavar="SECONDS",
                           help="no DRIVE for this long trips the watchdog (default 0.02)")
-    emulator.add_argument("--ramp-down", type=float, default=0.05, metavar="SECONDS",
+    emulator.add_argument("--ramp-down", type=finite_float, default=0.05, metavar="SECONDS",
                           help="the watchdog's ramp of the drive to 0 V (default 0.05)")
-    emulator.add_argument("--max-voltage", type=float, default=150.0, metavar="V",
+    emulator.add_argument("--max-voltage", type=finite_float, default=150.0, metavar="V",
                           help="drive commands above this are clamped (default 150)")
-    emulator.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this long (default: run until "
+    emulator.add_argument("--duration", type=finite_float, metavar="SECONDS", help="stop after this long (default: run until "
                           "Ctrl-C or SIGTERM)")
     emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
                           "(default build/)")
-    emulator.add_argument("--record", metavar="FILE.csv", help="write every measurement the rig takes in a session "
+    emulator.add_argument("--record", metavar="FILE.csv", type=output_file(".csv"), help="write every measurement the rig takes in a session "
                           "(before fault injection), with the applied voltage and the true height")
     emulator.add_argument("--rt-priority", type=int, metavar="1-99", help="run the rig under SCHED_FIFO at this "
                           "priority, so the host's busy loop beside it cannot delay its ticks (Linux; needs root, "

@@ -6,7 +6,8 @@ import argparse
 
 import numpy as np
 
-from nfal.commands.common import add_output_options, add_rig_options, number_list, print_json, progress_bar, rig_from_args
+from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file, print_json,
+                                  progress_bar, rig_from_args)
 
 SHAPE_HELP = "excitation form: piston, plate:N (free circular plate, N nodal circles), paper (Fig. 3 stand-in) or a CSV of R,eps_hat"
 
@@ -27,10 +28,10 @@ def register(commands) -> None:
                            help="solution route (default: perturbation)")
     numerical.add_argument("--sigma", type=number_list, default=number_list("5:500:100"),
                            help="squeeze numbers: A,B,C or START:STOP:COUNT (default 5:500:100)")
-    numerical.add_argument("--delta", type=float, default=0.01, help="excitation norm delta for time-marching (default 0.01)")
+    numerical.add_argument("--delta", type=finite_float, default=0.01, help="excitation norm delta for time-marching (default 0.01)")
     numerical.add_argument("--nodes", type=int, help="radial nodes (default 401 perturbation, 101 time-marching)")
     numerical.add_argument("--steps-per-period", type=int, default=256, help="time steps per excitation period (time-marching)")
-    numerical.add_argument("--out", metavar="FILE.json", help="write the result as a calibration file for the plant")
+    numerical.add_argument("--out", metavar="FILE.json", type=output_file(".json"), help="write the result as a calibration file for the plant")
     add_output_options(numerical)
     numerical.set_defaults(handler=calibrate_numerical)
 
@@ -42,9 +43,9 @@ def register(commands) -> None:
     experimental.add_argument("data", metavar="DATA.csv", help="measured equilibria")
     experimental.add_argument("--degree", type=int, default=4, help="polynomial degree (default 4, as eq. 17)")
     voltage = experimental.add_mutually_exclusive_group()
-    voltage.add_argument("--metres-per-volt", type=float, help="linear map |a| = gain * V for voltage_v data [m/V]")
+    voltage.add_argument("--metres-per-volt", type=finite_float, help="linear map |a| = gain * V for voltage_v data [m/V]")
     voltage.add_argument("--voltage-map", metavar="MAP.csv", help="measured (voltage_v, amplitude_m) table for voltage_v data")
-    experimental.add_argument("--out", metavar="FILE.json", help="write the fitted calibration file for the plant")
+    experimental.add_argument("--out", metavar="FILE.json", type=output_file(".json"), help="write the fitted calibration file for the plant")
     add_rig_options(experimental)
     add_output_options(experimental)
     experimental.set_defaults(handler=calibrate_experimental)
