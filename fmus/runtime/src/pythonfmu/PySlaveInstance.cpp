@@ -48,6 +48,11 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
         fileContents << line << "\n";
     }
 
+    // nfal: import this instance's own slave module. An FMU of the same name loaded earlier in the process
+    // (from another, perhaps deleted, folder) left its module in sys.modules; its __file__ would name that folder.
+    if (PyDict_DelItemString(PyImport_GetModuleDict(), moduleName.c_str()) != 0) {
+        PyErr_Clear(); // not imported before
+    }
     // Compile python code so classes are added to the namespace
     PyObject* pyModule = PyImport_ImportModule(moduleName.c_str());
 
