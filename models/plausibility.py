@@ -14,8 +14,9 @@ from .errors import InvalidParameterError
 MAX_CLEARANCE_M = 5e-3
 #: Largest excitation amplitude |a| [m]: piezo-driven surfaces vibrate by a few um (the paper: at most 10 um).
 MAX_EXCITATION_M = 1e-4
-#: Largest levitated mass [kg].
-MAX_MASS_KG = 10.0
+#: Largest levitated mass [kg]: above Table 1's heaviest case (20 kg on the paper's 50 mm disc), below a
+#: mass typed in grams (134.7 g as 134.7 kg).
+MAX_MASS_KG = 100.0
 #: Largest radius of object and surface [m].
 MAX_RADIUS_M = 1.0
 
