@@ -18,18 +18,36 @@ import pytest
 
 from nfal.cli import main
 from nfal.orchestration import TypeMismatchError, read_ssp, resolve, run_structure
+from reference_fmus.build import build_reference_fmus, compiler
 from toy_fmus.ssd import component, connection, ssd, system, write_folder
 
-REFERENCE = Path(__file__).parent / "reference_fmus"
-STAIR = REFERENCE / "stair_feedthrough.ssd"
-CHAIN = REFERENCE / "feedthrough_chain.ssd"
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """The Reference FMUs built from their sources (tests/reference_fmus/), with the structures beside them."""
+    if compiler() is None:
+        pytest.skip("building the FMI Reference FMUs needs a C compiler: apt-get install gcc")
+    return build_reference_fmus(tmp_path_factory.mktemp("reference_fmus"))
+
+
+@pytest.fixture
+def stair(reference) -> Path:
+    return reference / "stair_feedthrough.ssd"
+
+
+@pytest.fixture
+def chain(reference) -> Path:
+    return reference / "feedthrough_chain.ssd"
+
+
 FACTOR, OFFSET = 0.5, -1.0  # the LinearTransformation in both SSDs
 STEP = 0.2  # stair_feedthrough.ssd's baseStepSize [s]
 
 
 @pytest.mark.parametrize("algorithm, delay", [("causal", 0), ("jacobi", 1)])
-def test_stair_feeds_feedthrough_until_its_horizon(tmp_path, algorithm, delay):
-    result = run_structure(STAIR, algorithm=algorithm, out_dir=tmp_path, plot=False)
+def test_stair_feeds_feedthrough_until_its_horizon(stair, tmp_path, algorithm, delay):
+    result = run_structure(stair, algorithm=algorithm, out_dir=tmp_path, plot=False)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "ok" and summary["error"] is None
     assert summary["step_size_s"] == STEP and summary["stop_time_s"] == 12.0  # the SSD's DefaultExperiment
@@ -45,28 +63,28 @@ def test_stair_feeds_feedthrough_until_its_horizon(tmp_path, algorithm, delay):
 
 
 @pytest.mark.parametrize("algorithm", ["causal", "jacobi"])
-def test_nfal_run_takes_the_ssd_experiment_and_notes_the_horizon(capsys, tmp_path, algorithm):
-    assert main(["run", str(STAIR), "--algorithm", algorithm, "--out", str(tmp_path)]) == 0
+def test_nfal_run_takes_the_ssd_experiment_and_notes_the_horizon(stair, capsys, tmp_path, algorithm):
+    assert main(["run", str(stair), "--algorithm", algorithm, "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "9 s in" in out and f"({algorithm}, step 0.2 s)" in out and "note: Stair ended its own horizon" in out
 
 
-def test_nfal_run_flags_override_the_ssd_experiment(capsys, tmp_path):
-    assert main(["run", str(STAIR), "--start-time", "1", "--stop-time", "3", "--step", "0.5", "--out", str(tmp_path),
+def test_nfal_run_flags_override_the_ssd_experiment(stair, capsys, tmp_path):
+    assert main(["run", str(stair), "--start-time", "1", "--stop-time", "3", "--step", "0.5", "--out", str(tmp_path),
                  "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert (summary["start_time_s"], summary["stop_time_s"], summary["step_size_s"]) == (1.0, 3.0, 0.5)
     assert summary["status"] == "ok" and "note" not in summary
 
 
-def test_linear_transformation_equals_libcosim(tmp_path):
+def test_linear_transformation_equals_libcosim(chain, tmp_path):
     """Real -> Real through the LinearTransformation, in our jacobi master and in OSP libcosim."""
     pytest.importorskip("libcosimpy")
     from nfal.orchestration.libcosim import run_ssp
 
     ramp = {"First.Float64_continuous_input": lambda t: 10.0 * t}  # 0 at t0, libcosim's value before its first step
-    theirs = run_ssp(CHAIN, inputs=ramp, observe=["Second.Float64_continuous_output"])
-    ours = run_structure(CHAIN, algorithm="jacobi", inputs=ramp, out_dir=tmp_path, plot=False).table()
+    theirs = run_ssp(chain, inputs=ramp, observe=["Second.Float64_continuous_output"])
+    ours = run_structure(chain, algorithm="jacobi", inputs=ramp, out_dir=tmp_path, plot=False).table()
     np.testing.assert_allclose(ours["time"][1:], theirs.time_s, atol=1e-12)
     # jacobi: First's output at t_k+1 is its input at t_k, which reaches Second one step later again
     expected = FACTOR * 10.0 * np.maximum(theirs.time_s - 0.2, 0.0) + OFFSET
@@ -75,14 +93,14 @@ def test_linear_transformation_equals_libcosim(tmp_path):
                                rtol=1e-15, atol=0)
 
 
-def _pair(tmp_path: Path, start: str, end: str, transformation: str = "") -> Path:
+def _pair(reference: Path, tmp_path: Path, start: str, end: str, transformation: str = "") -> Path:
     """Two Feedthroughs, A's ``start`` feeding B's ``end`` (with an optional transformation element)."""
     link = connection(f"A.{start}", f"B.{end}")
     if transformation:
         link = link.replace("/>", f">{transformation}</ssd:Connection>")
     text = ssd(system("pair", (component("A", "Feedthrough"), component("B", "Feedthrough")), (link,)),
                stop_time=1.0, step_size=0.1)
-    return write_folder(tmp_path, text, {"Feedthrough": REFERENCE / "Feedthrough.fmu"})
+    return write_folder(tmp_path, text, {"Feedthrough": reference / "Feedthrough.fmu"})
 
 
 LINEAR = '<ssc:LinearTransformation factor="2" offset="3"/>'
@@ -94,8 +112,8 @@ LINEAR = '<ssc:LinearTransformation factor="2" offset="3"/>'
     ("Int32_output", "Boolean_input", "", "only Integer -> Real"),
     ("Int32_output", "Int32_input", LINEAR, "LinearTransformation needs Real ends"),
 ])
-def test_connections_that_would_lose_meaning_are_refused(tmp_path, start, end, transformation, message):
-    with read_ssp(_pair(tmp_path, start, end, transformation)) as structure:
+def test_connections_that_would_lose_meaning_are_refused(reference, tmp_path, start, end, transformation, message):
+    with read_ssp(_pair(reference, tmp_path, start, end, transformation)) as structure:
         with pytest.raises(TypeMismatchError, match=message):
             resolve(structure)
 
@@ -105,14 +123,14 @@ def test_connections_that_would_lose_meaning_are_refused(tmp_path, start, end, t
     ("Float64_continuous_output", LINEAR, 2 * 7.0 + 3),
     ("Int32_output", LINEAR, 2 * 7.0 + 3),
 ])
-def test_a_connection_converts_and_transforms(tmp_path, start, transformation, expected):
-    folder = _pair(tmp_path / "ssp", start, "Float64_continuous_input", transformation)
+def test_a_connection_converts_and_transforms(reference, tmp_path, start, transformation, expected):
+    folder = _pair(reference, tmp_path / "ssp", start, "Float64_continuous_input", transformation)
     source = f"A.{start.replace('output', 'input')}"
     result = run_structure(folder, inputs={source: 7}, out_dir=tmp_path / "run", plot=False)
     np.testing.assert_array_equal(result["B.Float64_continuous_output"], expected)
 
 
-def test_transformations_compose_through_system_connectors(tmp_path):
+def test_transformations_compose_through_system_connectors(reference, tmp_path):
     """A -> sub.in (x2 + 3) -> sub.B (x0.5 - 1): B receives 0.5 (2 u + 3) - 1 = u + 0.5."""
     inner = system("sub", (component("B", "Feedthrough"),),
                    (connection("in", "B.Float64_continuous_input").replace(
@@ -121,7 +139,7 @@ def test_transformations_compose_through_system_connectors(tmp_path):
     outer = system("outer", (component("A", "Feedthrough"), inner),
                    (connection("A.Float64_continuous_output", "sub.in").replace("/>", f">{LINEAR}</ssd:Connection>"),))
     folder = write_folder(tmp_path / "ssp", ssd(outer, stop_time=0.3, step_size=0.1),
-                          {"Feedthrough": REFERENCE / "Feedthrough.fmu"})
+                          {"Feedthrough": reference / "Feedthrough.fmu"})
     with read_ssp(folder) as structure:
         (link,) = resolve(structure).links
     assert (link.transformation.factor, link.transformation.offset) == (1.0, 0.5)

@@ -1,0 +1,5 @@
+#define FMI_VERSION 2
+
+#include "fmi2Functions.c"
+#include "model.c"
+#include "cosimulation.c"
