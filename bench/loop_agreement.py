@@ -14,10 +14,11 @@ import tempfile
 import numpy as np
 
 from nfal.build import build_all
-from nfal.fig7 import HEIGHT
+from nfal.fig7 import SIMULATED
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 
+HEIGHT = SIMULATED.height
 AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.analog_cutoff": 0.0,
                 "SensorChain.resolution": 0.0}
 

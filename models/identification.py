@@ -10,10 +10,8 @@ Pure numerics for ``nfal identify`` (the driving over the link lives in :mod:`nf
   through the transducer's first-order amplitude lag (tau_a = 2 Q / omega_r, models/transducer.py). The
   stiffness comes from the step's own static gain, k = dF / dh_final, so the damping c (the one free
   dynamic parameter) does not lean on the slope of the K fit. The factor over eq. (6) is c / c6(h_mid).
-* :func:`damping_table`: per height, the geometric mean of the steps' factors and its 95 % interval.
-* :class:`DampingTable`: the factors at the identified heights with their 95 % band, interpolated by
-  PCHIP on log factor (monotone between points), held constant outside; the calibration file's
-  ``damping`` entry.
+* :func:`damping_table`: per height, the geometric mean of the steps' factors and its 95 % interval, as
+  the calibration file's :class:`~nfal.models.damping.DampingCorrection`.
 * :func:`simulate_step`: the nonlinear eq. (13) response to the same step, for the model-vs-measurement
   figure (Fig. 6's analogue) before and after the damping correction.
 """
@@ -24,9 +22,10 @@ import dataclasses
 from collections.abc import Callable
 
 import numpy as np
-from scipy import integrate, interpolate, optimize, stats
+from scipy import integrate, optimize, stats
 
 from .calibration import CalibrationFunction
+from .damping import DampingCorrection
 from .errors import ConvergenceError, DataFormatError, InvalidParameterError, require_positive
 from .rig import RigParameters
 from .transducer import QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ
@@ -124,40 +123,7 @@ def fit_step(times: np.ndarray, heights: np.ndarray, excitation_before: float, e
                    float(damping / rig.squeeze_film_damping(middle)), float(np.sqrt(np.mean(fit.fun**2))))
 
 
-@dataclasses.dataclass(frozen=True)
-class DampingTable:
-    """The measured multiplier of eq. (6)'s damping c(h) at identified heights, with its 95 % band.
-
-    ``factor(h)`` interpolates PCHIP on log factor over height (monotone between points, no overshoot) and
-    holds the end values outside the identified heights.
-    """
-
-    heights_m: np.ndarray
-    factors: np.ndarray
-    factors_low: np.ndarray
-    factors_high: np.ndarray
-
-    def __post_init__(self) -> None:
-        arrays = [np.asarray(getattr(self, f.name), dtype=float) for f in dataclasses.fields(self)]
-        if len({a.shape for a in arrays}) != 1 or arrays[0].ndim != 1 or arrays[0].size < 1:
-            raise DataFormatError("a damping table needs equal-length 1-D heights, factors and bands")
-        if np.any(np.diff(arrays[0]) <= 0) or np.any(arrays[1] <= 0) or not np.all(np.isfinite(arrays)):
-            raise DataFormatError("a damping table needs increasing heights and finite factors > 0")
-        for field, array in zip(dataclasses.fields(self), arrays):
-            object.__setattr__(self, field.name, array)
-
-    def factor(self, height) -> np.ndarray:
-        """The damping factor at clearance(s) ``height`` [m]."""
-        height = np.clip(np.asarray(height, dtype=float), self.heights_m[0], self.heights_m[-1])
-        if self.heights_m.size == 1:
-            return np.full_like(height, self.factors[0])
-        return np.exp(interpolate.PchipInterpolator(self.heights_m, np.log(self.factors))(height))
-
-    def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name).tolist() for f in dataclasses.fields(self)}
-
-
-def damping_table(fits_by_height: list[list[StepFit]], confidence: float = 0.95) -> DampingTable:
+def damping_table(fits_by_height: list[list[StepFit]], confidence: float = 0.95) -> DampingCorrection:
     """One row per height from its repeated step fits: the geometric mean factor and the ``confidence`` interval of
     that mean (Student's t over the steps' spread of log factor). Geometric, since the factor is a multiplier and the
     up and down steps' linearisation errors are nearly reciprocal (about 0.93 and 1.11 at 50 um for +-3 % steps)."""
@@ -170,7 +136,7 @@ def damping_table(fits_by_height: list[list[StepFit]], confidence: float = 0.95)
         mean = logs.mean()
         rows.append((np.mean([fit.height for fit in fits]), *np.exp([mean, mean - half, mean + half])))
     rows.sort()
-    return DampingTable(*(np.array(column) for column in zip(*rows)))
+    return DampingCorrection(*(np.array(column) for column in zip(*rows)))
 
 
 def simulate_step(times: np.ndarray, start_height: float, excitation_before: float, excitation_after: float,

@@ -30,11 +30,12 @@ import numpy as np
 
 from nfal.hil.link import RigLink, Sample
 from nfal.hil.protocol import StatusFlags
-from nfal.models.calibration import paper_calibration
+from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
+from nfal.models.damping import DampingCorrection
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.errors import ExperimentError, InvalidParameterError
 from nfal.models.experimental import EquilibriumData, ExperimentalCalibration, fit_calibration
-from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, DampingTable, IdentificationPlan, StepFit, damping_table,
+from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table,
                                         fit_step, settled)
 from nfal.models.pid_design import design_schedule
 from nfal.models.plant import SimplifiedPlant
@@ -364,19 +365,21 @@ class Identification:
 
     calibration: ExperimentalCalibration
     equilibria: list[Equilibrium]
-    damping: DampingTable
+    damping: DampingCorrection
+    rig: RigParameters
     step_fits: list[list[StepFit]]
     steps: list[list[DriveStep]]
     metres_per_volt: float
 
     def document(self, provenance: dict) -> dict:
-        """The calibration file: K as ``nfal calibrate`` writes it, plus ``damping``, ``equilibria`` and ``provenance``."""
-        return {**self.calibration.fit.to_dict(), "damping": self.damping.to_dict(),
+        """The calibration file (:class:`RigCalibration`: K, ``damping``, the ``rig`` it was identified on and
+        ``provenance``), plus the ``equilibria`` behind K."""
+        calibration = RigCalibration(self.calibration.fit, self.damping, rig_record(self.rig), provenance)
+        return {**calibration.to_dict(),
                 "equilibria": {"voltage_v": [p.voltage for p in self.equilibria],
                                "height_m": [p.height for p in self.equilibria],
                                "height_spread_m": [p.spread for p in self.equilibria],
-                               "metres_per_volt": self.metres_per_volt},
-                "provenance": provenance}
+                               "metres_per_volt": self.metres_per_volt}}
 
 
 def analyse(equilibria: list[Equilibrium], steps: list[list[DriveStep]], rig: RigParameters, *, metres_per_volt: float,
@@ -388,4 +391,4 @@ def analyse(equilibria: list[Equilibrium], steps: list[list[DriveStep]], rig: Ri
     calibration = fit_calibration(rig, data, degree)
     fits = [[fit_step(s.times, s.heights, metres_per_volt * s.voltage_before, metres_per_volt * s.voltage_after, rig, lag_s)
              for s in at_height] for at_height in steps]
-    return Identification(calibration, equilibria, damping_table(fits), fits, steps, metres_per_volt)
+    return Identification(calibration, equilibria, damping_table(fits), rig, fits, steps, metres_per_volt)

@@ -12,9 +12,10 @@ from simulated_rig import SimulatedRig
 from nfal.cli import main
 from nfal.commands.identify import _run
 from nfal.identify import Experiments, SampleRecorder, analyse
-from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration
+from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration, rig_calibration_from_dict
+from nfal.models.damping import DampingCorrection
 from nfal.models.errors import DataFormatError, ExperimentError, InvalidParameterError
-from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, DampingTable, IdentificationPlan, StepFit, damping_table,
+from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table,
                                         fit_step, settled)
 from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -66,8 +67,8 @@ def test_a_step_the_wrong_way_is_refused():
 
 
 def test_the_damping_table_interpolates_monotonically_and_holds_its_ends():
-    table = DampingTable(np.array([50e-6, 100e-6, 200e-6]), np.array([1.0, 1.5, 10.0]), np.array([0.9, 1.4, 9.0]),
-                         np.array([1.1, 1.6, 11.0]))
+    table = DampingCorrection(np.array([50e-6, 100e-6, 200e-6]), np.array([1.0, 1.5, 10.0]), np.array([0.9, 1.4, 9.0]),
+                              np.array([1.1, 1.6, 11.0]))
     heights = np.linspace(50e-6, 200e-6, 50)
     assert np.all(np.diff(table.factor(heights)) > 0)
     assert table.factor(20e-6) == pytest.approx(1.0) and table.factor(300e-6) == pytest.approx(10.0)
@@ -77,12 +78,12 @@ def test_the_damping_table_interpolates_monotonically_and_holds_its_ends():
 @pytest.mark.parametrize("heights, factors", [([100e-6, 50e-6], [1.0, 2.0]), ([50e-6, 100e-6], [1.0, -2.0])])
 def test_a_bad_damping_table_is_refused(heights, factors):
     with pytest.raises(DataFormatError):
-        DampingTable(np.array(heights), np.array(factors), np.array(factors), np.array(factors))
+        DampingCorrection(np.array(heights), np.array(factors), np.array(factors), np.array(factors))
 
 
 def test_the_damping_interval_comes_from_the_steps_spread():
     fits = [StepFit(100e-6, 1.0, 1.0, 1e-6, factor, 0.0) for factor in (1.0, 1.2, 1.1, 1.3)]
-    table = damping_table([fits])
+    table = damping_table([fits, [StepFit(150e-6, 1.0, 1.0, 1e-6, factor, 0.0) for factor in (2.0, 2.2)]])
     assert table.factors[0] == pytest.approx(np.exp(np.mean(np.log([1.0, 1.2, 1.1, 1.3]))))
     assert table.factors_low[0] < 1.05 and table.factors_high[0] > 1.25
     with pytest.raises(InvalidParameterError, match="steps per height"):
@@ -149,6 +150,16 @@ def test_every_sample_is_streamed_to_the_csv_and_the_drive_ends_at_zero(identifi
     document = result.document({"port": "test"})
     assert set(document["damping"]) == {"heights_m", "factors", "factors_low", "factors_high"}
     assert document["kind"] == "polynomial" and document["provenance"] == {"port": "test"}
+
+
+@pytest.mark.slow
+def test_the_identified_file_is_refused_on_another_rig(identified_other_truth):
+    """The file records the rig it was identified on: a design for another load refuses it."""
+    truth, result, _, _ = identified_other_truth
+    loaded = rig_calibration_from_dict(result.document({}))
+    loaded.check_rig(truth.rig)
+    with pytest.raises(DataFormatError, match="another rig"):
+        loaded.check_rig(truth.rig.replace(mass=truth.rig.mass * 1.2))
 
 
 def _drifting(t: float) -> float:

@@ -1,0 +1,64 @@
+"""The before/after table of docs/controller.md, "On a truth with the rig-like excess damping".
+
+    python bench/identified_design.py                         (from the repository root)
+    python bench/identified_design.py --calibration k.json    (a file from `nfal identify` instead)
+
+fig7_slow over the Fig. 9-10 staircase with the emulator's default truth as its plant (eq. 17 and the
+rig-like excess damping, ``ssp/rig_truth.ssv``), sensor noise off, four Controllers: the continuous
+(paper's) and the sampled placement, each on eq. (6) and given the damping through a calibration file.
+Without ``--calibration`` that file is a perfect identification: ``ExcessDamping.rig_like()`` tabulated at
+7 heights over 50-200 um. ``--no-lag`` makes the transducer and analog filter transparent (what is left
+of the overshoot is then the design's own).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from loop_agreement import AS_PURE_LOOP, run
+
+from nfal.build import build_all
+from nfal.fig7 import loop_metrics
+from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
+from nfal.models.closed_loop import Staircase
+from nfal.models.damping import DampingCorrection
+from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping
+from nfal.models.rig import RigParameters
+
+TRUTH = {"Plant.excess_damping_height": RIG_LIKE_EXCESS_HEIGHT, "Plant.excess_damping_exponent": RIG_LIKE_EXCESS_EXPONENT,
+         "SensorChain.noise_peak": 0.0}
+
+
+def perfect_identification(path: Path) -> Path:
+    """The truth's damping factor tabulated at 7 heights over 50-200 um, as a calibration file."""
+    heights = np.linspace(50e-6, 200e-6, 7)
+    damping = DampingCorrection(heights, ExcessDamping.rig_like().factor(heights))
+    RigCalibration(paper_calibration(), damping, rig_record(RigParameters())).save(path)
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--calibration", type=Path, help="calibration file (default: a perfect identification)")
+    parser.add_argument("--no-lag", action="store_true", help="transducer and analog filter transparent")
+    args = parser.parse_args()
+    reference = Staircase()
+    with tempfile.TemporaryDirectory() as tmp:
+        calibration = args.calibration or perfect_identification(Path(tmp) / "identified.json")
+        archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
+        truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {})}
+        print(f"{'placement':<11} {'damping':<11} {'IAE [um s]':>10}  overshoot % per step")
+        for placement in ("continuous", "sampled"):
+            for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
+                parameters = {**truth, "Controller.placement": placement, **extra}
+                result = run(archive, f"{tmp}/{placement}-{len(extra)}", reference, parameters=parameters)
+                metrics = loop_metrics(result.table(), reference)
+                overshoots = ", ".join(f"{step['overshoot_percent']:.1f}" for step in metrics["steps"])
+                print(f"{placement:<11} {damping:<11} {metrics['iae'] * 1e6:>10.3f}  {overshoots}")
+
+
+if __name__ == "__main__":
+    main()
