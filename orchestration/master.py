@@ -49,7 +49,7 @@ from pathlib import Path
 from fmpy import calloc, extract, free
 from fmpy.fmi1 import FMICallException
 from fmpy.logging import addLoggerProxy
-from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2Discard, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2True,
                        fmi2ValueReference)
 
@@ -514,7 +514,7 @@ class Master:
     def _horizon_end(self, slave: _Slave, exc: FMICallException, step_end: float) -> "HorizonEnd":
         """A discarded doStep is the end of the FMU's horizon if it says it has terminated (FMI 2.0,
         fmi2GetBooleanStatus(fmi2Terminated)); anything else is a failure."""
-        if exc.status != 2:
+        if exc.status != fmi2Discard:
             raise self._failure(slave, exc) from None
         terminated, reached = fmi2Boolean(0), fmi2Real(0.0)
         try:
