@@ -139,11 +139,13 @@ def _with_seconds(definitions: Element | None) -> Element:
 
 
 def fmi3_script(model: str, fmi2_module: str, docstring: str) -> str:
-    """The pythonfmu3 slave script of ``model``: its FMI 2.0 slave class (in ``fmi2_module``) with
-    :class:`Fmi3Adapter` before it. pythonfmu3 finds the class by the literal ``class X(... Fmi3Slave...)``."""
+    """The pythonfmu3 slave script of ``model``: its FMI 2.0 slave class (from the bundle loader module
+    ``fmi2_module``) with :class:`Fmi3Adapter` before it, both from the FMU's own nfal. pythonfmu3 finds the class by the literal ``class X(... Fmi3Slave...)``."""
     return (f'"""{model}, FMI 3.0 (nfal build --fmi 3): {docstring}"""\n\n'
             "from pythonfmu3 import Fmi3SlaveBase\n\n"
-            "from nfal.fmus.fmi3 import Fmi3Adapter\n"
-            f"from {fmi2_module} import {model} as _Slave\n\n\n"
+            f"import {fmi2_module} as _bundle\n\n"
+            "# the adapter from this FMU's own nfal, as the slave (fmus/bundle_loader.py)\n"
+            'Fmi3Adapter = _bundle.load_slave(_bundle.__file__, "nfal.fmus.fmi3", "Fmi3Adapter")\n'
+            f"_Slave = _bundle.{model}\n\n\n"
             f"class {model}(Fmi3Adapter, _Slave, Fmi3SlaveBase):\n"
             f'    __doc__ = _Slave.__doc__\n')
