@@ -12,30 +12,18 @@ from __future__ import annotations
 
 import argparse
 import collections
-import shutil
-import stat
 import subprocess
 import tempfile
 from pathlib import Path
 
-import ecospy
-
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
-from nfal.orchestration.libcosim import preload_environment
+from nfal.fmus.host_check import ecos_executable, host_environment
 
 FMUS = [name for name in FMU_SCRIPTS if name != "HardwareProxy"]
 
 
-def ecos_executable(folder: Path) -> Path:
-    """A runnable copy of the ``ecos`` binary ecospy ships (its wheel installs it without the x bit)."""
-    target = folder / "ecos"
-    shutil.copy2(Path(ecospy.__file__).parent / "binaries" / "ecos", target)
-    target.chmod(target.stat().st_mode | stat.S_IXUSR)
-    return target
-
-
 def exit_codes(ecos: Path, fmu: Path, runs: int) -> collections.Counter:
-    environment, codes = preload_environment(), collections.Counter()
+    environment, codes = host_environment(), collections.Counter()
     for _ in range(runs):
         with tempfile.TemporaryDirectory() as work:
             done = subprocess.run([str(ecos), "simulate", "--path", str(fmu), "--stopTime", "0.01", "--stepSize",
