@@ -14,7 +14,7 @@ from nfal.commands.identify import _run
 from nfal.identify import Experiments, SampleRecorder, analyse
 from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration, rig_calibration_from_dict
 from nfal.models.damping import DampingCorrection
-from nfal.models.errors import DataFormatError, ExperimentError, InvalidParameterError
+from nfal.models.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table,
                                         fit_step, settled)
 from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
@@ -62,7 +62,7 @@ def test_a_step_pair_recovers_the_truths_damping_within_3_percent(height):
 
 def test_a_step_the_wrong_way_is_refused():
     times, heights, a1, a2 = _truth_step(100e-6, up=True)
-    with pytest.raises(Exception, match="wrong way"):
+    with pytest.raises(ConvergenceError, match="wrong way"):
         fit_step(times, heights, a2, a1, RIG)
 
 
