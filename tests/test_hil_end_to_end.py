@@ -156,8 +156,12 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     assert "link lost" in result.summary["error"]
     assert result.summary["status"] == "failed"
     completed = result.summary["steps_completed"]
-    # 0.5 s after the session opened (the proxy's set-up), less the host's initialisation, plus 21 missed samples
-    assert 400 < completed < 1100
+    # the run stepped with fresh measurements until the disconnect and stopped within the missed-sample limit
+    # (20) of the last one: counted in steps after it, not in wall time (the host's initialisation and a loaded
+    # machine move the disconnect within the run)
+    fresh = np.flatnonzero(result.table()["proxy.fresh"] > 0)
+    assert fresh.size > 100
+    assert completed - fresh[-1] <= 25
     rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 1 + completed  # header, the initial row, one per completed step
     time.sleep(0.5)  # the rig's watchdog needs 200 ms and its ramp 50 ms after the last DRIVE
