@@ -15,7 +15,7 @@ thin adapter over :mod:`nfal.models`:
   the attribute of the same name, which the slave sets from its state (no dependencies).
 * **Errors.** Every entry point the FMU runtime calls (setters, getters, initialisation, ``do_step``,
   FMU state) is guarded. Inside the runtime (the instance was passed a ``logger``) an exception
-  becomes :class:`FmuCallError` ``"<instance>: <call> failed: <reason>"``, which our patched runtime
+  becomes :class:`SlaveCallError` ``"<instance>: <call> failed: <reason>"``, which our patched runtime
   (``fmus/runtime/``, ``fmus/export_runtime.py``) logs once with status fmi2Error and answers with
   **fmi2Error**; the instance stays usable and can be freed. As a Python object (tests, the rig
   emulator) the reason is logged (``logging`` and ``self.log``) and the original exception re-raised.
@@ -77,7 +77,7 @@ from nfal import __version__
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
-from nfal.models.errors import InvalidParameterError, NfalError, require_positive
+from nfal.errors import FmuStateError, InvalidParameterError, SlaveCallError, require_positive
 from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from nfal.models.rig import RigParameters
 
@@ -86,7 +86,7 @@ FREQUENCY_TOLERANCE = 1e-9
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "FmuCallError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
+__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "SlaveCallError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
            "DefaultExperiment", "SAMPLE_TOLERANCE"]
 
 #: SI base-unit exponents of every unit an nfal FMU declares (FMI 2.0 ``<BaseUnit>`` attributes).
@@ -126,13 +126,6 @@ SAMPLE_TOLERANCE = 1e-9
 _PY_TYPES = {float: Real, int: Integer, bool: Boolean, str: String}
 _COERCE = {Real: float, Integer: int, Boolean: bool, String: str}
 
-
-class FmuStateError(NfalError, ValueError):
-    """An FMU state that cannot be restored (not from this FMU, or damaged bytes)."""
-
-
-class FmuCallError(NfalError, RuntimeError):
-    """An FMI call that failed, as the host's logger shows it: ``"<instance>: <call> failed: <reason>"``."""
 
 
 class SampleClock:
@@ -414,11 +407,11 @@ class NfalSlave(Fmi2Slave):
             raise
 
     def _fail(self, what: str, exc: BaseException) -> None:
-        """Say why a call fails: in the runtime, raise FmuCallError (logged once, fmi2Error); else log."""
+        """Say why a call fails: in the runtime, raise SlaveCallError (logged once, fmi2Error); else log."""
         reason = str(exc) or type(exc).__name__
         message = f"{self.instance_name}: {what} failed: {reason}"
         if self._in_wrapper:
-            raise FmuCallError(message) from exc
+            raise SlaveCallError(message) from exc
         logger.error(message)
         self.log(message, Fmi2Status.error)
 

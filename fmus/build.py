@@ -10,6 +10,7 @@ everything the slave imports from nfal, under the same import names as in the in
         slavemodule.txt         "nfal_<script>" (pythonfmu's loader reads it)
         pythonfmu/              pythonfmu's Python side (added by pythonfmu)
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
+        nfal/errors.py          the error types (nfal/errors.py)
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
         nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
@@ -43,8 +44,11 @@ import zipfile
 from pathlib import Path
 from typing import Iterable
 
+import nfal
+import nfal.hil
+import nfal.models
+from nfal.errors import InvalidParameterError
 from nfal.fmus.export_runtime import PLATFORM, RUNTIME_SOURCES, runtime_library
-from nfal.models.errors import InvalidParameterError
 
 logger = logging.getLogger(__name__)
 
@@ -76,18 +80,16 @@ FMU_BUILD_OPTIONS: dict[str, dict[str, bool]] = {
 HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "protocol.py", "link.py")}
 
 FMUS_DIR = Path(__file__).resolve().parent
+#: nfal/errors.py: every FMU carries it (its models and slave raise these errors).
+ERRORS_MODULE = Path(nfal.__file__).resolve().parent / "errors.py"
 
 
 def _models_dir() -> Path:
     """The folder of nfal.models (models/ in a checkout or editable install, nfal/models in a wheel)."""
-    import nfal.models
-
     return Path(nfal.models.__file__).resolve().parent
 
 
 def _hil_files(name: str) -> list[Path]:
-    import nfal.hil
-
     root = Path(nfal.hil.__file__).resolve().parent
     return [root / module for module in HIL_MODULES.get(name, ())]
 
@@ -110,7 +112,7 @@ def sources(name: str) -> list[Path]:
     """Every file the FMU ``name`` is built from (its staleness is judged against these)."""
     runtime = sorted(p for p in RUNTIME_SOURCES.rglob("*") if p.is_file())
     return [script_path(name), Path(__file__).resolve(), FMUS_DIR / BUNDLE_LOADER, FMUS_DIR / "export_runtime.py",
-            *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name), *runtime]
+            ERRORS_MODULE, *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name), *runtime]
 
 
 def is_up_to_date(fmu: Path, name: str) -> bool:
@@ -122,10 +124,8 @@ def is_up_to_date(fmu: Path, name: str) -> bool:
 
 
 def _minimal_package_init() -> str:
-    from nfal import __version__
-
-    return ('"""nfal, as carried inside an FMU: nfal.models and nfal.fmus.base only (see fmus/build.py)."""\n\n'
-            f'__version__ = "{__version__}"\n')
+    return ('"""nfal, as carried inside an FMU: nfal.errors, nfal.models and nfal.fmus.base only (see fmus/build.py)."""'
+            f'\n\n__version__ = "{nfal.__version__}"\n')
 
 
 def _stage(name: str, stage: Path) -> Path:
@@ -137,6 +137,7 @@ def _stage(name: str, stage: Path) -> Path:
     (package / "models" / "data").mkdir(parents=True)
     (package / "fmus").mkdir()
     (package / "__init__.py").write_text(_minimal_package_init(), encoding="utf-8")
+    shutil.copy2(ERRORS_MODULE, package / ERRORS_MODULE.name)
     models = _models_dir()
     for source in _model_files():
         target = package / "models" / source.relative_to(models)

@@ -25,7 +25,7 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
-from nfal.models.errors import NfalError
+from nfal.errors import RuntimeBuildError
 
 #: The vendored, patched sources.
 RUNTIME_SOURCES = Path(__file__).resolve().parent / "runtime"
@@ -34,10 +34,6 @@ LIBRARY_NAME = "libpythonfmu-export.so"
 #: The platform folder it goes to inside an FMU.
 PLATFORM = "linux64"
 BUILD_TIMEOUT_S = 600
-
-
-class RuntimeBuildError(NfalError, RuntimeError):
-    """The patched FMU runtime cannot be built here (no CMake, no C++ compiler, no Python headers)."""
 
 
 def _source_files() -> list[Path]:

@@ -23,16 +23,12 @@ from pathlib import Path
 
 from fmpy import read_model_description
 
-from nfal.models.errors import NfalError
+from nfal.errors import HostUnavailableError
 from nfal.orchestration.libcosim import preload_environment
 
 #: The C host's source.
 C_HOST_SOURCE = Path(__file__).resolve().parent / "hosts" / "fmi2_host.c"
 HOST_TIMEOUT_S = 600
-
-
-class HostUnavailableError(NfalError, RuntimeError):
-    """A host cannot run here (no C compiler, ecospy or libtbb12 missing)."""
 
 
 @dataclass

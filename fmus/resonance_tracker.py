@@ -19,7 +19,7 @@ import dataclasses
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import pll as pll_model
-from nfal.models.errors import InvalidParameterError, require_finite
+from nfal.errors import InvalidParameterError, require_finite
 from nfal.models.transducer import METRES_PER_VOLT, QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ, Transducer
 
 INPUTS = ("drive_voltage", "resonance_shift")

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import sensor_chain as sensor_model
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 
 class SensorChain(NfalSlave):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
-from nfal.models.errors import InvalidParameterError, require_finite
+from nfal.errors import InvalidParameterError, require_finite
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import DampingModel, ExcessDamping, PlantState, SimplifiedPlant
 

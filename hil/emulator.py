@@ -24,11 +24,10 @@ import logging
 from collections.abc import Callable
 from typing import TextIO
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError, LinkError
 
 from .faults import FaultInjector, FaultSettings
 from .firmware import Firmware, RigTiming
-from .link import LinkError
 
 logger = logging.getLogger(__name__)
 

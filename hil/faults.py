@@ -11,7 +11,7 @@ import collections
 import dataclasses
 import random
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 
-from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 
 from .protocol import (HOST_TO_RIG, PROTOCOL_VERSION, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello,
                        HelloAck, HostHeartbeat, Measurement, RigHeartbeat, StatusFlags, Stop)

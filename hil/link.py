@@ -33,7 +33,7 @@ from collections.abc import Callable
 
 import serial
 
-from nfal.models.errors import NfalError, require_positive
+from nfal.errors import LinkError, require_positive
 
 from .protocol import (DELIMITER, PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello,
                        HelloAck, Measurement, RigHeartbeat, Stop)
@@ -72,10 +72,6 @@ def open_port(url: str, baudrate: int, read_timeout_s: float) -> serial.SerialBa
         return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout_s, write_timeout=write_timeout(url))
     except (serial.SerialException, OSError, ValueError) as exc:
         raise LinkError(f"cannot open {url}: {exc}") from None
-
-
-class LinkError(NfalError, RuntimeError):
-    """The rig cannot be reached, or it does not speak this protocol."""
 
 
 @dataclasses.dataclass

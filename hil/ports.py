@@ -15,7 +15,8 @@ from pathlib import Path
 
 import serial
 
-from .link import READ_ERRORS, LinkError, open_port
+from nfal.errors import LinkError
+from .link import READ_ERRORS, open_port
 
 #: Most bytes one read takes.
 READ_CHUNK = 65536

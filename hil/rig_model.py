@@ -19,7 +19,7 @@ import contextlib
 import os
 from collections.abc import Mapping
 
-from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 
 from .firmware import RigReading
 

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import interpolate
 
 from .damping import DampingCorrection
-from .errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError
 from .excitation import ExcitationShape
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
 from .rig import RigParameters

@@ -14,7 +14,7 @@ import logging
 import numpy as np
 
 from .control_law import DiscreteControlLaw
-from .errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 from .fixed_step_plant import FixedStepPlant
 from .plant import PlantState, SimplifiedPlant
 

@@ -31,7 +31,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
+from nfal.errors import ConvergenceError, GapClosedError, InvalidParameterError, require_finite, require_positive
 from .excitation import ExcitationShape
 from .perturbation import first_order_pressure, radial_grid
 from .reynolds import check_grid, discrete_mean_correction
@@ -59,10 +59,6 @@ def _projective_limit(mu: float, burst: int) -> float:
     return (0.5 / mu ** (burst - 1) + mu) / (1.0 - mu)
 
 Excitation = float | Callable[[float], float]
-
-
-class GapClosedError(ConvergenceError):
-    """The film gap closed (H <= 0 at some radius): the surface hit the object; the full model has no contact."""
 
 
 STATUS_OK, STATUS_NEWTON, STATUS_GAP = 0, 1, 2

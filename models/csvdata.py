@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataFormatError
+from nfal.errors import DataFormatError
 
 
 def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from scipy import interpolate
 
-from .errors import DataFormatError
+from nfal.errors import DataFormatError
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -13,7 +13,7 @@ import numpy as np
 from scipy import integrate, interpolate, optimize, special
 
 from .csvdata import read_numeric_csv
-from .errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError
 
 #: This package's data folder, resolved once at import: an FMU carrying its own copy of nfal.models
 #: reads its own file, not that of another copy the process holds under the same name (fmus/bundle_loader.py).

@@ -15,7 +15,7 @@ import numpy as np
 
 from .calibration import PolynomialK
 from .csvdata import read_numeric_csv
-from .errors import DataFormatError, InvalidParameterError, require_positive
+from nfal.errors import DataFormatError, InvalidParameterError, require_positive
 from .plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from .rig import RigParameters
 

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 from scipy import interpolate
 
-from .errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure

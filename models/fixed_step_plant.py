@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from .calibration import PolynomialK
-from .errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 from .plant import PlantState, SimplifiedPlant
 
 #: Largest (damping rate x sub-step) taken.

@@ -26,7 +26,7 @@ from scipy import integrate, optimize, stats
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
-from .errors import ConvergenceError, DataFormatError, InvalidParameterError, require_positive
+from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError, require_positive
 from .rig import RigParameters
 from .transducer import QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ
 

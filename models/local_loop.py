@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg
 
-from .errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from .lpv import LPVCoefficients
 
 DISCRETISATIONS = ("forward_euler", "zoh")

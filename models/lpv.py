@@ -24,7 +24,7 @@ import control
 import numpy as np
 
 from .calibration import CalibrationFunction, paper_calibration
-from .errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from .plant import DampingModel, SimplifiedPlant
 from .rig import RigParameters
 

@@ -26,7 +26,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from .errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 
 #: Least number of samples filtered and discarded so that the stream starts in the filter's steady state.
 BURN_IN = 200

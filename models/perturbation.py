@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import linalg, special
 
-from .errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from .excitation import ExcitationShape
 
 DEFAULT_NODES = 401

@@ -31,7 +31,7 @@ import numpy as np
 from scipy import interpolate, optimize
 
 from .calibration import CalibrationFunction, paper_calibration
-from .errors import ConvergenceError, InvalidParameterError, require_positive
+from nfal.errors import ConvergenceError, InvalidParameterError, require_positive
 from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel
 from .rig import RigParameters

@@ -21,7 +21,7 @@ from scipy import integrate, optimize
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
-from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
+from nfal.errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .rig import RigParameters
 
 Excitation = float | Callable[[float], float]

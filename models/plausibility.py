@@ -8,7 +8,7 @@ excitation "levitates" the object 126 km). The ceilings are generous: ten times 
 
 from __future__ import annotations
 
-from .errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 #: Largest clearance (levitation height, rest gap, reference clearance) [m]: squeeze films end at about 1 mm.
 MAX_CLEARANCE_M = 5e-3

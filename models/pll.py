@@ -49,7 +49,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 from .transducer import Transducer
 
 logger = logging.getLogger(__name__)

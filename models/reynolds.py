@@ -39,7 +39,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .errors import ConvergenceError, InvalidParameterError
+from nfal.errors import ConvergenceError, InvalidParameterError
 from .excitation import ExcitationShape
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
 

@@ -24,7 +24,7 @@ import math
 import numpy as np
 from scipy import optimize
 
-from .errors import ConvergenceError
+from nfal.errors import ConvergenceError
 from .local_loop import held_plant, sampled_loop_matrix
 from .lpv import LPVCoefficients
 

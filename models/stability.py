@@ -18,7 +18,7 @@ import logging
 import numpy as np
 
 from .calibration import CalibrationFunction, paper_calibration
-from .errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive
 from .local_loop import DISCRETISATIONS, continuous_loop_matrix, discrete_loop_matrix
 from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel

@@ -19,7 +19,7 @@ import dataclasses
 import numpy as np
 
 from .closed_loop import ClosedLoopRun, Staircase
-from .errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 SETTLING_BAND = 0.02
 STEADY_FRACTION = 0.25

@@ -48,7 +48,7 @@ import cmath
 import dataclasses
 import math
 
-from .errors import InvalidParameterError, require_finite, require_positive
+from nfal.errors import InvalidParameterError, require_finite, require_positive
 
 #: Nominal resonance [Hz] (the rig's nominal frequency).
 RESONANCE_FREQUENCY_HZ = 28500.0

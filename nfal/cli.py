@@ -9,7 +9,7 @@ import traceback
 
 from nfal import __version__
 from nfal.commands import control, cosim, hil, identify, physics, sweep
-from nfal.models.errors import NfalError
+from nfal.errors import NfalError
 
 COMMAND_GROUPS = (cosim, hil, identify, physics, control, sweep)
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
 from nfal.models.control_law import SATURATION_WARNING_S
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.step_metrics import step_metrics, total_iae
 
 REFERENCE = "Controller.reference"

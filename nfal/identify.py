@@ -33,7 +33,7 @@ from nfal.hil.protocol import StatusFlags
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.damping import DampingCorrection
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.models.errors import ExperimentError, InvalidParameterError
+from nfal.errors import ExperimentError, InvalidParameterError
 from nfal.models.experimental import EquilibriumData, ExperimentalCalibration, fit_calibration
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table,
                                         fit_step, settled)

@@ -10,9 +10,11 @@ schemas; :mod:`.libcosim` runs an archive in OSP libcosim; :mod:`.sweep_spec` an
 many runs on Dask.
 """
 
-from .errors import (AlgebraicLoopError, CausalityError, FmuCallError, MissingFmuError, OrchestrationError,
-                     SignalError, SimulationError, StructureError, TypeMismatchError, UnitMismatchError,
-                     UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
+from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, MissingFmuError, OrchestrationError,
+
+                         SignalError, SimulationError, StructureError, TypeMismatchError, UnitMismatchError,
+
+                         UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
 from .master import ALGORITHMS, Master
 from .resolve import ResolvedSystem, resolve
 from .results import PlotPanel, ResultTable, read_results

@@ -39,10 +39,10 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 from lxml import etree
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import (InvalidParameterError, LibcosimUnavailableError, SimulationError,
 
-from .errors import (OrchestrationError, SimulationError, StructureError, UnknownConnectorError,
-                     UnknownElementError)
+                         StructureError, UnknownConnectorError, UnknownElementError)
+
 from .ssp_schema import DEFAULT_SSD, SSD_NS, SSV_NS
 
 logger = logging.getLogger(__name__)
@@ -53,10 +53,6 @@ OSP_NS = "http://opensimulationplatform.com/SSP/OSPAnnotations"
 _NS_PER_S = 1_000_000_000
 
 InputSignal = Callable[[float], float] | float | int | bool
-
-
-class LibcosimUnavailableError(OrchestrationError, RuntimeError):
-    """OSP libcosim's Python bindings (``libcosimpy``) are not installed or cannot load."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -28,7 +28,7 @@ Values cross a link as the target's type (Integer -> Real) and through its ``Lin
 if any (:mod:`~nfal.orchestration.resolve`). An FMU that ends its own horizon (fmi2Discard from
 doStep and fmi2Terminated true) sets :attr:`Master.ended` (a :class:`HorizonEnd`), not an error.
 Any other failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
-:class:`~nfal.orchestration.errors.FmuCallError` naming the element, the function, the time and the
+:class:`~nfal.errors.FmuCallError` naming the element, the function, the time and the
 FMU's logged reason. :meth:`Master.close` then frees what can be freed (an instance in error is freed
 without fmi2Terminate; after fmi2Fatal, FMI allows no further call to that FMU, so none is made).
 """
@@ -53,10 +53,10 @@ from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2Discard, fmi2CallbackAllocate
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2True,
                        fmi2ValueReference)
 
-from nfal.models.errors import InvalidParameterError, require_positive
+from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
 
-from .errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, TypeMismatchError,
-                     UnknownConnectorError, UnsupportedFeatureError)
+                         TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive)
+
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
 from .ssp import LinearTransformation
 from .results import Column

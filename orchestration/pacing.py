@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nfal.models.errors import InvalidParameterError, NfalError, require_positive
+from nfal.errors import InvalidParameterError, RealtimePriorityError, require_positive
 
 #: Overruns listed one by one in the report (all are counted).
 FIRST_OVERRUNS = 10
@@ -31,10 +31,6 @@ _PR_SET_TIMERSLACK = 29
 SWITCH_INTERVAL_S = 5e-5
 #: Real-time priorities SCHED_FIFO takes on Linux (``chrt -m`` lists them).
 RT_PRIORITIES = range(1, 100)
-
-
-class RealtimePriorityError(NfalError, PermissionError):
-    """The operating system refused a real-time scheduling priority (the message says how to get one)."""
 
 
 def fine_timer_slack() -> None:

@@ -9,7 +9,7 @@ the hierarchy of systems into a flat :class:`ResolvedSystem`:
 * links from an element output to an element input, through any chain of system connectors;
 * the top-level system's input connectors (``SystemInput``), which a caller drives.
 
-Every inconsistency raises a :class:`~nfal.orchestration.errors.StructureError` subclass that names
+Every inconsistency raises a :class:`~nfal.errors.StructureError` subclass that names
 the element and connector: a connector the FMU does not declare, a kind that contradicts the
 variable's causality, two ends of a link with different types or units, a connector whose unit is
 not the FMU's, a parameter value of the wrong type or unit.
@@ -42,10 +42,10 @@ from pathlib import Path
 from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ModelVariable, ValidationError
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import (CausalityError, InvalidParameterError, StructureError, TypeMismatchError, UnitMismatchError,
 
-from .errors import (CausalityError, StructureError, TypeMismatchError, UnitMismatchError, UnknownConnectorError,
-                     UnknownElementError, UnsupportedFeatureError)
+                         UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
+
 from .ssp import (BASE_UNITS, Component, Connector, LinearTransformation, ParameterBinding, ParameterValue, System,
                   SystemStructure, Unit)
 

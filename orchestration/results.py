@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError
 
 logger = logging.getLogger(__name__)
 

@@ -18,9 +18,8 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from nfal.models.errors import InvalidParameterError, require_finite, require_positive
+from nfal.errors import InvalidParameterError, ResultsExistError, SimulationError, require_finite, require_positive
 
-from .errors import ResultsExistError, SimulationError
 from .interrupts import deferred_interrupts
 from .master import ALGORITHMS, HorizonEnd, Master
 from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority, require_realtime_priority

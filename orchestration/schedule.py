@@ -6,7 +6,7 @@ is set), and an input -> every output of the same element declared to depend on 
 feedthrough: the output must be read after the input is set). A topological order of this graph
 is a Gauss-Seidel sweep in which every output read at t_k already reflects every input at t_k
 (docs/cosimulation.md, "The loop and the step order"). A cycle is an algebraic loop:
-:class:`~nfal.orchestration.errors.AlgebraicLoopError` names its variables.
+:class:`~nfal.errors.AlgebraicLoopError` names its variables.
 
 Consecutive nodes of one element and kind are merged into one :class:`Action` (one fmi2Set/Get
 call per type), and among the nodes ready at any time the order prefers to continue with the same
@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Mapping, Sequence
 
-from .errors import AlgebraicLoopError
+from nfal.errors import AlgebraicLoopError
 
 
 @dataclasses.dataclass(frozen=True)

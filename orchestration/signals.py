@@ -20,9 +20,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from nfal.models.csvdata import read_numeric_csv
-from nfal.models.errors import DataFormatError, NfalError
+from nfal.errors import DataFormatError, NfalError, SignalError
 
-from .errors import SignalError
 
 if TYPE_CHECKING:  # nfal.models.closed_loop pulls in the plant and the control law (scipy, numba): import on use
     from nfal.models.closed_loop import Staircase

@@ -14,7 +14,7 @@ annotations are ignored, except the OSP annotation ``FixedStepAlgorithm baseStep
 the default step size. A connection may carry an ``ssc:LinearTransformation`` (factor, offset).
 Valid SSP 1.0 features that are not implemented (signal dictionaries, parameter mappings, the other
 connection transformations, parameter connections between elements) raise
-:class:`~nfal.orchestration.errors.UnsupportedFeatureError` rather than being silently dropped.
+:class:`~nfal.errors.UnsupportedFeatureError` rather than being silently dropped.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from pathlib import Path
 
 from lxml import etree
 
-from .errors import MissingFmuError, StructureError, UnknownElementError, UnsupportedFeatureError
+from nfal.errors import MissingFmuError, StructureError, UnknownElementError, UnsupportedFeatureError
 
 logger = logging.getLogger(__name__)
 

@@ -17,9 +17,8 @@ from pathlib import Path, PurePosixPath
 
 from lxml import etree
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError, MissingFmuError, StructureError
 
-from .errors import MissingFmuError, StructureError
 from .ssp_schema import DEFAULT_SSD, SSD_NS, validate
 
 logger = logging.getLogger(__name__)
@@ -81,7 +80,7 @@ def pack(ssd_path: str | Path, fmu_dir: str | Path, out_path: str | Path,
         referenced are packed too (as spare variants under ``resources/``).
     check : bool
         Validate the archive against the SSP 1.0 schemas after packing (default True); a problem
-        raises :class:`~nfal.orchestration.errors.StructureError` and leaves no archive behind.
+        raises :class:`~nfal.errors.StructureError` and leaves no archive behind.
 
     Returns
     -------

@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.models.errors import NfalError
+from nfal.errors import SweepError, SweepSpecError
 
-from .sweep_spec import RunSpec, SweepSpec, SweepSpecError, canonical_json
+from .sweep_spec import RunSpec, SweepSpec, canonical_json
 
 logger = logging.getLogger(__name__)
 
@@ -49,10 +49,6 @@ SSP_METRICS = ("iae_m_s", "rise_time_s", "overshoot_percent", "settling_time_s",
                "noise_rms_m")
 TABLE1_METRICS = ("delta_simplified", "delta_full", "error_percent")
 CACHE_DIR_NAME = "nfal-sweep-cache"
-
-
-class SweepError(NfalError, RuntimeError):
-    """A sweep cannot go on (an unreadable or foreign results table, a missing archive, no cluster)."""
 
 
 def metric_columns(spec: SweepSpec) -> tuple[str, ...]:
@@ -219,7 +215,7 @@ def calibration_task(run: RunSpec) -> dict:
 
 def table1_task(run: RunSpec) -> dict:
     """One Table-1 case (simplified model against the full Reynolds model), with the run's overrides."""
-    from nfal.models.errors import InvalidParameterError
+    from nfal.errors import InvalidParameterError
     from nfal.models.excitation import parse_shape
     from nfal.models.table1 import TABLE1, run_case
 

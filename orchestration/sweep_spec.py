@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.models.errors import NfalError
+from nfal.errors import SweepSpecError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -66,10 +66,6 @@ SWEEPABLE = {
     "calibration": ("shape", "points", "nodes", "sigma_range"),
     "table1": ("case", "shape", "nodes", "steps_per_period", "mass", "frequency", "excitation"),
 }
-
-
-class SweepSpecError(NfalError, ValueError):
-    """A sweep spec cannot be read or names a bad key or value (the message says which)."""
 
 
 @dataclasses.dataclass(frozen=True)

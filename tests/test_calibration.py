@@ -3,7 +3,7 @@ import pytest
 
 from nfal.models.calibration import (PAPER_COEFFICIENTS, PolynomialK, TabulatedK, load_calibration, paper_calibration,
                                      perturbation_calibration)
-from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.excitation import PistonShape
 from nfal.models.perturbation import piston_K_exact
 

@@ -6,7 +6,7 @@ import pytest
 
 from nfal.cli import main
 from nfal.commands.cosim import parse_parameter
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 
 def test_build_packs_every_structure(capsys, tmp_path):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nfal.models.control_law import ControllerState, DiscreteControlLaw
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.pid_design import design_schedule, fixed_design
 
 SCHEDULE = design_schedule()

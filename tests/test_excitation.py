@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.excitation import PistonShape, PlateModeShape, TabulatedShape, paper_shape, parse_shape
 
 R = np.linspace(0.0, 1.0, 20001)

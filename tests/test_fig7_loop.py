@@ -9,7 +9,7 @@ from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_desig
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plant import SimplifiedPlant

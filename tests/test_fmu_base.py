@@ -24,7 +24,7 @@ from fmpy.validation import validate_fmu
 
 from nfal.fmus import build
 from nfal.fmus.base import UNITS, NfalSlave, SampleClock
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 FMI_ERROR = 3  # what our patched runtime (fmus/runtime/) answers a Python exception with
 
@@ -96,8 +96,8 @@ def build_and_extract(tmp_path_factory, *names: str) -> dict[str, tuple[Path, st
 # --- the test slave -----------------------------------------------------------------------------------
 SCALE_SCRIPT = '''
 """Test slave: y = k u (feedthrough), total = running sum of k u dt (state)."""
+from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import NfalSlave
-from nfal.models.errors import InvalidParameterError, require_positive
 
 
 class Scale(NfalSlave):

@@ -16,8 +16,8 @@ from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.slow_plant import SlowPlant
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.calibration import paper_calibration
-from nfal.models.coupled import CoupledModel, GapClosedError
-from nfal.models.errors import InvalidParameterError
+from nfal.models.coupled import CoupledModel
+from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.models.excitation import paper_shape
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant

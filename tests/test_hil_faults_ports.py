@@ -9,10 +9,9 @@ import pytest
 import serial
 
 from nfal.hil.faults import FaultInjector, FaultSettings
-from nfal.hil.link import LinkError
 from nfal.hil.ports import PtyPort, UrlPort
 from nfal.hil.protocol import RIG_TO_HOST, FrameDecoder, FrameEncoder, Measurement, Received
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError, LinkError
 
 def measurements(n: int) -> tuple[list[Measurement], list[bytes]]:
     """``n`` MEASUREMENTs (every field different per frame; reals as binary32, as they come off the wire) and

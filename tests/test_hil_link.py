@@ -17,10 +17,11 @@ from collections.abc import Callable
 
 import pytest
 
+from nfal.errors import LinkError
 from nfal.hil import link as link_module
 from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.firmware import Firmware, RigReading, RigTiming
-from nfal.hil.link import LinkCounters, LinkError, RigLink
+from nfal.hil.link import LinkCounters, RigLink
 from nfal.hil.ports import PtyPort
 from nfal.hil.protocol import (HOST_TO_RIG, PROTOCOL_VERSION, DecoderCounters, FaultCode, FrameDecoder, Hello,
                                HelloAck, Measurement, StatusFlags)
@@ -225,7 +226,7 @@ def test_a_port_where_nothing_answers_fails_within_the_connect_timeout(tmp_path,
             link.open()
         elapsed = time.monotonic() - started
         assert str(silent.path) in str(failure.value)
-        assert 0.3 <= elapsed < 1.0  # measured: 0.30-0.31 s
+        assert 0.3 <= elapsed < 3.0  # measured: 0.30-0.31 s idle; > 1 s seen with both cores busy
         assert link.counters.handshake_failures >= 1 and not link.connected
         [hello] = FrameDecoder(HOST_TO_RIG).feed(silent.read())  # the HELLO went out, and waited in the pty
         assert hello.message == Hello(PROTOCOL_VERSION) and hello.seq == 0
@@ -234,8 +235,6 @@ def test_a_port_where_nothing_answers_fails_within_the_connect_timeout(tmp_path,
 
 
 @pytest.mark.parametrize("url", ["", "   "])
-
-
 def test_an_empty_url_is_refused(url):
     with pytest.raises(LinkError, match="no port given"):
         RigLink(url)

@@ -12,7 +12,7 @@ import pytest
 
 from nfal.hil.firmware import RigReading
 from nfal.hil.rig_model import InProcessRig, StructureRig, open_rig
-from nfal.orchestration.errors import UnknownConnectorError, UnknownElementError
+from nfal.errors import UnknownConnectorError, UnknownElementError
 
 PERIOD = 5e-4
 REST_GAP = 5e-6  # rig_truth.ssv: the object starts resting at the rest gap

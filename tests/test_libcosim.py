@@ -21,9 +21,9 @@ import pytest
 pytest.importorskip("libcosimpy")
 
 from nfal.orchestration import libcosim  # noqa: E402
-from nfal.orchestration.errors import (SimulationError, StructureError, UnknownConnectorError,  # noqa: E402
-                                       UnknownElementError)
-from nfal.orchestration.libcosim import LibcosimUnavailableError, run_ssp  # noqa: E402
+from nfal.errors import (LibcosimUnavailableError, SimulationError, StructureError,  # noqa: E402
+                         UnknownConnectorError, UnknownElementError)
+from nfal.orchestration.libcosim import run_ssp  # noqa: E402
 from nfal.orchestration.ssp_archive import pack  # noqa: E402
 from nfal.orchestration.ssp_schema import libcosim_portability, validate  # noqa: E402
 

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from nfal.models.errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.orchestration.pacing import RealTimePacer
 from nfal.orchestration.results import (Column, CsvWriter, PlotPanel, default_panels, plot_response, read_results,
                                         write_summary)

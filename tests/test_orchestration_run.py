@@ -12,7 +12,7 @@ import pytest
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import (AlgebraicLoopError, CausalityError, FmuCallError, Master, PlotPanel, read_ssp, resolve,
                                 run_structure, staircase)
-from nfal.orchestration.errors import UnknownConnectorError
+from nfal.errors import UnknownConnectorError
 from toy_fmus import build_toys, without_dependencies
 from toy_fmus.ssd import bindings, component, connection, connector, pack, parameter_set, ssd, system, write_folder
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.excitation import PistonShape, PlateModeShape, paper_shape
 from nfal.models.perturbation import perturbation_K, piston_K_exact, radial_grid, trapped_gas_K
 

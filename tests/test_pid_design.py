@@ -6,7 +6,7 @@ import control
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.pid_design import DesignSpec, FixedGains, design_pid, design_schedule, fixed_design
 
 SCHEDULE = design_schedule()  # 50-200 um every 5 um

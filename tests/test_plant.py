@@ -5,7 +5,7 @@ import pytest
 from scipy import integrate
 
 from nfal.models.calibration import paper_calibration
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.plant import PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
 

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.pll import (PhaseLockedLoop, PllGains, PllState, ResonanceTracker, design_gains, drift_ramp,
                              phase_error, simulate_tracking, wrap_phase)
 from nfal.models.transducer import Transducer

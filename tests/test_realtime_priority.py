@@ -7,9 +7,9 @@ import threading
 import pytest
 
 from nfal.cli import main
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError, RealtimePriorityError
 from nfal.orchestration import run_structure
-from nfal.orchestration.pacing import RealtimePriorityError, realtime_priority, realtime_priority_refusal
+from nfal.orchestration.pacing import realtime_priority, realtime_priority_refusal
 
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="SCHED_FIFO is Linux's")
 

@@ -10,7 +10,6 @@ take their start, stop and step from the SSD's DefaultExperiment.
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from nfal.models.errors import ConvergenceError, InvalidParameterError
+from nfal.errors import ConvergenceError, InvalidParameterError
 from nfal.models.excitation import PistonShape, paper_shape
 from nfal.models.perturbation import first_order_pressure, perturbation_K, radial_grid
 from nfal.models.reynolds import discrete_mean_correction, periodic_film, time_marching_K

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.rig import RigParameters
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.local_loop import discrete_loop_matrix
 from nfal.models.pid_design import DesignSpec, design_pid, design_schedule
 from nfal.models.plant import ExcessDamping

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.sensor_chain import SensorChain
 

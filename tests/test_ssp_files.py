@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from lxml import etree
 
 from nfal.build import structure_sources
-from nfal.orchestration.errors import MissingFmuError, StructureError
+from nfal.errors import MissingFmuError, StructureError
 from nfal.orchestration.ssp_archive import pack, referenced_resources
 from nfal.orchestration.ssp_schema import (SSC_NS, SSD_NS, SSV_NS, libcosim_portability, schema_dir, validate,
                                            validate_bytes)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.lpv import lpv_coefficients
 from nfal.models.pid_design import design_pid, design_schedule
 from nfal.models.rig import RigParameters

@@ -13,9 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from nfal.orchestration.sweep import (Ramp, ResultsTable, SweepError, cached_structure, columns, read_table,
-                                      run_sweep, run_task)
-from nfal.orchestration.sweep_spec import SweepSpecError, expand, load_spec, parse_spec
+from nfal.errors import SweepError, SweepSpecError
+from nfal.orchestration.sweep import Ramp, ResultsTable, cached_structure, columns, read_table, run_sweep, run_task
+from nfal.orchestration.sweep_spec import expand, load_spec, parse_spec
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import integrate, signal
 
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 from nfal.models.transducer import Transducer
 
 TRANSDUCER = Transducer()  # 28.5 kHz, Q = 500, 0.1 um/V

@@ -9,7 +9,7 @@ import numpy as np
 
 from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, print_json, print_step_table,
                                   progress_bar, rig_from_args)
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
 PLACEMENTS = ("continuous", "sampled")

@@ -7,7 +7,7 @@ import datetime
 from pathlib import Path
 
 from nfal.commands.common import finite_float, positive_float, print_json, print_step_table
-from nfal.models.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError
 
 REFERENCE_INPUT = "Controller.reference"
 

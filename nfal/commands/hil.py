@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import signal
-import sys
 from pathlib import Path
 
 from nfal.commands.common import finite_float, output_file, print_json
@@ -68,7 +67,7 @@ def register(commands) -> None:
 
 def _truth_path(truth: str, build_dir: str) -> Path:
     from nfal.build import build_all
-    from nfal.models.errors import InvalidParameterError
+    from nfal.errors import InvalidParameterError
 
     if truth in ("slow", "reynolds"):
         name = f"rig_{truth}"
@@ -90,7 +89,7 @@ def run_emulator(args: argparse.Namespace) -> int:
     from nfal.hil.firmware import RigTiming
     from nfal.hil.ports import PtyPort, UrlPort
     from nfal.hil.rig_model import open_rig
-    from nfal.models.errors import InvalidParameterError
+    from nfal.errors import InvalidParameterError
     from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
 
     timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
@@ -134,7 +133,7 @@ def _scheduling(priority: int | None) -> str:
 
 
 def _seconds(text: str) -> float:
-    from nfal.models.errors import InvalidParameterError
+    from nfal.errors import InvalidParameterError
 
     try:
         seconds = float(text)

@@ -12,8 +12,8 @@ import numpy as np
 
 from nfal import __version__
 from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
-from nfal.models.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_finite,
-                                require_positive)
+from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_finite,
+                         require_positive)
 
 # The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
 

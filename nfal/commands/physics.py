@@ -129,7 +129,7 @@ def calibrate_experimental(args: argparse.Namespace) -> int:
 
 def validate_table1(args: argparse.Namespace) -> int:
     from nfal.models.calibration import perturbation_calibration
-    from nfal.models.errors import InvalidParameterError
+    from nfal.errors import InvalidParameterError
     from nfal.models.excitation import paper_shape
     from nfal.models.table1 import TABLE1, run_case
 

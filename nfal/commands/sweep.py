@@ -36,7 +36,7 @@ def register(commands) -> None:
 def run_sweep_command(args: argparse.Namespace) -> int:
     import logging
 
-    from nfal.models.errors import InvalidParameterError
+    from nfal.errors import InvalidParameterError
     from nfal.orchestration.sweep import run_sweep
     from nfal.orchestration.sweep_spec import load_spec
 

@@ -1,0 +1,205 @@
+"""Every error nfal raises on purpose, in one module importable by every layer (docs/architecture.md).
+
+Each names the bad value and what is allowed (or the element, connector or variable at fault). Bad input
+is a :class:`ValueError` subclass; a run, a rig or a host that stops is a :class:`RuntimeError` subclass.
+Problems with a structure (what is wired to what, units, types, algebraic loops) are raised before any
+FMU runs; problems while a run goes (an FMU answering fmi2Error/fmi2Fatal) while it goes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+class NfalError(Exception):
+    """Base of every error nfal raises on purpose."""
+
+
+class InvalidParameterError(NfalError, ValueError):
+    """A parameter or input is out of its allowed range (the message names both)."""
+
+    def __init__(self, name: str, value: object, allowed: str) -> None:
+        self.name, self.value, self.allowed = name, value, allowed
+        super().__init__(f"{name} = {value!r} is invalid: must be {allowed}")
+
+
+class DataFormatError(NfalError, ValueError):
+    """A data file (shape scan, equilibrium measurements, calibration) cannot be read as such."""
+
+
+class ExperimentError(NfalError, RuntimeError):
+    """An experiment on the rig stopped: a fault (link lost, touchdown, no settling, drive limit), named."""
+
+
+class ConvergenceError(NfalError, RuntimeError):
+    """An iterative solver did not reach its tolerance."""
+
+# --- numerics -------------------------------------------------------------------------------------
+
+class GapClosedError(ConvergenceError):
+    """The film gap closed (H <= 0 at some radius): the surface hit the object; the full model has no contact."""
+
+
+# --- FMUs and their hosts -------------------------------------------------------------------------
+
+class FmuStateError(NfalError, ValueError):
+    """An FMU state that cannot be restored (not from this FMU, or damaged bytes)."""
+
+
+class SlaveCallError(NfalError, RuntimeError):
+    """An FMI call that failed inside our FMU, as the host's logger shows it: ``"<instance>: <call> failed: <reason>"``."""
+
+
+class RuntimeBuildError(NfalError, RuntimeError):
+    """The patched FMU runtime cannot be built here (no CMake, no C++ compiler, no Python headers)."""
+
+
+class HostUnavailableError(NfalError, RuntimeError):
+    """A host cannot run here (no C compiler, ecospy or libtbb12 missing)."""
+
+
+# --- the rig link ---------------------------------------------------------------------------------
+
+class LinkError(NfalError, RuntimeError):
+    """The rig cannot be reached, or it does not speak this protocol."""
+
+
+class RealtimePriorityError(NfalError, PermissionError):
+    """The operating system refused a real-time scheduling priority (the message says how to get one)."""
+
+
+# --- sweeps ---------------------------------------------------------------------------------------
+
+class SweepError(NfalError, RuntimeError):
+    """A sweep cannot go on (an unreadable or foreign results table, a missing archive, no cluster)."""
+
+
+class SweepSpecError(NfalError, ValueError):
+    """A sweep spec cannot be read or names a bad key or value (the message says which)."""
+
+
+# --- orchestration (the master, SSP) -------------------------------------------------------------
+
+class OrchestrationError(NfalError):
+    """Base of the errors the orchestrator raises on purpose."""
+
+
+class StructureError(OrchestrationError, ValueError):
+    """An SSP/SSD cannot be read, or what it describes cannot be run (the message says where)."""
+
+
+class ResultsExistError(OrchestrationError, FileExistsError):
+    """A result folder holds a previous run's files, and replacing them was not asked for."""
+
+
+class UnknownElementError(StructureError):
+    """A connection or parameter names an element the system does not have."""
+
+
+class MissingFmuError(StructureError):
+    """A component's ``source`` points at no file (the message gives the resolved path)."""
+
+
+class UnknownConnectorError(StructureError):
+    """A connector, connection end or parameter names a variable the FMU does not declare."""
+
+
+class CausalityError(StructureError):
+    """A connection or connector does not agree with the causality of the variables it joins."""
+
+
+class UnitMismatchError(StructureError):
+    """Two ends of a connection, or a connector and its FMU variable, declare different units."""
+
+
+class TypeMismatchError(StructureError):
+    """Two ends of a connection, or a value and its variable, have different types (Real, Integer...)."""
+
+
+class UnsupportedFeatureError(StructureError):
+    """A valid SSP 1.0 feature this orchestrator does not implement (the message names it)."""
+
+
+class AlgebraicLoopError(StructureError):
+    """The feedthrough graph has a cycle: no order of setting inputs and reading outputs is causal.
+
+    Attributes
+    ----------
+    variables : tuple of str
+        The cycle, as ``Element.variable`` names in the order the values flow.
+    """
+
+    def __init__(self, variables: Sequence[str]) -> None:
+        self.variables = tuple(variables)
+        chain = " -> ".join((*self.variables, self.variables[0])) if self.variables else "?"
+        super().__init__(
+            f"algebraic loop: {chain}. Every output in the loop is declared to depend directly on the input "
+            "before it, so no causal order exists; break the loop (an FMU without direct feedthrough), or run "
+            "with algorithm='jacobi', which delays every exchange by one step")
+
+
+class SignalError(OrchestrationError, ValueError):
+    """A reference signal (a CSV of time and value, a step specification) is malformed."""
+
+
+class SimulationError(OrchestrationError, RuntimeError):
+    """A run stopped early. ``result`` (set by :func:`run_structure`) is what was written up to then."""
+
+    result = None
+
+
+class LibcosimUnavailableError(OrchestrationError, RuntimeError):
+    """OSP libcosim's Python bindings (``libcosimpy``) are not installed or cannot load."""
+
+
+class FmuLoadError(OrchestrationError, RuntimeError):
+    """An FMU cannot be extracted or its shared library loaded here (e.g. no binary for this platform)."""
+
+
+class FmuCallError(SimulationError):
+    """An FMU answered a call with fmi2Error or fmi2Fatal (or worse).
+
+    Attributes
+    ----------
+    element, function : str
+        The element (instance name) and the FMI function, e.g. ``fmi2DoStep``.
+    status : int
+        The FMI status (3 error, 4 fatal).
+    time : float
+        The communication point [s] at which the call was made.
+    messages : tuple of str
+        The FMU's last logged messages (its reason, usually).
+    """
+
+    STATUS_NAMES = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
+
+    def __init__(self, element: str, function: str, status: int, time: float, messages: Sequence[str] = ()) -> None:
+        self.element, self.function, self.status, self.time = element, function, status, time
+        self.messages = tuple(messages)
+        label = self.STATUS_NAMES.get(status, f"illegal status {status}")
+        reason = "; ".join(self.messages) if self.messages else "the FMU logged no reason"
+        super().__init__(f"{element}: {function} returned {label} at t = {time:.9g} s: {reason}")
+
+
+# --- checks --------------------------------------------------------------------------------------
+
+def require_positive(name: str, value: float) -> float:
+    """Return ``value`` as float if it is finite and > 0, else raise :class:`InvalidParameterError`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, value, "a finite number > 0") from None
+    if not (number > 0.0 and number < float("inf")):
+        raise InvalidParameterError(name, value, "a finite number > 0")
+    return number
+
+
+def require_finite(name: str, value: float, allowed: str = "a finite number") -> float:
+    """Return ``value`` as float if it is finite, else raise :class:`InvalidParameterError` saying ``allowed``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, value, allowed) from None
+    if not math.isfinite(number):
+        raise InvalidParameterError(name, value, allowed)
+    return number
