@@ -24,7 +24,7 @@ from pathlib import Path
 from machine import describe
 from nfal.build import build_all
 from nfal.orchestration.sweep import read_table, run_sweep
-from nfal.orchestration.sweep_spec import parse_spec
+from nfal.sweeps import parse_spec
 
 
 def spec(stop_time: float, name: str = "robustness32"):

@@ -10,7 +10,7 @@ everything the slave imports from nfal, under the same import names as in the in
         slavemodule.txt         "nfal_<script>" (pythonfmu's loader reads it)
         pythonfmu/              pythonfmu's Python side (added by pythonfmu)
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
-        nfal/errors.py          the error types (nfal/errors.py)
+        nfal/errors.py, csvdata.py  the foundation modules every layer may import
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
         nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
@@ -80,8 +80,8 @@ FMU_BUILD_OPTIONS: dict[str, dict[str, bool]] = {
 HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "protocol.py", "link.py")}
 
 FMUS_DIR = Path(__file__).resolve().parent
-#: nfal/errors.py: every FMU carries it (its models and slave raise these errors).
-ERRORS_MODULE = Path(nfal.__file__).resolve().parent / "errors.py"
+#: The package root's foundation modules (importable by every layer, docs/architecture.md): every FMU carries them.
+FOUNDATION_MODULES = tuple(Path(nfal.__file__).resolve().parent / name for name in ("errors.py", "csvdata.py"))
 
 
 def _models_dir() -> Path:
@@ -112,7 +112,7 @@ def sources(name: str) -> list[Path]:
     """Every file the FMU ``name`` is built from (its staleness is judged against these)."""
     runtime = sorted(p for p in RUNTIME_SOURCES.rglob("*") if p.is_file())
     return [script_path(name), Path(__file__).resolve(), FMUS_DIR / BUNDLE_LOADER, FMUS_DIR / "export_runtime.py",
-            ERRORS_MODULE, *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name), *runtime]
+            *FOUNDATION_MODULES, *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name), *runtime]
 
 
 def is_up_to_date(fmu: Path, name: str) -> bool:
@@ -124,7 +124,7 @@ def is_up_to_date(fmu: Path, name: str) -> bool:
 
 
 def _minimal_package_init() -> str:
-    return ('"""nfal, as carried inside an FMU: nfal.errors, nfal.models and nfal.fmus.base only (see fmus/build.py)."""'
+    return ('"""nfal, as carried inside an FMU: its foundation modules, nfal.models and nfal.fmus.base only (see fmus/build.py)."""'
             f'\n\n__version__ = "{nfal.__version__}"\n')
 
 
@@ -137,7 +137,8 @@ def _stage(name: str, stage: Path) -> Path:
     (package / "models" / "data").mkdir(parents=True)
     (package / "fmus").mkdir()
     (package / "__init__.py").write_text(_minimal_package_init(), encoding="utf-8")
-    shutil.copy2(ERRORS_MODULE, package / ERRORS_MODULE.name)
+    for module in FOUNDATION_MODULES:
+        shutil.copy2(module, package / module.name)
     models = _models_dir()
     for source in _model_files():
         target = package / "models" / source.relative_to(models)

@@ -12,7 +12,7 @@ from importlib import resources
 import numpy as np
 from scipy import integrate, interpolate, optimize, special
 
-from .csvdata import read_numeric_csv
+from nfal.csvdata import read_numeric_csv
 from nfal.errors import DataFormatError, InvalidParameterError
 
 #: This package's data folder, resolved once at import: an FMU carrying its own copy of nfal.models

@@ -1,8 +1,9 @@
 """Reference signals for external inputs: built-in step sequences and a CSV of (time, value).
 
 Every signal here is a :class:`PiecewiseConstant` (zero-order hold: at time t the value of the
-last change at or before t), callable as ``signal(t) -> float`` in SI. The built-in staircase is
-the paper's (Figs. 9-10), taken from :class:`nfal.models.closed_loop.Staircase` so that the
+last change at or before t), callable as ``signal(t) -> float`` in SI. A step sequence of an
+application (an object with ``levels_m``, ``step_times_s`` and ``duration_s``, such as the Fig. 7
+loop's :class:`nfal.models.closed_loop.Staircase`) becomes one with the same values, so that the
 co-simulation and the pure-Python loop see the same reference.
 
 A time within 1e-12 s (relative 1e-12) before a change counts as at the change, so that a
@@ -14,17 +15,13 @@ from __future__ import annotations
 import bisect
 import math
 import os
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from nfal.models.csvdata import read_numeric_csv
-from nfal.errors import DataFormatError, NfalError, SignalError
+import numpy as np
 
-
-if TYPE_CHECKING:  # nfal.models.closed_loop pulls in the plant and the control law (scipy, numba): import on use
-    from nfal.models.closed_loop import Staircase
+from nfal.csvdata import read_numeric_csv
+from nfal.errors import DataFormatError, SignalError
 
 #: Time tolerance [s] of a change (absolute and relative), see the module docstring.
 TIME_TOLERANCE = 1e-12
@@ -80,24 +77,24 @@ class PiecewiseConstant:
         return description
 
 
-def from_staircase(staircase: "Staircase", *, name: str = "staircase") -> PiecewiseConstant:
-    """A :class:`~nfal.models.closed_loop.Staircase` as a :class:`PiecewiseConstant` (same values)."""
-    times = [0.0, *map(float, staircase.step_times_s)]
-    return PiecewiseConstant(times, staircase.levels_m, name=name, duration_s=staircase.duration_s)
+def is_step_sequence(source: object) -> bool:
+    """Whether ``source`` is a step sequence: it has ``levels_m``, ``step_times_s`` and ``duration_s``."""
+    return all(hasattr(source, name) for name in ("levels_m", "step_times_s", "duration_s"))
 
 
-def staircase(levels_m: Sequence[float] | None = None, hold_s: float = 0.6, lead_s: float = 0.1) -> PiecewiseConstant:
-    """The step sequence of Figs. 9-10: ``levels_m`` [m], the first held ``lead_s``, the others ``hold_s`` [s].
+def from_staircase(steps: object, *, name: str = "staircase") -> PiecewiseConstant:
+    """A step sequence (see :func:`is_step_sequence`) as a :class:`PiecewiseConstant` (same values)."""
+    times = [0.0, *map(float, steps.step_times_s)]
+    return PiecewiseConstant(times, steps.levels_m, name=name, duration_s=steps.duration_s)
 
-    Defaults: 60, 100, 140, 180, 140, 100, 60 um (``STAIRCASE_LEVELS_M``), 0.1 s lead, 0.6 s holds
-    (3.7 s in all).
-    """
-    from nfal.models.closed_loop import STAIRCASE_LEVELS_M, Staircase
 
-    try:
-        return from_staircase(Staircase(tuple(STAIRCASE_LEVELS_M if levels_m is None else levels_m), hold_s, lead_s))
-    except NfalError as exc:
-        raise SignalError(f"staircase: {exc}") from None
+def staircase(levels_m: Sequence[float], hold_s: float, lead_s: float) -> PiecewiseConstant:
+    """Steps through ``levels_m`` [m]: the first held ``lead_s``, the others ``hold_s`` [s]."""
+    if len(levels_m) < 2 or not (hold_s > 0 and lead_s > 0):
+        raise SignalError(f"staircase: levels {list(levels_m)!r}, hold {hold_s!r} s, lead {lead_s!r} s: "
+                          "expected two or more levels and a hold and lead > 0")
+    times = [0.0, *map(float, lead_s + hold_s * np.arange(len(levels_m) - 1))]
+    return PiecewiseConstant(times, levels_m, name="staircase", duration_s=lead_s + hold_s * (len(levels_m) - 1))
 
 
 def step(initial: float, final: float, at_s: float) -> PiecewiseConstant:
@@ -146,41 +143,32 @@ def csv_signal(path: str | os.PathLike, *, column: str | None = None) -> Piecewi
 def signal_from_spec(spec: str) -> PiecewiseConstant:
     """A signal from a short text, for command lines.
 
-    ``staircase`` (the paper's), ``staircase:L1,L2,...[:HOLD[:LEAD]]`` [m, s], ``step:INITIAL,FINAL,AT``,
-    ``constant:VALUE``, or the path of a CSV file (see :func:`csv_signal`).
+    ``step:INITIAL,FINAL,AT``, ``constant:VALUE``, or the path of a CSV file (see :func:`csv_signal`).
     """
     kind, _, rest = spec.partition(":")
     try:
-        if kind == "staircase":
-            if not rest:
-                return staircase()
-            parts = rest.split(":")
-            levels = [float(v) for v in parts[0].split(",")]
-            return staircase(levels, *(float(p) for p in parts[1:3]))
         if kind == "step":
             initial, final, at = (float(v) for v in rest.split(","))
             return step(initial, final, at)
         if kind == "constant":
             return constant(float(rest))
     except ValueError:
-        raise SignalError(f"signal {spec!r}: expected staircase[:L1,L2,...[:HOLD[:LEAD]]], step:INITIAL,FINAL,AT, "
-                          "constant:VALUE or a CSV file") from None
+        raise SignalError(f"signal {spec!r}: expected step:INITIAL,FINAL,AT, constant:VALUE or a CSV file") from None
     if Path(spec).is_file():
         return csv_signal(spec)
-    raise SignalError(f"signal {spec!r}: not a built-in signal (staircase, step:..., constant:...) nor an existing CSV file")
+    raise SignalError(f"signal {spec!r}: not a built-in signal (step:..., constant:...) nor an existing CSV file")
 
 
 def as_signal(source: object, *, name: str = "input") -> Callable[[float], float]:
     """Anything a caller may give as an external input, as ``f(t) -> float``.
 
-    A number is a constant; a :class:`~nfal.models.closed_loop.Staircase` becomes a
+    A number is a constant; a step sequence (:func:`is_step_sequence`) becomes a
     :class:`PiecewiseConstant` (same values, faster); any other callable of time is wrapped so
     that its result is a float.
     """
     if isinstance(source, PiecewiseConstant):
         return source
-    closed_loop = sys.modules.get("nfal.models.closed_loop")  # not loaded: source cannot be a Staircase
-    if closed_loop is not None and isinstance(source, closed_loop.Staircase):
+    if is_step_sequence(source):
         return from_staircase(source)
     if isinstance(source, (int, float)) and not isinstance(source, bool):
         return constant(float(source))

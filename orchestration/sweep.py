@@ -12,8 +12,8 @@ wall time, the swept parameters and the kind's metrics. A run that raises is a r
 "failed" and its error; the sweep goes on. Written as well: ``spec.json`` (the expanded spec),
 ``summary.json`` and ``sweep.png`` (each metric over the main swept parameter, else metric histograms).
 
-Task functions import :mod:`nfal.models` (and :mod:`nfal.fig7` for the loop's metric definitions),
-never :mod:`nfal.fmus`.
+What a run is comes from the spec's :class:`~.sweep_spec.SweepKind` (its task and metric columns):
+this engine knows no kind of its own (nfal's kinds: :mod:`nfal.sweeps`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-import numpy as np
 
 from nfal.errors import SweepError, SweepSpecError
 
@@ -45,19 +44,12 @@ logger = logging.getLogger(__name__)
 
 RESULTS_CSV, SUMMARY_JSON, SPEC_JSON, SWEEP_PNG = "results.csv", "summary.json", "spec.json", "sweep.png"
 FIXED_COLUMNS = ("run_id", "index", "status", "error", "wall_time_s", "worker")
-SSP_METRICS = ("iae_m_s", "rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_m",
-               "noise_rms_m")
-TABLE1_METRICS = ("delta_simplified", "delta_full", "error_percent")
 CACHE_DIR_NAME = "nfal-sweep-cache"
 
 
 def metric_columns(spec: SweepSpec) -> tuple[str, ...]:
     """The metric columns of ``spec``'s kind (SI; the unit ends the name)."""
-    if spec.kind == "ssp":
-        return SSP_METRICS
-    if spec.kind == "table1":
-        return TABLE1_METRICS
-    return tuple(f"K_at_sigma_{s:g}" for s in spec.settings["sigma"]) + ("K_min", "K_max", "sigma_K_zero")
+    return tuple(spec.kind.metrics(spec.settings))
 
 
 def columns(spec: SweepSpec) -> list[str]:
@@ -66,22 +58,6 @@ def columns(spec: SweepSpec) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------------- tasks
-
-@dataclasses.dataclass(frozen=True)
-class Ramp:
-    """``initial`` until ``start_s``, then linear to ``final`` over ``duration_s`` [s], then held."""
-
-    initial: float
-    final: float
-    start_s: float
-    duration_s: float
-
-    def __call__(self, time_s: float) -> float:
-        if time_s <= self.start_s:
-            return self.initial
-        fraction = min(1.0, (time_s - self.start_s) / self.duration_s) if self.duration_s > 0 else 1.0
-        return self.initial + fraction * (self.final - self.initial)
-
 
 def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | None = None) -> Path:
     """The worker-local SSP folder of the archive ``data``, unpacked once after checking its sha256.
@@ -128,122 +104,16 @@ def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | No
     return folder
 
 
-def _staircase(reference):
-    from nfal.models.closed_loop import Staircase
-
-    if reference == "staircase":
-        return Staircase()
-    if reference == "none":
-        return None
-    return Staircase(tuple(reference["levels_m"]), **{k: reference[k] for k in ("hold_s", "lead_s") if k in reference})
-
-
-def loop_summary(table, staircase) -> dict:
-    """The sweep's metrics of a Fig. 7 run: IAE, the worst step's rise/settling time and overshoot,
-    the final hold's steady-state error |mean(height - reference)| over its last quarter, mean noise."""
-    from nfal.fig7 import REFERENCE, SIMULATED, loop_metrics
-
-    metrics = loop_metrics(table, staircase)
-    steps = metrics["steps"]
-
-    def worst(key):
-        values = [s[key] for s in steps]
-        return math.nan if not values or any(v is None for v in values) else float(max(values))
-
-    time_s = np.asarray(table.time)
-    tail_start = time_s[-1] - 0.25 * (time_s[-1] - float(staircase.step_times_s[-1]))
-    tail = time_s >= tail_start
-    error = np.asarray(table[SIMULATED.height])[tail] - np.asarray(table[REFERENCE])[tail]
-    return {"iae_m_s": float(metrics["iae"]), "rise_time_s": worst("rise_time_s"),
-            "overshoot_percent": worst("overshoot_percent"), "settling_time_s": worst("settling_time_s"),
-            "steady_state_error_m": float(abs(np.mean(error))),
-            "noise_rms_m": float(np.mean([s["noise_rms_m"] for s in steps]))}
-
-
-def ssp_task(run: RunSpec, archive: bytes, sha256: str) -> dict:
-    """One SSP run: the archive (from the worker cache) with the run's overrides; the loop metrics."""
-    from .run import run_structure
-
-    settings = run.settings
-    path = cached_structure(archive, sha256)
-    parameters = dict(settings["parameters"])
-    inputs: dict = {k: float(v) for k, v in settings["inputs"].items()}
-    for name, value in run.parameters.items():
-        if name.startswith("inputs."):
-            target = name[len("inputs."):]
-            ramp = settings["ramps"].get(target)
-            inputs[target] = (Ramp(float(ramp.get("initial", 0.0)), float(value), float(ramp.get("start_s", 0.0)),
-                                   float(ramp["duration_s"])) if ramp is not None else float(value))
-        else:
-            parameters[name] = value
-    staircase = _staircase(settings["reference"])
-    if staircase is not None:
-        inputs.setdefault(settings["reference_input"], staircase)
-    stop_time = settings["stop_time"] or (staircase.duration_s if staircase is not None else None)
-    completed = staircase.completed_by(stop_time) if staircase is not None and stop_time else None
-    with tempfile.TemporaryDirectory(prefix="nfal-sweep-run-") as out:
-        result = run_structure(path, stop_time=stop_time, step_size=settings["step_size"], inputs=inputs,
-                               parameters=parameters, algorithm=settings["algorithm"], out_dir=out, plot=False,
-                               progress=False)
-        if completed is None:
-            return {}
-        return loop_summary(result.table(), completed)
-
-
-def calibration_task(run: RunSpec) -> dict:
-    """K(sigma) by the perturbation route for the run's shape: K at the spec's sigma, K's least and greatest
-    value on the grid, and the first sigma where K changes sign (NaN if it does not)."""
-    from nfal.models.calibration import perturbation_calibration
-    from nfal.models.excitation import parse_shape
-
-    s = {**run.settings, **run.parameters}
-    calibration = perturbation_calibration(parse_shape(str(s["shape"])), tuple(s["sigma_range"]), points=int(s["points"]),
-                                           nodes=int(s["nodes"]))
-    values = np.asarray(calibration(np.asarray(run.settings["sigma"], dtype=float)), dtype=float)
-    grid = np.geomspace(*(float(v) for v in s["sigma_range"]), int(s["points"]))
-    on_grid = np.asarray(calibration(grid), dtype=float)
-    out = {f"K_at_sigma_{sigma:g}": float(v) for sigma, v in zip(run.settings["sigma"], values)}
-    crossings = np.flatnonzero(np.diff(np.sign(on_grid)) != 0)
-    if crossings.size:
-        i = int(crossings[0])
-        zero = float(grid[i] - on_grid[i] * (grid[i + 1] - grid[i]) / (on_grid[i + 1] - on_grid[i]))
-    else:
-        zero = math.nan
-    out.update({"K_min": float(on_grid.min()), "K_max": float(on_grid.max()), "sigma_K_zero": zero})
-    return out
-
-
-def table1_task(run: RunSpec) -> dict:
-    """One Table-1 case (simplified model against the full Reynolds model), with the run's overrides."""
-    from nfal.errors import InvalidParameterError
-    from nfal.models.excitation import parse_shape
-    from nfal.models.table1 import TABLE1, run_case
-
-    s = {**run.settings, **run.parameters}
-    cases = {c.name: c for c in TABLE1}
-    if s["case"] not in cases:
-        raise InvalidParameterError("case", s["case"], f"one of {', '.join(cases)}")
-    changes = {k: float(s[k]) for k in ("mass", "frequency", "excitation") if s.get(k) is not None}
-    case = dataclasses.replace(cases[s["case"]], **changes)
-    result = run_case(case, shape=parse_shape(str(s["shape"])), nodes=int(s["nodes"]),
-                      steps_per_period=int(s["steps_per_period"]))
-    return {"delta_simplified": float(result.delta_simplified), "delta_full": float(result.delta_full),
-            "error_percent": float(result.error_percent)}
-
-
-def run_task(run: RunSpec, kind: str, archive: bytes | None = None, sha256: str | None = None) -> dict:
-    """Run one run of a sweep and return its row (status "failed" and the error if it raised)."""
+def run_task(run: RunSpec, task: Callable[[RunSpec, Path | None], dict], archive: bytes | None = None,
+             sha256: str | None = None) -> dict:
+    """Run one run of a sweep with its kind's ``task`` and return its row (status "failed" and the error if
+    it raised); ``archive`` (an SSP archive's bytes) is unpacked into the worker cache first."""
     started = time.perf_counter()
     row = {"run_id": run.run_id, "index": run.index, "status": "ok", "error": "", "worker": socket.gethostname()
            + f":{os.getpid()}"}
     try:
-        if kind == "ssp":
-            metrics = ssp_task(run, archive, sha256)
-        elif kind == "calibration":
-            metrics = calibration_task(run)
-        else:
-            metrics = table1_task(run)
-        row.update(metrics)
+        structure = cached_structure(archive, sha256) if archive is not None else None
+        row.update(task(run, structure))
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a dead sweep
         row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
     row["wall_time_s"] = time.perf_counter() - started
@@ -408,11 +278,11 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     if foreign:
         logger.warning("%s holds %d rows of runs this spec does not have (its run settings or values changed); "
                        "they are kept", table.path, foreign)
-    (out / SPEC_JSON).write_text(json.dumps({"name": spec.name, "kind": spec.kind, "settings": spec.settings,
+    (out / SPEC_JSON).write_text(json.dumps({"name": spec.name, "kind": spec.kind.name, "settings": spec.settings,
                                              "grid": spec.grid, "random": spec.random, "draws": spec.draws,
                                              "seed": spec.seed, "runs": [dataclasses.asdict(r) | {"settings": None}
                                                                          for r in runs]}, indent=2) + "\n")
-    summary = {"name": spec.name, "kind": spec.kind, "runs": len(runs), "skipped": skipped, "other_rows": foreign,
+    summary = {"name": spec.name, "kind": spec.kind.name, "runs": len(runs), "skipped": skipped, "other_rows": foreign,
                "new": 0, "ok": 0,
                "failed": 0, "status": "running", "scheduler": scheduler or "local", "workers": None,
                "wall_time_s": 0.0, "task_wall_time_s": 0.0}
@@ -424,14 +294,14 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     try:
         if todo:
             archive = sha = None
-            if spec.kind == "ssp":
+            if spec.kind.needs_archive:
                 data = _archive_path(spec, archives).read_bytes()
                 sha = hashlib.sha256(data).hexdigest()
             client, cluster = _client(scheduler, workers)
             summary["workers"] = len(client.scheduler_info().get("workers", {}))
-            if spec.kind == "ssp":
+            if spec.kind.needs_archive:
                 archive = client.scatter(data, broadcast=True)  # once per worker, not per task
-            futures = [client.submit(run_task, run, spec.kind, archive, sha, pure=False) for run in todo]
+            futures = [client.submit(run_task, run, spec.kind.task, archive, sha, pure=False) for run in todo]
             by_future = {f.key: r for f, r in zip(futures, todo)}
             for future in as_completed(futures):
                 run = by_future[future.key]
@@ -528,5 +398,5 @@ def plot_sweep(spec: SweepSpec, rows: list[dict], path: Path) -> Path | None:
     return path
 
 
-__all__ = ["Ramp", "ResultsTable", "SweepError", "SweepResult", "SweepSpecError", "cached_structure", "columns",
+__all__ = ["ResultsTable", "SweepError", "SweepResult", "SweepSpecError", "cached_structure", "columns",
            "metric_columns", "plot_sweep", "read_table", "run_sweep", "run_task"]

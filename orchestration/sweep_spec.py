@@ -8,7 +8,7 @@ values: every combination is run) and/or a ``[random]`` table (``draws`` and ``s
     name = "robustness"              # optional; used in plot titles
 
     [run]
-    kind = "ssp"                     # "ssp" | "calibration" | "table1"
+    kind = "ssp"                     # a kind of the registry given to load_spec (nfal's: nfal/sweeps.py)
     structure = "fig7_slow"          # built-in structure or path of an .ssp (relative to the spec)
     stop_time = 0.4
     reference = {levels_m = [100e-6, 140e-6], hold_s = 0.3, lead_s = 0.1}
@@ -25,6 +25,9 @@ values: every combination is run) and/or a ``[random]`` table (``draws`` and ``s
 Distributions: ``uniform`` (low, high), ``loguniform`` (low, high > 0), ``normal`` (mean, std),
 ``integers`` (low, high, both included). Each run gets a stable id: a hash of the canonical JSON of
 its run settings and parameters, so the same spec expands to the same ids on every machine.
+
+What a run *is* comes from a registry of :class:`SweepKind` (name -> settings, sweepable names, task,
+metric columns) that the caller passes in: this module and :mod:`.sweep` know no kind of their own.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import json
 import math
 import os
 import sys
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -47,25 +51,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-KINDS = ("ssp", "calibration", "table1")
 DISTRIBUTIONS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"),
                  "integers": ("low", "high")}
-
-# Settings each kind accepts in [run] (besides ``kind``), with their defaults.
-RUN_SETTINGS = {
-    "ssp": {"structure": "fig7_slow", "stop_time": None, "step_size": 5e-4, "algorithm": "causal",
-            "reference": "staircase", "reference_input": "Controller.reference", "parameters": {}, "inputs": {},
-            "ramps": {}},
-    "calibration": {"shape": "paper", "sigma": [10.0, 100.0, 1000.0], "sigma_range": [1.0, 1e5], "points": 200,
-                    "nodes": 401},
-    "table1": {"case": "a", "shape": "paper", "nodes": 101, "steps_per_period": 256, "mass": None,
-               "frequency": None, "excitation": None},
-}
-# Names a grid or random draw may set for the non-SSP kinds (SSP runs take "Element.variable" and "inputs.X").
-SWEEPABLE = {
-    "calibration": ("shape", "points", "nodes", "sigma_range"),
-    "table1": ("case", "shape", "nodes", "steps_per_period", "mass", "frequency", "excitation"),
-}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,11 +66,61 @@ class RunSpec:
 
 
 @dataclasses.dataclass(frozen=True)
+class SweepKind:
+    """What the runs of a sweep are; a registry maps ``[run] kind`` names onto these.
+
+    Attributes
+    ----------
+    name : str
+        The ``[run] kind`` value.
+    settings : mapping
+        The ``[run]`` keys the kind takes (besides ``kind``), with their defaults.
+    task : callable
+        ``task(run, structure) -> {metric: value}``: one run; ``structure`` is the unpacked SSP archive's
+        folder when ``needs_archive``, else None. A module-level function (the workers import it by name).
+    metrics : callable
+        ``metrics(settings) -> column names`` of the metrics ``task`` returns (SI; the unit ends the name).
+    check_name : callable
+        ``check_name(name, table)`` raises :class:`SweepSpecError` if ``[grid]``/``[random]`` may not set ``name``.
+    check_settings : callable, optional
+        ``check_settings(settings)`` raises :class:`SweepSpecError` (message from ``[run]`` on) on bad settings.
+    needs_archive : bool
+        ``settings["structure"]`` names an SSP archive, sent to every worker once.
+    """
+
+    name: str
+    settings: Mapping[str, object]
+    task: Callable[[RunSpec, Path | None], dict]
+    metrics: Callable[[dict], tuple[str, ...]]
+    check_name: Callable[[str, str], None]
+    check_settings: Callable[[dict], None] | None = None
+    needs_archive: bool = False
+
+
+def sweepable(*names: str) -> Callable[[str, str], None]:
+    """A ``check_name`` that allows exactly ``names``."""
+    def check(name: str, table: str) -> None:
+        if name not in names:
+            raise SweepSpecError(f"[{table}] {name!r} cannot be swept; allowed: {', '.join(names)}")
+    return check
+
+
+def check_number(settings: dict, key: str, *, positive: bool = True, optional: bool = False) -> None:
+    """Raise :class:`SweepSpecError` unless ``settings[key]`` is a finite (positive) number (or None if optional)."""
+    value = settings[key]
+    if value is None and optional:
+        return
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or (
+            positive and value <= 0):
+        raise SweepSpecError(f"[run] {key} = {value!r}; must be a {'positive ' if positive else ''}number")
+
+
+@dataclasses.dataclass(frozen=True)
 class SweepSpec:
     """A parsed spec: the run kind and settings, the grid, the random draws, and where it came from."""
 
     name: str
-    kind: str
+    kind: SweepKind
     settings: dict
     grid: dict
     random: dict
@@ -112,8 +149,8 @@ def run_id(kind: str, settings: dict, parameters: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def load_spec(path: str | os.PathLike) -> SweepSpec:
-    """Read and check a sweep spec from a TOML file (relative paths in it are relative to the file)."""
+def load_spec(path: str | os.PathLike, kinds: Mapping[str, SweepKind]) -> SweepSpec:
+    """Read and check a sweep spec of one of ``kinds`` from a TOML file (paths in it are relative to the file)."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -123,11 +160,12 @@ def load_spec(path: str | os.PathLike) -> SweepSpec:
         raise SweepSpecError(f"{path}: not a text file; a sweep spec is TOML (UTF-8)") from None
     except tomllib.TOMLDecodeError as exc:
         raise SweepSpecError(f"{path}: not valid TOML: {exc}") from None
-    return parse_spec(data, base_dir=path.parent, source=str(path))
+    return parse_spec(data, kinds, base_dir=path.parent, source=str(path))
 
 
-def parse_spec(data: dict, *, base_dir: str | os.PathLike = ".", source: str = "spec") -> SweepSpec:
-    """Check a spec given as a (TOML-decoded) mapping; see the module docstring for the format."""
+def parse_spec(data: dict, kinds: Mapping[str, SweepKind], *, base_dir: str | os.PathLike = ".",
+               source: str = "spec") -> SweepSpec:
+    """Check a spec of one of ``kinds`` given as a (TOML-decoded) mapping; see the module docstring."""
     unknown = set(data) - {"sweep", "run", "grid", "random"}
     if unknown:
         raise SweepSpecError(f"{source}: unknown table(s) {sorted(unknown)}; allowed: sweep, run, grid, random")
@@ -136,23 +174,30 @@ def parse_spec(data: dict, *, base_dir: str | os.PathLike = ".", source: str = "
     if bad:
         raise SweepSpecError(f"{source}: [sweep] has unknown key(s) {sorted(bad)}; allowed: name")
     run = dict(_table(data.get("run"), "run", source, required=True))
-    kind = run.pop("kind", None)
-    if kind not in KINDS:
-        raise SweepSpecError(f"{source}: [run] kind = {kind!r}; allowed: {', '.join(KINDS)}")
-    defaults = RUN_SETTINGS[kind]
-    bad = set(run) - set(defaults)
+    name = run.pop("kind", None)
+    if name not in kinds:
+        raise SweepSpecError(f"{source}: [run] kind = {name!r}; allowed: {', '.join(kinds)}")
+    kind = kinds[name]
+    bad = set(run) - set(kind.settings)
     if bad:
-        raise SweepSpecError(f"{source}: [run] has unknown key(s) {sorted(bad)} for kind {kind!r}; "
-                             f"allowed: {', '.join(sorted(defaults))}")
-    settings = {**defaults, **run}
-    _check_settings(kind, settings, source)
-    grid = _parse_grid(_table(data.get("grid", {}), "grid", source), kind, source)
+        raise SweepSpecError(f"{source}: [run] has unknown key(s) {sorted(bad)} for kind {name!r}; "
+                             f"allowed: {', '.join(sorted(kind.settings))}")
+    settings = {**kind.settings, **run}
+    grid_table = _table(data.get("grid", {}), "grid", source)
     random_table = dict(_table(data.get("random", {}), "random", source))
+    try:  # the kind's own checks: their messages start at the table
+        if kind.check_settings is not None:
+            kind.check_settings(settings)
+        for table, names in (("grid", grid_table), ("random", set(random_table) - {"draws", "seed"})):
+            for swept in names:
+                kind.check_name(swept, table)
+    except SweepSpecError as exc:
+        raise SweepSpecError(f"{source}: {exc}") from None
+    grid = _parse_grid(grid_table, source)
     draws = random_table.pop("draws", None)
     seed = random_table.pop("seed", None)
     random = {name: _parse_distribution(name, value, source) for name, value in random_table.items()}
     for name in random:
-        _check_name(name, kind, source, "random")
         if name in grid:
             raise SweepSpecError(f"{source}: {name!r} is in both [grid] and [random]")
     if random:
@@ -196,57 +241,9 @@ def _table(value, name: str, source: str, required: bool = False) -> dict:
     return value
 
 
-def _check_settings(kind: str, settings: dict, source: str) -> None:
-    def number(key, positive=True, optional=False):
-        value = settings[key]
-        if value is None and optional:
-            return
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or (
-                positive and value <= 0):
-            raise SweepSpecError(f"{source}: [run] {key} = {value!r}; must be a {'positive ' if positive else ''}number")
-
-    if kind == "ssp":
-        number("stop_time", optional=True)
-        number("step_size")
-        for key in ("parameters", "inputs", "ramps"):
-            if not isinstance(settings[key], dict):
-                raise SweepSpecError(f"{source}: [run] {key} must be a table")
-        for key, value in settings["inputs"].items():
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-                raise SweepSpecError(f"{source}: [run.inputs] {key} = {value!r}; must be a finite number (a constant)")
-        for key, ramp in settings["ramps"].items():
-            if not isinstance(ramp, dict) or set(ramp) - {"start_s", "duration_s", "initial"} or "duration_s" not in ramp:
-                raise SweepSpecError(f"{source}: [run.ramps] {key} = {ramp!r}; must be {{start_s, duration_s[, initial]}}")
-        reference = settings["reference"]
-        if not (reference in ("staircase", "none") or (isinstance(reference, dict) and "levels_m" in reference
-                                                       and set(reference) <= {"levels_m", "hold_s", "lead_s"})):
-            raise SweepSpecError(f"{source}: [run] reference = {reference!r}; must be \"staircase\", \"none\" or "
-                                 "{levels_m = [...], hold_s = ..., lead_s = ...}")
-    elif kind == "calibration":
-        sigma = settings["sigma"]
-        if not isinstance(sigma, list) or not sigma or not all(
-                isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0 for s in sigma):
-            raise SweepSpecError(f"{source}: [run] sigma = {sigma!r}; must be a list of positive squeeze numbers")
-
-
-def _check_name(name: str, kind: str, source: str, table: str) -> None:
-    if kind == "ssp":
-        if name.startswith("inputs."):
-            if len(name) > len("inputs."):
-                return
-        elif "." in name.strip(".") and not name.startswith("."):
-            return
-        raise SweepSpecError(f"{source}: [{table}] {name!r}: an SSP run sweeps \"Element.variable\" parameters or "
-                             "\"inputs.NAME\" (a constant, or a ramp's final value with [run.ramps])")
-    if name not in SWEEPABLE[kind]:
-        raise SweepSpecError(f"{source}: [{table}] {name!r} cannot be swept for kind {kind!r}; "
-                             f"allowed: {', '.join(SWEEPABLE[kind])}")
-
-
-def _parse_grid(grid: dict, kind: str, source: str) -> dict:
+def _parse_grid(grid: dict, source: str) -> dict:
     out = {}
     for name, values in grid.items():
-        _check_name(name, kind, source, "grid")
         if not isinstance(values, list) or not values:
             raise SweepSpecError(f"{source}: [grid] {name} = {values!r}; must be a non-empty list of values")
         for value in values:
@@ -314,7 +311,7 @@ def expand(spec: SweepSpec) -> list[RunSpec]:
     for point in points:
         for sample in samples:
             parameters = {**point, **sample}
-            rid = run_id(spec.kind, spec.settings, parameters)
+            rid = run_id(spec.kind.name, spec.settings, parameters)
             if rid in seen:
                 raise SweepSpecError(f"the spec gives the same run twice: {canonical_json(parameters)}")
             seen.add(rid)

@@ -1,4 +1,4 @@
-"""Reference signals (nfal.orchestration.signals): the built-in staircase, steps and CSV references."""
+"""Reference signals (nfal.orchestration.signals): staircases, steps and CSV references."""
 
 from __future__ import annotations
 
@@ -12,12 +12,21 @@ from nfal.orchestration import SignalError, csv_signal, signal_from_spec, stairc
 from nfal.orchestration.signals import PiecewiseConstant, as_signal, constant
 
 
-def test_default_staircase_is_the_papers_and_equals_the_models_class():
-    signal, reference = staircase(), Staircase()
+def test_a_staircase_equals_the_models_class():
+    reference = Staircase()
+    signal = staircase(reference.levels_m, reference.hold_s, reference.lead_s)
     assert signal.duration_s == pytest.approx(3.7)
     assert signal.values == pytest.approx((60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6, 60e-6))
     time_s = np.arange(7400) * 5e-4  # the 2 kHz instants of the pure-Python loop
     np.testing.assert_array_equal([signal(t) for t in time_s], reference(time_s))
+    converted = as_signal(reference)  # a step sequence of an application, taken as such
+    assert isinstance(converted, PiecewiseConstant) and converted.values == signal.values
+
+
+@pytest.mark.parametrize("levels, hold, lead", [((1.0,), 1.0, 0.1), ((1.0, 2.0), 0.0, 0.1), ((1.0, 2.0), 1.0, -1.0)])
+def test_a_bad_staircase_is_refused(levels, hold, lead):
+    with pytest.raises(SignalError, match="staircase"):
+        staircase(levels, hold, lead)
 
 
 def test_a_communication_point_a_hair_before_a_change_counts_as_at_it():
@@ -67,14 +76,14 @@ def test_missing_csv(tmp_path):
 
 
 @pytest.mark.parametrize("spec, t, value", [
-    ("staircase", 0.2, 100e-6), ("staircase:1,2,3:0.5:0.1", 0.65, 3.0), ("step:0,4,0.5", 0.5, 4.0),
+    ("step:0,4,0.5", 0.5, 4.0),
     ("constant:2.5", 9.0, 2.5),
 ])
 def test_specs(spec, t, value):
     assert signal_from_spec(spec)(t) == pytest.approx(value)
 
 
-@pytest.mark.parametrize("spec", ["staircase:1,x", "step:1,2", "sine:1", "missing.csv"])
+@pytest.mark.parametrize("spec", ["staircase", "step:1,2", "sine:1", "missing.csv"])
 def test_bad_specs(spec):
     with pytest.raises(SignalError):
         signal_from_spec(spec)

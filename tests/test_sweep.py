@@ -14,8 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nfal.errors import SweepError, SweepSpecError
-from nfal.orchestration.sweep import Ramp, ResultsTable, cached_structure, columns, read_table, run_sweep, run_task
-from nfal.orchestration.sweep_spec import expand, load_spec, parse_spec
+from nfal.orchestration.sweep import ResultsTable, cached_structure, columns, read_table, run_sweep, run_task
+from nfal.orchestration.sweep_spec import expand
+from nfal.sweeps import KINDS, Ramp, load_spec, parse_spec
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
 
@@ -143,10 +144,10 @@ def test_a_task_runs_in_process_with_a_ramped_input(fig7_archives):
     spec = parse_spec({**SMALL_SSP, "run": {**SMALL_SSP["run"], "inputs": {"ResonanceTracker.resonance_shift": 0.0},
                                            "ramps": {"ResonanceTracker.resonance_shift": {"duration_s": 0.1}}},
                        "grid": {"inputs.ResonanceTracker.resonance_shift": [0.0, 300.0]}})
-    rows = [run_task(run, "ssp", data, hashlib.sha256(data).hexdigest()) for run in spec.runs()]
+    rows = [run_task(run, KINDS["ssp"].task, data, hashlib.sha256(data).hexdigest()) for run in spec.runs()]
     assert [r["status"] for r in rows] == ["ok", "ok"], rows
     assert rows[1]["iae_m_s"] != rows[0]["iae_m_s"]  # the drift reached the loop
-    bad = run_task(spec.runs()[0], "ssp", data, "0" * 64)
+    bad = run_task(spec.runs()[0], KINDS["ssp"].task, data, "0" * 64)
     assert bad["status"] == "failed" and "sha256" in bad["error"]
 
 

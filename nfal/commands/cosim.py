@@ -109,13 +109,15 @@ def parse_parameter(text: str) -> tuple[str, object]:
 
 
 def parse_input(text: str) -> tuple[str, object]:
-    """``Element.var=SIGNAL`` -> (name, signal of time), SIGNAL as :func:`signal_from_spec` reads it."""
+    """``Element.var=SIGNAL`` -> (name, signal of time): a staircase as ``--reference`` takes it
+    (:func:`~nfal.fig7.reference_staircase`), else as :func:`~nfal.orchestration.signals.signal_from_spec` reads it."""
+    from nfal.fig7 import reference_staircase
     from nfal.orchestration.signals import signal_from_spec
 
     name, sep, spec = text.partition("=")
     if not sep or "." not in name.strip(".") or not spec:
         raise InvalidParameterError("--input", text, "ELEMENT.VAR=SIGNAL")
-    return name.strip(), signal_from_spec(spec.strip())
+    return name.strip(), reference_staircase(spec.strip(), "") or signal_from_spec(spec.strip())
 
 
 def _structure_path(args: argparse.Namespace) -> Path:

@@ -38,7 +38,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
 
     from nfal.errors import InvalidParameterError
     from nfal.orchestration.sweep import run_sweep
-    from nfal.orchestration.sweep_spec import load_spec
+    from nfal.sweeps import load_spec
 
     if args.workers is not None and args.workers < 1:
         raise InvalidParameterError("--workers", args.workers, "a whole number >= 1")
@@ -49,7 +49,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         for name in [n for n in logging.root.manager.loggerDict if n.split(".")[0] == "distributed"] + ["distributed"]:
             logging.getLogger(name).setLevel(logging.ERROR)
     archives = None
-    if spec.kind == "ssp":
+    if spec.kind.needs_archive:
         from nfal.build import STRUCTURES, build_all
 
         if spec.settings["structure"] in STRUCTURES:

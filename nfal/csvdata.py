@@ -1,4 +1,4 @@
-"""Reading the small numeric CSV tables users bring: shape scans, equilibrium measurements."""
+"""Reading the small numeric CSV tables users bring: shape scans, equilibrium measurements, reference signals."""
 
 from __future__ import annotations
 
