@@ -3,7 +3,7 @@
     python bench/bench_rig_truth.py
 
 Each built-in rig structure (rig_slow, rig_reynolds: ``nfal rig-emulator --truth slow|reynolds``) is run
-in-process as the emulator runs it (:func:`nfal.hil.rig_model.open_rig`) for 10 s of rig time from rest
+in-process as the emulator runs it (:func:`nfal.rig_model.open_rig`) for 10 s of rig time from rest
 (45 V, lift-off, then 60 V), twice, the second time with the imports, numba kernels and the Reynolds
 plant's film table warm. Per tick: ``reading`` + ``advance``. A tick that takes longer than 500 us on a
 loaded machine is mostly the machine (compare the slow truth's count); the plant's own cost is the mean.
@@ -20,7 +20,7 @@ import numpy as np
 from machine import describe
 
 from nfal.build import build_all
-from nfal.hil.rig_model import open_rig
+from nfal.rig_model import open_rig
 
 TICK_S = 5e-4
 TICKS = 20000

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from machine import describe
+
 from nfal.build import build_all
 from nfal.orchestration.sweep import read_table, run_sweep
 from nfal.sweeps import parse_spec

@@ -18,12 +18,12 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pythonfmu
 from fmpy import simulate_fmu
 
-import pythonfmu
 from nfal.build import structure_sources
 from nfal.fmus.build import build_fmus
-from nfal.fmus.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.orchestration import run_structure
 from nfal.orchestration.ssp_archive import pack
 

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.models.calibration import (PAPER_SIGMA_RANGE, TabulatedK, calibration_from_dict, load_calibration,
-                                    paper_calibration)
 from nfal.errors import NfalError
+from nfal.models.calibration import (PAPER_SIGMA_RANGE, TabulatedK, calibration_from_dict, load_calibration,
+                                     paper_calibration)
 from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
 

@@ -74,10 +74,10 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
 from nfal import __version__
+from nfal.errors import FmuStateError, InvalidParameterError, SlaveCallError, require_positive
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
-from nfal.errors import FmuStateError, InvalidParameterError, SlaveCallError, require_positive
 from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from nfal.models.rig import RigParameters
 

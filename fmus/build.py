@@ -44,11 +44,16 @@ import zipfile
 from pathlib import Path
 from typing import Iterable
 
+import pythonfmu
+from pythonfmu import FmuBuilder as Fmi2Builder
+from pythonfmu3 import FmuBuilder as Fmi3Builder
+
 import nfal
 import nfal.hil
 import nfal.models
 from nfal.errors import InvalidParameterError
 from nfal.fmus.export_runtime import PLATFORM, RUNTIME_SOURCES, runtime_library
+from nfal.fmus.fmi3 import COSIMULATION_ATTRIBUTES, fmi3_script
 
 logger = logging.getLogger(__name__)
 
@@ -172,10 +177,6 @@ def _with_runtime(built: Path, name: str, target: Path) -> None:
 def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]:
     """Add the FMI 3.0 script around the staged FMI 2.0 one, and pythonfmu's Python side (which the
     slave's base class needs; pythonfmu3 adds its own); return the script and the project files."""
-    import pythonfmu
-
-    from nfal.fmus.fmi3 import fmi3_script
-
     runtime = stage / "pythonfmu"
     runtime.mkdir()
     for module in Path(pythonfmu.__file__).parent.glob("*.py"):
@@ -186,8 +187,6 @@ def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]
 
 
 def _fmi3_options(options: dict[str, bool]) -> dict[str, bool]:
-    from nfal.fmus.fmi3 import COSIMULATION_ATTRIBUTES
-
     return {COSIMULATION_ATTRIBUTES.get(key, key): value for key, value in options.items()}
 
 
@@ -196,11 +195,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     FMI 2.0 (pythonfmu) or, with ``fmi_version=3``, FMI 3.0 (pythonfmu3, fmus/fmi3.py)."""
     if fmi_version not in FMI_VERSIONS:
         raise InvalidParameterError("fmi_version", fmi_version, f"one of {FMI_VERSIONS}")
-    if fmi_version == 3:
-        from pythonfmu3 import FmuBuilder
-    else:
-        from pythonfmu import FmuBuilder
-
+    FmuBuilder = Fmi3Builder if fmi_version == 3 else Fmi2Builder  # noqa: N806 - the class, as pythonfmu names it
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{name}.fmu"

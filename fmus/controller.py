@@ -31,9 +31,9 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
+from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
-from nfal.errors import InvalidParameterError, require_positive
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.stability import realizable_schedule

@@ -27,10 +27,10 @@ The rig cannot be rewound: the FMU cannot restore an FMU state (built with canGe
 
 from __future__ import annotations
 
+from nfal.errors import FmuStateError, InvalidParameterError, LinkError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.hil.link import RigLink
 from nfal.hil.protocol import StatusFlags
-from nfal.errors import FmuStateError, InvalidParameterError, LinkError, require_positive
 
 _LOCKED, _RESTING, _TRIPPED, _OUT_OF_RANGE = (int(flag) for flag in (
     StatusFlags.PLL_LOCKED, StatusFlags.RESTING, StatusFlags.WATCHDOG_TRIPPED, StatusFlags.SENSOR_OUT_OF_RANGE))

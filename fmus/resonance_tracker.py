@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import dataclasses
 
+from nfal.errors import InvalidParameterError, require_finite
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import pll as pll_model
-from nfal.errors import InvalidParameterError, require_finite
 from nfal.models.transducer import METRES_PER_VOLT, QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ, Transducer
 
 INPUTS = ("drive_voltage", "resonance_shift")

@@ -31,11 +31,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel, CoupledState
 from nfal.models.excitation import parse_shape
-from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.fixed_step_plant import NEAR_SURFACE, FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant

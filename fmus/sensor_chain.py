@@ -12,9 +12,9 @@ the ``true_height`` set before initialisation ends.
 
 from __future__ import annotations
 
+from nfal.errors import InvalidParameterError
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import sensor_chain as sensor_model
-from nfal.errors import InvalidParameterError
 
 
 class SensorChain(NfalSlave):

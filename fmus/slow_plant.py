@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import math
 
-from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.errors import InvalidParameterError, require_finite
+from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import DampingModel, ExcessDamping, PlantState, SimplifiedPlant
 

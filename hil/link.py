@@ -35,8 +35,8 @@ import serial
 
 from nfal.errors import LinkError, require_positive
 
-from .protocol import (DELIMITER, PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello,
-                       HelloAck, Measurement, RigHeartbeat, Stop)
+from .protocol import (DELIMITER, PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder,
+                       Hello, HelloAck, Measurement, RigHeartbeat, Stop)
 
 logger = logging.getLogger(__name__)
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import serial
 
 from nfal.errors import LinkError
+
 from .link import READ_ERRORS, open_port
 
 #: Most bytes one read takes.

@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 from scipy import interpolate
 
-from .damping import DampingCorrection
 from nfal.errors import DataFormatError, InvalidParameterError
+
+from .damping import DampingCorrection
 from .excitation import ExcitationShape
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
 from .rig import RigParameters

@@ -13,8 +13,9 @@ import logging
 
 import numpy as np
 
-from .control_law import DiscreteControlLaw
 from nfal.errors import InvalidParameterError, require_positive
+
+from .control_law import DiscreteControlLaw
 from .fixed_step_plant import FixedStepPlant
 from .plant import PlantState, SimplifiedPlant
 

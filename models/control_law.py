@@ -23,8 +23,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-
 from nfal.errors import InvalidParameterError, require_positive
+
 from .pid_design import SAMPLING_RATE_HZ, WORK_RANGE_M, FixedGains, GainSchedule
 
 #: Default actuator limit |a|_max [m]: 1.6 x the 6.2 um the paper's rig needs to hold 200 um (eq. 16),

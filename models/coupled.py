@@ -32,6 +32,7 @@ import numba
 import numpy as np
 
 from nfal.errors import ConvergenceError, GapClosedError, InvalidParameterError, require_finite, require_positive
+
 from .excitation import ExcitationShape
 from .perturbation import first_order_pressure, radial_grid
 from .reynolds import check_grid, discrete_mean_correction

@@ -13,9 +13,10 @@ import os
 
 import numpy as np
 
-from .calibration import PolynomialK
 from nfal.csvdata import read_numeric_csv
 from nfal.errors import DataFormatError, InvalidParameterError, require_positive
+
+from .calibration import PolynomialK
 from .plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from .rig import RigParameters
 

@@ -29,6 +29,7 @@ import numpy as np
 from scipy import interpolate
 
 from nfal.errors import InvalidParameterError
+
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure

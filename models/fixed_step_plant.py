@@ -26,8 +26,9 @@ import math
 
 import numpy as np
 
-from .calibration import PolynomialK
 from nfal.errors import InvalidParameterError, require_positive
+
+from .calibration import PolynomialK
 from .plant import PlantState, SimplifiedPlant
 
 #: Largest (damping rate x sub-step) taken.

@@ -26,6 +26,7 @@ import numpy as np
 from scipy import linalg
 
 from nfal.errors import ConvergenceError, InvalidParameterError
+
 from .excitation import ExcitationShape
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
 from .reynolds import discrete_mean_correction

@@ -24,9 +24,10 @@ from collections.abc import Callable
 import numpy as np
 from scipy import integrate, optimize, stats
 
+from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError, require_positive
+
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
-from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError, require_positive
 from .rig import RigParameters
 from .transducer import QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ
 

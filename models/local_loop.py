@@ -25,6 +25,7 @@ import numpy as np
 from scipy import linalg
 
 from nfal.errors import InvalidParameterError
+
 from .lpv import LPVCoefficients
 
 DISCRETISATIONS = ("forward_euler", "zoh")

@@ -23,8 +23,9 @@ import logging
 import control
 import numpy as np
 
-from .calibration import CalibrationFunction, paper_calibration
 from nfal.errors import InvalidParameterError
+
+from .calibration import CalibrationFunction, paper_calibration
 from .plant import DampingModel, SimplifiedPlant
 from .rig import RigParameters
 

@@ -18,9 +18,10 @@ Both are discretised by the same conservative finite volumes as the time-marchin
 from __future__ import annotations
 
 import numpy as np
-from scipy import linalg, special
+from scipy import integrate, linalg, special
 
 from nfal.errors import InvalidParameterError
+
 from .excitation import ExcitationShape
 
 DEFAULT_NODES = 401
@@ -93,8 +94,6 @@ def trapped_gas_K(shape: ExcitationShape) -> float:
     In that limit P H is constant in time away from the rim (Pi_2 = eps_hat, Pi_1 = 0), and the
     rim's boundary layer carries the jump of Pi_2 from eps_hat(1) to 0.
     """
-    from scipy import integrate
-
     second_moment, _ = integrate.quad(lambda r: r * float(shape(r)) ** 2, 0.0, 1.0, limit=400)
     return second_moment + 0.75 * shape.edge_value() ** 2
 

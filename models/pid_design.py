@@ -30,8 +30,9 @@ import control
 import numpy as np
 from scipy import interpolate, optimize
 
-from .calibration import CalibrationFunction, paper_calibration
 from nfal.errors import ConvergenceError, InvalidParameterError, require_positive
+
+from .calibration import CalibrationFunction, paper_calibration
 from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel
 from .rig import RigParameters

@@ -19,9 +19,10 @@ from typing import Callable
 import numpy as np
 from scipy import integrate, optimize
 
+from nfal.errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
+
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
-from nfal.errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .rig import RigParameters
 
 Excitation = float | Callable[[float], float]

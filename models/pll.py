@@ -50,6 +50,7 @@ from collections.abc import Callable
 import numpy as np
 
 from nfal.errors import InvalidParameterError, require_positive
+
 from .transducer import Transducer
 
 logger = logging.getLogger(__name__)

@@ -38,8 +38,10 @@ from typing import Callable
 
 import numba
 import numpy as np
+from scipy.linalg import eigvalsh_tridiagonal
 
 from nfal.errors import ConvergenceError, InvalidParameterError
+
 from .excitation import ExcitationShape
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
 
@@ -361,8 +363,6 @@ def slowest_period_ratio(R: np.ndarray, faces: np.ndarray, volumes: np.ndarray, 
     an open rim; it is scaled by (1 - ``gap_swing``)^3, the least conductance the film can have, so
     that the ratio is an upper bound for finite delta.
     """
-    from scipy.linalg import eigvalsh_tridiagonal
-
     conductance = faces[:-1] / R[1]  # faces between unknown nodes, then the rim face
     unknown = R.size - 1
     diag = np.concatenate(([0.0], conductance)) + faces / R[1]

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from nfal.errors import require_positive
+
 from .plausibility import MAX_CLEARANCE_M, MAX_MASS_KG, MAX_RADIUS_M, require_plausible
 
 #: Fields with a plausibility ceiling (:mod:`nfal.models.plausibility`): name -> (ceiling, unit).

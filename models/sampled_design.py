@@ -25,6 +25,7 @@ import numpy as np
 from scipy import optimize
 
 from nfal.errors import ConvergenceError
+
 from .local_loop import held_plant, sampled_loop_matrix
 from .lpv import LPVCoefficients
 

@@ -29,6 +29,7 @@ import numpy as np
 from scipy import linalg
 
 from nfal.errors import InvalidParameterError, require_positive
+
 from .measurement_noise import ColouredNoise
 
 #: Table 2: cut-off of the analog low-pass [Hz] and the sampling rate [Hz].

@@ -17,12 +17,13 @@ import logging
 
 import numpy as np
 
-from .calibration import CalibrationFunction, paper_calibration
 from nfal.errors import InvalidParameterError, require_positive
+
+from .calibration import CalibrationFunction, paper_calibration
 from .local_loop import DISCRETISATIONS, continuous_loop_matrix, discrete_loop_matrix
 from .lpv import LPVCoefficients, lpv_coefficients
-from .plant import DampingModel
 from .pid_design import SAMPLING_RATE_HZ, DesignSpec, GainSchedule, design_at
+from .plant import DampingModel
 from .rig import RigParameters
 
 logger = logging.getLogger(__name__)

@@ -18,8 +18,9 @@ import dataclasses
 
 import numpy as np
 
-from .closed_loop import ClosedLoopRun, Staircase
 from nfal.errors import InvalidParameterError
+
+from .closed_loop import ClosedLoopRun, Staircase
 
 SETTLING_BAND = 0.02
 STEADY_FRACTION = 0.25

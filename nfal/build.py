@@ -6,6 +6,9 @@ import importlib.resources
 import logging
 from pathlib import Path
 
+from nfal.fmus.build import build_fmus
+from nfal.orchestration.ssp_archive import pack
+
 logger = logging.getLogger(__name__)
 
 #: The system structures shipped in ``ssp/``, the default first.
@@ -23,9 +26,6 @@ def structure_sources() -> Path:
 def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES + RIG_STRUCTURES) -> dict[str, Path]:
     """Build the FMUs into ``out_dir`` (only those missing or older than their sources) and pack
     ``<structure>.ssp`` for each of ``structures``. Returns {structure name: archive path}."""
-    from nfal.fmus.build import build_fmus
-    from nfal.orchestration.ssp_archive import pack
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     fmus = build_fmus(out)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+
 class NfalError(Exception):
     """Base of every error nfal raises on purpose."""
 

@@ -11,10 +11,11 @@ import dataclasses
 
 import numpy as np
 
+from nfal.errors import InvalidParameterError
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
 from nfal.models.control_law import SATURATION_WARNING_S
-from nfal.errors import InvalidParameterError
 from nfal.models.step_metrics import step_metrics, total_iae
+from nfal.orchestration import PlotPanel
 
 REFERENCE = "Controller.reference"
 PROXY = "proxy"
@@ -81,8 +82,6 @@ def loop_columns(element_names) -> LoopColumns:
 def response_panels(columns: LoopColumns = SIMULATED) -> list:
     """Height (reference, true, measured) in um; excitation in um; the drive frequency's change in Hz (and, with
     hardware, the commanded and applied voltage and the age of the sample used)."""
-    from nfal.orchestration import PlotPanel
-
     heights = (REFERENCE, columns.measured) + ((columns.height,) if columns.height != columns.measured else ())
     excitation = tuple(dict.fromkeys(("Controller.excitation_command", columns.excitation)))
     return [PlotPanel(heights, 1e6, "height [um]"), PlotPanel(excitation, 1e6, "|a| [um]"),

@@ -28,15 +28,15 @@ from typing import Callable, Protocol, TextIO
 
 import numpy as np
 
+from nfal.errors import ExperimentError, InvalidParameterError
 from nfal.hil.link import RigLink, Sample
 from nfal.hil.protocol import StatusFlags
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
-from nfal.models.damping import DampingCorrection
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.errors import ExperimentError, InvalidParameterError
+from nfal.models.damping import DampingCorrection
 from nfal.models.experimental import EquilibriumData, ExperimentalCalibration, fit_calibration
-from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table,
-                                        fit_step, settled)
+from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,
+                                        settled)
 from nfal.models.pid_design import design_schedule
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters

@@ -11,10 +11,9 @@ many runs on Dask.
 """
 
 from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, MissingFmuError, OrchestrationError,
-
                          SignalError, SimulationError, StructureError, TypeMismatchError, UnitMismatchError,
-
                          UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
+
 from .master import ALGORITHMS, Master
 from .resolve import ResolvedSystem, resolve
 from .results import PlotPanel, ResultTable, read_results

@@ -32,24 +32,20 @@ import math
 import os
 import sysconfig
 import time as _time
-import zipfile
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
-from lxml import etree
 
-from nfal.errors import (InvalidParameterError, LibcosimUnavailableError, SimulationError,
+from nfal.errors import (InvalidParameterError, LibcosimUnavailableError, SimulationError, StructureError,
+                         UnknownConnectorError, UnknownElementError)
 
-                         StructureError, UnknownConnectorError, UnknownElementError)
-
-from .ssp_schema import DEFAULT_SSD, SSD_NS, SSV_NS
+from .ssp import DefaultExperiment, System, read_ssp
 
 logger = logging.getLogger(__name__)
 
 #: libcosim's log levels, quietest last.
 LOG_LEVELS = ("trace", "debug", "info", "warning", "error", "fatal")
-OSP_NS = "http://opensimulationplatform.com/SSP/OSPAnnotations"
 _NS_PER_S = 1_000_000_000
 
 InputSignal = Callable[[float], float] | float | int | bool
@@ -135,86 +131,19 @@ def preload_environment(environ: Mapping[str, str] | None = None) -> dict[str, s
 
 # --- reading the structure ----------------------------------------------------------------------------
 
-class _Structure:
-    """The SSD of an .ssp, an SSP folder or an .ssd, and the files it references (relative to the SSD)."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        if path.suffix.lower() == ".ssp":
-            if not zipfile.is_zipfile(path):
-                raise StructureError(f"{path}: not an SSP archive (not a zip file)")
-            with zipfile.ZipFile(path) as archive:
-                self._members = {name: archive.read(name) for name in archive.namelist()
-                                 if not name.lower().endswith(".fmu")}
-            self._ssd_name, self._folder = DEFAULT_SSD, None
-        elif path.is_dir():
-            self._members, self._ssd_name, self._folder = None, DEFAULT_SSD, path
-        elif path.suffix.lower() == ".ssd":
-            self._members, self._ssd_name, self._folder = None, path.name, path.parent
-        else:
-            raise InvalidParameterError("archive", str(path), "an .ssp archive, an SSP folder or an .ssd file")
-        self.root = self._xml(self._ssd_name)
-
-    def read(self, relative: str) -> bytes:
-        if self._members is not None:  # the SSD is at the archive's root
-            name = str(PurePosixPath(relative))
-            if name not in self._members:
-                raise StructureError(f"{self.path}: {relative} is not in the archive")
-            return self._members[name]
-        file = self._folder / relative
-        if not file.is_file():
-            raise StructureError(f"{self.path}: {relative} does not exist ({file})")
-        return file.read_bytes()
-
-    def _xml(self, relative: str) -> etree._Element:
-        parser = etree.XMLParser(resolve_entities=False, no_network=True)
-        try:
-            return etree.fromstring(self.read(relative), parser)
-        except etree.XMLSyntaxError as error:
-            raise StructureError(f"{self.path}: {relative} is not well-formed XML: {error}") from None
-
-    def default_experiment(self) -> tuple[float, float | None, float | None]:
-        """(startTime, stopTime, OSP baseStepSize) of the SSD's DefaultExperiment (None where absent)."""
-        experiment = self.root.find(f"{{{SSD_NS}}}DefaultExperiment")
-        if experiment is None:
-            return 0.0, None, None
-        start = float(experiment.get("startTime", 0.0))
-        stop = experiment.get("stopTime")
-        fixed = experiment.find(f".//{{{OSP_NS}}}FixedStepAlgorithm")
-        step = None if fixed is None else float(fixed.get("baseStepSize"))
-        return start, None if stop is None else float(stop), step
-
-    def parameter_bindings(self) -> dict[str, list[tuple[str, list[tuple[str, str, str]]]]]:
-        """Component -> its bindings in order: (label, [(name, ssv type, value text), ...])."""
-        bindings = {}
-        for component in self.root.iterfind(f"{{{SSD_NS}}}System/{{{SSD_NS}}}Elements/{{{SSD_NS}}}Component"):
-            sets = []
-            for binding in component.iterfind(f"{{{SSD_NS}}}ParameterBindings/{{{SSD_NS}}}ParameterBinding"):
-                source = binding.get("source")
-                if source:
-                    label, parameter_set = source, self._xml(source)
-                else:
-                    label = "inline parameter values"
-                    parameter_set = binding.find(f"{{{SSD_NS}}}ParameterValues/{{{SSV_NS}}}ParameterSet")
-                    if parameter_set is None:
-                        continue
-                prefix = binding.get("prefix", "")
-                values = []
-                for parameter in parameter_set.iterfind(f"{{{SSV_NS}}}Parameters/{{{SSV_NS}}}Parameter"):
-                    typed = next((c for c in parameter if isinstance(c.tag, str)), None)
-                    name = parameter.get("name", "")
-                    if typed is None or (prefix and not name.startswith(prefix)):
-                        continue
-                    values.append((name[len(prefix):], etree.QName(typed).localname, typed.get("value")))
-                sets.append((label, values))
-            bindings[component.get("name")] = sets
-        return bindings
+def _bindings(system: System) -> dict[str, list[tuple[str, list[tuple[str, object]]]]]:
+    """Component -> its parameter bindings in SSD order: (origin, [(variable name, value), ...]), each
+    binding's ``prefix`` prepended to its names (SSP 1.0), as the master reads them (:mod:`.ssp`)."""
+    return {name: [(binding.origin, [(binding.prefix + value.name, value.value)
+                                     for value in binding.parameter_set.values])
+                   for binding in component.parameter_bindings]
+            for name, component in system.components()}
 
 
 # --- libcosimpy -------------------------------------------------------------------------------------
 
 def _libcosimpy():
-    try:
+    try:  # on use: libcosimpy is optional (the test extra)
         from libcosimpy import CosimLogging
         from libcosimpy._internal import get_last_error_message
         from libcosimpy.CosimExecution import CosimExecution
@@ -304,10 +233,51 @@ def run_ssp(archive: str | Path, stop_time: float | None = None, *, step_size: f
         raise InvalidParameterError("archive", str(path), "an existing .ssp archive, SSP folder or .ssd file")
     if log_level not in LOG_LEVELS:
         raise InvalidParameterError("log_level", log_level, f"one of {', '.join(LOG_LEVELS)}")
-    structure = _Structure(path)
-    start, default_stop, default_step = structure.default_experiment()
-    stop = default_stop if stop_time is None else stop_time
-    step = default_step if step_size is None else step_size
+    with read_ssp(path) as structure:
+        start, step, steps = _experiment(structure.default_experiment, stop_time, step_size)
+        bindings = _bindings(structure.system) if apply_all_bindings else {}
+    CosimExecution, CosimLogging, CosimManipulator, CosimObserver, last_error = _libcosimpy()
+    CosimLogging.log_output_level(CosimLogging.CosimLogLevel[log_level.upper()])
+    try:
+        execution = (CosimExecution.from_ssp_file(str(path)) if step_size is None
+                     else CosimExecution.from_ssp_file(str(path), round(step * _NS_PER_S)))
+    except AssertionError:
+        raise StructureError(f"libcosim cannot load {path}: {last_error()}") from None
+    variables = _Variables(execution)
+    _apply_bindings(execution, variables, bindings)
+    for name, value in (parameters or {}).items():
+        variable = variables.lookup(name, "parameter")
+        _set_initial(execution, variable, _convert(value, variable.type, name), name)
+    driven = [(name, variables.lookup(name, "input", numeric=True),
+               signal if callable(signal) else (lambda t, value=signal: value)) for name, signal in (inputs or {}).items()]
+    if observe is None:
+        observe = [name for name, v in variables.items() if v.causality == 2 and v.type != _STRING]
+    watched = [(name, variables.lookup(name, "observed variable", numeric=True)) for name in observe]
+    if realtime and not execution.real_time_simulation_enabled(True):
+        raise SimulationError(f"libcosim: cannot enable real-time simulation: {last_error()}")
+    observer = CosimObserver.create_last_value()
+    manipulator = CosimManipulator.create_override()
+    execution.add_observer(observer)
+    execution.add_manipulator(manipulator)
+    recording = _Recording(path, start, step, steps, watched, driven, started)
+    try:
+        _step_all(execution, manipulator, _readers(observer, watched), recording, driven, last_error)
+    except SimulationError as error:
+        error.result = recording.result()
+        raise
+    finally:
+        del execution
+    run = recording.result()
+    logger.info("libcosim ran %s: %d steps of %g s in %.2f s", path.name, steps, step, run.wall_time_s)
+    return run
+
+
+def _experiment(experiment: DefaultExperiment, stop_time: float | None,
+                step_size: float | None) -> tuple[float, float, int]:
+    """(start, step, number of steps): the arguments where given, else the SSD's DefaultExperiment."""
+    start = experiment.start_time or 0.0
+    stop = experiment.stop_time if stop_time is None else stop_time
+    step = experiment.step_size if step_size is None else step_size
     if stop is None:
         raise InvalidParameterError("stop_time", None, "a time [s] (the SSD has no DefaultExperiment stopTime)")
     if step is None:
@@ -322,108 +292,82 @@ def run_ssp(archive: str | Path, stop_time: float | None = None, *, step_size: f
     steps = int(round((stop - start) / step))
     if steps < 1 or abs(steps * step - (stop - start)) > 1e-9 * max(1.0, stop):
         raise InvalidParameterError("stop_time", stop, f"start {start:g} s plus a whole number of {step:g} s steps")
+    return start, step, steps
 
-    CosimExecution, CosimLogging, CosimManipulator, CosimObserver, last_error = _libcosimpy()
-    CosimLogging.log_output_level(CosimLogging.CosimLogLevel[log_level.upper()])
-    try:
-        execution = (CosimExecution.from_ssp_file(str(path)) if step_size is None
-                     else CosimExecution.from_ssp_file(str(path), step_ns))
-    except AssertionError:
-        raise StructureError(f"libcosim cannot load {path}: {last_error()}") from None
 
-    variables = _variables(execution)
-    elements = sorted({name.split(".", 1)[0] for name in variables})
+class _Variables(dict):
+    """``"Element.variable"`` -> :class:`_Variable` of every variable libcosim loaded."""
 
-    def lookup(name: str, role: str) -> _Variable:
+    def __init__(self, execution) -> None:
+        super().__init__()
+        for info in execution.slave_infos():
+            element = info.name.decode()
+            for description in execution.slave_variables(info.index):
+                self[f"{element}.{description.name.decode()}"] = _Variable(
+                    info.index, description.reference, description.type, description.causality)
+        self.elements = sorted({name.split(".", 1)[0] for name in self})
+
+    def lookup(self, name: str, role: str, numeric: bool = False) -> _Variable:
+        """The variable ``name`` (a ``role`` in messages); with ``numeric``, a String one is refused."""
         element, _, variable = name.partition(".")
-        if element not in elements:
-            raise UnknownElementError(f"{role} {name!r}: no element {element!r}; elements: {', '.join(elements)}")
-        if name not in variables:
-            known = sorted(v.split(".", 1)[1] for v in variables if v.startswith(element + "."))
+        if element not in self.elements:
+            raise UnknownElementError(f"{role} {name!r}: no element {element!r}; elements: {', '.join(self.elements)}")
+        if name not in self:
+            known = sorted(v.split(".", 1)[1] for v in self if v.startswith(element + "."))
             raise UnknownConnectorError(f"{role} {name!r}: {element} has no variable {variable!r}; it has "
                                         f"{', '.join(known)}")
-        return variables[name]
+        if numeric and self[name].type == _STRING:
+            raise InvalidParameterError(f"{role} {name}", "String", "a Real, Integer or Boolean variable")
+        return self[name]
 
-    if apply_all_bindings:
-        for element, sets in structure.parameter_bindings().items():
-            for label, values in sets:
-                for name, _, text in values:
-                    variable = variables.get(f"{element}.{name}")
-                    if variable is None or variable.causality not in (0, 1):
-                        continue  # SSP: a name without a matching parameter is ignored
-                    _set_initial(execution, variable, _convert(text, variable.type, f"{label}: {name}"),
-                                 f"{element}.{name}")
-    for name, value in (parameters or {}).items():
-        variable = lookup(name, "parameter")
-        _set_initial(execution, variable, _convert(value, variable.type, name), name)
 
-    driven = []
-    for name, signal in (inputs or {}).items():
-        variable = lookup(name, "input")
-        if variable.type == _STRING:
-            raise InvalidParameterError(f"input {name}", "String", "a Real, Integer or Boolean variable")
-        driven.append((name, variable, signal if callable(signal) else (lambda t, value=signal: value)))
-    if observe is None:
-        observe = [name for name, v in variables.items() if v.causality == 2 and v.type != _STRING]
-    watched = []
-    for name in observe:
-        variable = lookup(name, "observed variable")
-        if variable.type == _STRING:
-            raise InvalidParameterError(f"observed variable {name}", "String", "a Real, Integer or Boolean variable")
-        watched.append((name, variable))
+def _apply_bindings(execution, variables: _Variables, bindings) -> None:
+    """Every binding of every component again, in order, as initial values (libcosim applies only the first)."""
+    for element, sets in bindings.items():
+        for label, values in sets:
+            for name, value in values:
+                variable = variables.get(f"{element}.{name}")
+                if variable is None or variable.causality not in (0, 1):
+                    continue  # SSP: a name without a matching parameter is ignored
+                _set_initial(execution, variable, _convert(value, variable.type, f"{label}: {name}"),
+                             f"{element}.{name}")
 
-    if realtime and not execution.real_time_simulation_enabled(True):
-        raise SimulationError(f"libcosim: cannot enable real-time simulation: {last_error()}")
-    observer = CosimObserver.create_last_value()
-    manipulator = CosimManipulator.create_override()
-    execution.add_observer(observer)
-    execution.add_manipulator(manipulator)
-    readers = _readers(observer, watched)
+
+class _Recording:
+    """The observed and driven values, step by step; :meth:`result` is the run up to the last complete step."""
+
+    def __init__(self, path: Path, start: float, step: float, steps: int, watched, driven, started: float) -> None:
+        self.path, self.start, self.step, self.steps, self.started = path, start, step, steps, started
+        self.values = {name: np.full(steps, np.nan) for name, _ in watched}
+        self.driven = {name: np.full(steps, np.nan) for name, _, _ in driven}
+        self.done = 0
+
+    def result(self) -> LibcosimRun:
+        done = self.done
+        times = self.start + self.step * np.arange(1, self.steps + 1)
+        return LibcosimRun(str(self.path), times[:done], {k: v[:done] for k, v in self.values.items()},
+                           {k: v[:done] for k, v in self.driven.items()}, self.step,
+                           _time.perf_counter() - self.started)
+
+
+def _step_all(execution, manipulator, readers, recording: _Recording, driven, last_error) -> None:
+    """Step to the end: each step's inputs at its start t_k (set only when they change), then its outputs."""
     setters = {_REAL: manipulator.slave_real_values, _INTEGER: manipulator.slave_integer_values,
                _BOOLEAN: manipulator.slave_boolean_values}
-
-    values = {name: np.full(steps, np.nan) for name, _ in watched}
-    driven_values = {name: np.full(steps, np.nan) for name, _, _ in driven}
-    times = start + step * np.arange(1, steps + 1)
     last = {}
-    done = 0
-    try:
-        for k in range(steps):
-            t = start + k * step
-            for name, variable, signal in driven:
-                value = _convert(np.asarray(signal(t)).item(), variable.type, f"input {name} at t = {t:g} s")
-                driven_values[name][k] = value
-                if last.get(name) != value:
-                    setters[variable.type](variable.slave, [variable.reference], [value])
-                    last[name] = value
-            if not execution.step(1):
-                raise SimulationError(f"libcosim: step {k} from t = {t:.9g} s failed: {last_error()}")
-            for read in readers:
-                read(values, k)
-            done = k + 1
-    except SimulationError as error:
-        error.result = _result(path, times, values, driven_values, step, started, done)
-        raise
-    finally:
-        del execution
-    run = _result(path, times, values, driven_values, step, started, done)
-    logger.info("libcosim ran %s: %d steps of %g s in %.2f s", path.name, steps, step, run.wall_time_s)
-    return run
-
-
-def _result(path, times, values, driven, step, started, done) -> LibcosimRun:
-    return LibcosimRun(str(path), times[:done], {k: v[:done] for k, v in values.items()},
-                       {k: v[:done] for k, v in driven.items()}, step, _time.perf_counter() - started)
-
-
-def _variables(execution) -> dict[str, _Variable]:
-    found = {}
-    for info in execution.slave_infos():
-        element = info.name.decode()
-        for description in execution.slave_variables(info.index):
-            found[f"{element}.{description.name.decode()}"] = _Variable(
-                info.index, description.reference, description.type, description.causality)
-    return found
+    for k in range(recording.steps):
+        t = recording.start + k * recording.step
+        for name, variable, signal in driven:
+            value = _convert(np.asarray(signal(t)).item(), variable.type, f"input {name} at t = {t:g} s")
+            recording.driven[name][k] = value
+            if last.get(name) != value:
+                setters[variable.type](variable.slave, [variable.reference], [value])
+                last[name] = value
+        if not execution.step(1):
+            raise SimulationError(f"libcosim: step {k} from t = {t:.9g} s failed: {last_error()}")
+        for read in readers:
+            read(recording.values, k)
+        recording.done = k + 1
 
 
 def _set_initial(execution, variable: _Variable, value, name: str) -> None:

@@ -48,20 +48,19 @@ from pathlib import Path
 
 from fmpy import calloc, extract, free
 from fmpy.fmi1 import FMICallException
-from fmpy.logging import addLoggerProxy
-from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2Discard, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2True,
+from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2Integer, fmi2Real, fmi2True,
                        fmi2ValueReference)
+from fmpy.logging import addLoggerProxy
 
 from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
-
                          TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive)
 
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
-from .ssp import LinearTransformation
 from .results import Column
 from .schedule import Action, causal_sweep
 from .signals import as_signal
+from .ssp import LinearTransformation
 
 logger = logging.getLogger(__name__)
 

@@ -43,7 +43,6 @@ from fmpy import read_model_description
 from fmpy.model_description import ModelDescription, ModelVariable, ValidationError
 
 from nfal.errors import (CausalityError, InvalidParameterError, StructureError, TypeMismatchError, UnitMismatchError,
-
                          UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
 
 from .ssp import (BASE_UNITS, Component, Connector, LinearTransformation, ParameterBinding, ParameterValue, System,

@@ -18,6 +18,8 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
+from tqdm import tqdm
+
 from nfal.errors import InvalidParameterError, ResultsExistError, SimulationError, require_finite, require_positive
 
 from .interrupts import deferred_interrupts
@@ -194,6 +196,43 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     """
     if algorithm not in ALGORITHMS:
         raise InvalidParameterError("algorithm", algorithm, f"one of {ALGORITHMS}")
+    speed = _pacing_speed(realtime, rt_priority)
+    started_at = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+    with read_ssp(path) as structure:
+        system = resolve(structure, parameters, undeclared_dependencies=undeclared_dependencies)
+        start, step, steps = _experiment(structure.default_experiment, start_time, stop_time, step_size,
+                                         MAX_STEPS if max_steps is None else max_steps)
+        master = Master(system, step_size=step, algorithm=algorithm, inputs=inputs, fmu_logging=fmu_logging)
+        out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="nfal-run-"))
+        _claim_results_folder(out, overwrite)
+        summary = _opening_summary(path, system, master, algorithm, start, step, steps, started_at, inputs,
+                                   parameters, rt_priority)
+        summary_path = write_summary(out / SUMMARY_JSON, summary)
+        writer = CsvWriter(out / RESULTS_CSV, master.columns, flush_interval_s=flush_interval_s)
+        pacer = RealTimePacer(step, speed=speed) if speed else None
+        show = progress if progress is not None else sys.stderr.isatty()
+        with tqdm(total=steps, disable=not show, file=sys.stderr, unit="step", desc=system.name, leave=False,
+                  mininterval=0.25) as bar:
+            loop = _run_loop(master, writer, start, step, steps, pacer, rt_priority, bar)
+        summary.update(_closing_summary(loop, master, writer, start, step, pacer))
+        result = RunResult(out, out / RESULTS_CSV, summary_path, None, summary)
+        if plot is not False and writer.rows:
+            _plot(result, plot, title=f"{system.name} ({algorithm}, {step:g} s)")
+        if metrics is not None and loop.error is None:
+            _evaluate_metrics(result, metrics)
+        write_summary(summary_path, summary)
+        logger.info("%s: %s, %d of %d steps in %.3f s wall time -> %s", system.name, summary["status"],
+                    loop.completed, steps, loop.wall_time_s, out)
+        if loop.error is not None:
+            if isinstance(loop.error, SimulationError):
+                loop.error.result = result
+            raise loop.error
+        return result
+
+
+def _pacing_speed(realtime: bool | float | None, rt_priority: int | None) -> float:
+    """Simulated seconds per wall second of a paced run (0: unpaced); a refused priority is refused now,
+    before anything is written, rather than mid-run."""
     speed = 0.0
     if realtime is True:
         speed = 1.0
@@ -202,128 +241,142 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     if rt_priority is not None:
         if not speed:
             raise InvalidParameterError("rt_priority", rt_priority, "given only with realtime (a paced run)")
-        require_realtime_priority(rt_priority)  # refused now, before anything is written, rather than mid-run
-    started_at = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
-    with read_ssp(path) as structure:
-        system = resolve(structure, parameters, undeclared_dependencies=undeclared_dependencies)
-        experiment = structure.default_experiment
-        start = float(start_time if start_time is not None else (experiment.start_time or 0.0))
-        stop = stop_time if stop_time is not None else experiment.stop_time
-        step = step_size if step_size is not None else experiment.step_size
-        if stop is None:
-            raise InvalidParameterError("stop_time", None, "given, since the SSD has no DefaultExperiment stopTime")
-        if step is None:
-            raise InvalidParameterError("step_size", None, "given, since the SSD has no FixedStepAlgorithm baseStepSize")
-        step = require_positive("step_size", step)
-        steps = _step_count(require_finite("start_time", start), require_finite("stop_time", stop), step)
-        _require_step_count(steps, float(stop), step, MAX_STEPS if max_steps is None else max_steps)
-        master = Master(system, step_size=step, algorithm=algorithm, inputs=inputs, fmu_logging=fmu_logging)
-        out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="nfal-run-"))
-        _claim_results_folder(out, overwrite)
-        summary: dict = {
-            "structure": str(path), "system": system.name, "algorithm": algorithm, "start_time_s": start,
-            "stop_time_s": start + steps * step, "step_size_s": step, "steps": steps, "steps_completed": 0,
-            "status": "running", "error": None, "started_at": started_at,
-            "elements": {e.name: {"fmu": str(e.source), "start_values": dict(e.start_values)} for e in system.elements},
-            "connections": [f"{l.source.path} -> {l.target.path}" for l in system.links],
-            "exchange_order": master.order, "inputs": {k: _describe(v) for k, v in dict(inputs or {}).items()},
-            "rt_priority": rt_priority, "parameters": dict(parameters or {}),
-            "unmatched_parameters": list(system.unmatched_parameters),
-            "columns": [c.header for c in master.columns], "results_csv": RESULTS_CSV,
-        }
-        summary_path = write_summary(out / SUMMARY_JSON, summary)
-        csv_path = out / RESULTS_CSV
-        pacer = RealTimePacer(step, speed=speed) if speed else None
-        from tqdm import tqdm
-        show = progress if progress is not None else sys.stderr.isatty()
-        bar = tqdm(total=steps, disable=not show, file=sys.stderr, unit="step", desc=system.name, leave=False,
-                   mininterval=0.25)
-        chunk = max(1, steps // 500)
-        error: BaseException | None = None
-        wall_start = time.perf_counter()
-        init_time = loop_time = 0.0
-        completed = 0
-        writer = CsvWriter(csv_path, master.columns, flush_interval_s=flush_interval_s)
-        try:
-            with master, deferred_interrupts() as stop_request:
-                master.instantiate()
-                master.initialize(start, start + steps * step)
-                writer.write(master.row)
-                init_time = time.perf_counter() - wall_start
-                loop_start = time.perf_counter()
-                row = master.row
-                with (prompt_thread_switching() if pacer is not None else contextlib.nullcontext(),
-                      realtime_priority(rt_priority)):
+        require_realtime_priority(rt_priority)
+    return speed
+
+
+def _experiment(experiment, start_time: float | None, stop_time: float | None, step_size: float | None,
+                max_steps: int) -> tuple[float, float, int]:
+    """(start, step, number of steps): the arguments where given, else the SSD's DefaultExperiment."""
+    start = float(start_time if start_time is not None else (experiment.start_time or 0.0))
+    stop = stop_time if stop_time is not None else experiment.stop_time
+    step = step_size if step_size is not None else experiment.step_size
+    if stop is None:
+        raise InvalidParameterError("stop_time", None, "given, since the SSD has no DefaultExperiment stopTime")
+    if step is None:
+        raise InvalidParameterError("step_size", None, "given, since the SSD has no FixedStepAlgorithm baseStepSize")
+    step = require_positive("step_size", step)
+    steps = _step_count(require_finite("start_time", start), require_finite("stop_time", stop), step)
+    _require_step_count(steps, float(stop), step, max_steps)
+    return start, step, steps
+
+
+def _opening_summary(path, system, master: Master, algorithm: str, start: float, step: float, steps: int,
+                     started_at: str, inputs, parameters, rt_priority) -> dict:
+    """The summary as written before the first step (status "running")."""
+    return {
+        "structure": str(path), "system": system.name, "algorithm": algorithm, "start_time_s": start,
+        "stop_time_s": start + steps * step, "step_size_s": step, "steps": steps, "steps_completed": 0,
+        "status": "running", "error": None, "started_at": started_at,
+        "elements": {e.name: {"fmu": str(e.source), "start_values": dict(e.start_values)} for e in system.elements},
+        "connections": [f"{l.source.path} -> {l.target.path}" for l in system.links],
+        "exchange_order": master.order, "inputs": {k: _describe(v) for k, v in dict(inputs or {}).items()},
+        "rt_priority": rt_priority, "parameters": dict(parameters or {}),
+        "unmatched_parameters": list(system.unmatched_parameters),
+        "columns": [c.header for c in master.columns], "results_csv": RESULTS_CSV,
+    }
+
+
+@dataclasses.dataclass
+class _LoopOutcome:
+    """What the stepping loop did: steps completed, the error that stopped it (None: it finished), times [s]."""
+
+    completed: int = 0
+    error: BaseException | None = None
+    init_time_s: float = 0.0
+    loop_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    timing: dict = dataclasses.field(default_factory=dict)
+
+
+def _run_loop(master: Master, writer: CsvWriter, start: float, step: float, steps: int,
+              pacer: RealTimePacer | None, rt_priority: int | None, bar) -> _LoopOutcome:
+    """Instantiate, initialise and step the master, writing each row; every error is caught into the outcome
+    (the CSV closed, every row up to it kept)."""
+    outcome = _LoopOutcome()
+    chunk = max(1, steps // 500)
+    wall_start = time.perf_counter()
+    try:
+        with master, deferred_interrupts() as stop_request:
+            master.instantiate()
+            master.initialize(start, start + steps * step)
+            writer.write(master.row)
+            outcome.init_time_s = time.perf_counter() - wall_start
+            loop_start = time.perf_counter()
+            row = master.row
+            with (prompt_thread_switching() if pacer is not None else contextlib.nullcontext(),
+                  realtime_priority(rt_priority)):
+                if pacer is not None:
+                    pacer.start()
+                for k in range(steps):
                     if pacer is not None:
-                        pacer.start()
-                    for k in range(steps):
-                        if pacer is not None:
-                            pacer.wait(k)
-                        master.step()
-                        if pacer is not None:
-                            pacer.done(k)
-                        if master.ended is not None and not master.ended.step_completed:
-                            break
-                        writer.write(row)
-                        completed = k + 1
-                        stop_request.check()
-                        if completed % chunk == 0:
-                            bar.update(chunk)
-                        if master.ended is not None:
-                            break
-                    if pacer is not None and master.ended is None:
-                        pacer.sleep_until(steps)
-                loop_time = time.perf_counter() - loop_start
-                timing = master.timing()
-        except BaseException as exc:  # noqa: BLE001 - recorded in the summary, then re-raised
-            error = exc
-            loop_time = time.perf_counter() - wall_start - init_time
-            timing = master.timing()
-        finally:
-            try:
-                writer.close()
-            except OSError as exc:  # e.g. a full disk on the last flush: the run failed, and the summary says why
-                error = error or exc
-            bar.close()
-        wall = time.perf_counter() - wall_start
-        do_step_total = sum(t["do_step_total_s"] for t in timing.values())
-        summary.update({
-            "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
-            "error": None if error is None else str(error) or type(error).__name__,
-            "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows,
-            "wall_time_s": wall,
-            "initialization_wall_time_s": init_time, "loop_wall_time_s": loop_time,
-            "real_time_factor": (completed * step) / loop_time if loop_time > 0 else None,
-            "do_step_wall_time_s": do_step_total,
-            "exchange_and_record_us_per_step": (loop_time - do_step_total) / completed * 1e6 if completed else None,
-            "timing": timing,
-            "realtime": pacer.report() if pacer is not None else None,
-        })
-        if master.ended is not None:
-            summary.update(_horizon_note(master.ended, summary["end_time_s"]))
-        if error is not None and hasattr(error, "element"):
-            summary["error_detail"] = {"element": error.element, "function": error.function, "status": error.status,
-                                       "time_s": error.time, "messages": list(error.messages)}
-        result = RunResult(out, csv_path, summary_path, None, summary)
-        if plot is not False and writer.rows:
-            try:
-                result.plot_path = plot_response(result.table(), out / RESPONSE_PNG, _panels(plot),
-                                                 title=f"{system.name} ({algorithm}, {step:g} s)")
-                summary["plot"] = RESPONSE_PNG
-            except Exception as exc:  # a plot must not hide the run's own outcome
-                logger.warning("no plot: %s", exc)
-                summary["plot_error"] = str(exc)
-        if metrics is not None and error is None:
-            try:
-                summary["metrics"] = dict(metrics(result.table()))
-            except Exception as exc:
-                logger.warning("metrics failed: %s", exc)
-                summary["metrics_error"] = f"{type(exc).__name__}: {exc}"
-        write_summary(summary_path, summary)
-        logger.info("%s: %s, %d of %d steps in %.3f s wall time -> %s", system.name, summary["status"], completed,
-                    steps, wall, out)
-        if error is not None:
-            if isinstance(error, SimulationError):
-                error.result = result
-            raise error
-        return result
+                        pacer.wait(k)
+                    master.step()
+                    if pacer is not None:
+                        pacer.done(k)
+                    if master.ended is not None and not master.ended.step_completed:
+                        break
+                    writer.write(row)
+                    outcome.completed = k + 1
+                    stop_request.check()
+                    if outcome.completed % chunk == 0:
+                        bar.update(chunk)
+                    if master.ended is not None:
+                        break
+                if pacer is not None and master.ended is None:
+                    pacer.sleep_until(steps)
+            outcome.loop_time_s = time.perf_counter() - loop_start
+            outcome.timing = master.timing()
+    except BaseException as exc:  # noqa: BLE001 - recorded in the summary, then re-raised by run_structure
+        outcome.error = exc
+        outcome.loop_time_s = time.perf_counter() - wall_start - outcome.init_time_s
+        outcome.timing = master.timing()
+    finally:
+        try:
+            writer.close()
+        except OSError as exc:  # e.g. a full disk on the last flush: the run failed, and the summary says why
+            outcome.error = outcome.error or exc
+    outcome.wall_time_s = time.perf_counter() - wall_start
+    return outcome
+
+
+def _closing_summary(loop: _LoopOutcome, master: Master, writer: CsvWriter, start: float, step: float,
+                     pacer: RealTimePacer | None) -> dict:
+    """The summary's entries once the loop has ended: status, how far it got, timing, and why it stopped."""
+    error, completed, loop_time = loop.error, loop.completed, loop.loop_time_s
+    do_step_total = sum(t["do_step_total_s"] for t in loop.timing.values())
+    entries = {
+        "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
+        "error": None if error is None else str(error) or type(error).__name__,
+        "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows,
+        "wall_time_s": loop.wall_time_s,
+        "initialization_wall_time_s": loop.init_time_s, "loop_wall_time_s": loop_time,
+        "real_time_factor": (completed * step) / loop_time if loop_time > 0 else None,
+        "do_step_wall_time_s": do_step_total,
+        "exchange_and_record_us_per_step": (loop_time - do_step_total) / completed * 1e6 if completed else None,
+        "timing": loop.timing,
+        "realtime": pacer.report() if pacer is not None else None,
+    }
+    if master.ended is not None:
+        entries.update(_horizon_note(master.ended, entries["end_time_s"]))
+    if error is not None and hasattr(error, "element"):
+        entries["error_detail"] = {"element": error.element, "function": error.function, "status": error.status,
+                                   "time_s": error.time, "messages": list(error.messages)}
+    return entries
+
+
+def _plot(result: RunResult, plot, title: str) -> None:
+    try:
+        result.plot_path = plot_response(result.table(), result.out_dir / RESPONSE_PNG, _panels(plot), title=title)
+        result.summary["plot"] = RESPONSE_PNG
+    except Exception as exc:  # a plot must not hide the run's own outcome
+        logger.warning("no plot: %s", exc)
+        result.summary["plot_error"] = str(exc)
+
+
+def _evaluate_metrics(result: RunResult, metrics: Callable[[ResultTable], Mapping]) -> None:
+    try:
+        result.summary["metrics"] = dict(metrics(result.table()))
+    except Exception as exc:
+        logger.warning("metrics failed: %s", exc)
+        result.summary["metrics_error"] = f"{type(exc).__name__}: {exc}"

@@ -35,6 +35,7 @@ import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from tqdm import tqdm
 
 from nfal.errors import SweepError, SweepSpecError
 
@@ -222,7 +223,7 @@ def _archive_path(spec: SweepSpec, archives: Mapping[str, os.PathLike] | None) -
 
 
 def _client(scheduler: str | None, workers: int | None):
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client, LocalCluster  # on use: Dask takes a second to import
 
     if scheduler:
         try:
@@ -264,8 +265,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     SweepError
         The folder holds another sweep's table, the archive is missing, or the scheduler is unreachable.
     """
-    from dask.distributed import as_completed
-    from tqdm import tqdm
+    from dask.distributed import as_completed  # on use: Dask takes a second to import
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -354,10 +354,10 @@ def plot_sweep(spec: SweepSpec, rows: list[dict], path: Path) -> Path | None:
     one): numbers on the x axis (a line when it is the only swept parameter, else every run as a dot),
     strings as categories. With only random draws over several parameters: histograms.
     """
-    import matplotlib
+    import matplotlib  # on use: plotting only
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # on use: plotting only
 
     ok = [r for r in rows if r["status"] == "ok"]
     metrics = [m for m in metric_columns(spec)

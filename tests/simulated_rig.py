@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from nfal.identify import RigSample
 from nfal.errors import ExperimentError
+from nfal.identify import RigSample
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
 from nfal.models.measurement_noise import ColouredNoise

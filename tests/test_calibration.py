@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
+from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.calibration import (PAPER_COEFFICIENTS, PolynomialK, TabulatedK, load_calibration, paper_calibration,
                                      perturbation_calibration)
-from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.excitation import PistonShape
 from nfal.models.perturbation import piston_K_exact
 

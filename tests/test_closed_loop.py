@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
+from nfal.errors import InvalidParameterError
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import ClosedLoopRun, Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.errors import InvalidParameterError
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.measurement_noise import ColouredNoise, coloured_noise
 from nfal.models.pid_design import design_schedule, fixed_design

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from nfal.models.control_law import ControllerState, DiscreteControlLaw
 from nfal.errors import InvalidParameterError
+from nfal.models.control_law import ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import design_schedule, fixed_design
 
 SCHEDULE = design_schedule()

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy import optimize
 
+from nfal.errors import ConvergenceError, InvalidParameterError
 from nfal.models.calibration import perturbation_calibration
 from nfal.models.coupled import CoupledModel, CoupledTrajectory
-from nfal.errors import ConvergenceError, InvalidParameterError
 from nfal.models.excitation import paper_shape
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.reynolds import periodic_film

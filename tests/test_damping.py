@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
+from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.calibration import (CALIBRATION_FILE_VERSION, RigCalibration, load_calibration, load_rig_calibration,
                                      paper_calibration, rig_record)
 from nfal.models.damping import DampingCorrection
-from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.lpv import lpv_coefficients
 from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant

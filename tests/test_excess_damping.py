@@ -8,12 +8,13 @@ import math
 import numpy as np
 import pytest
 
+from nfal.errors import InvalidParameterError
 from nfal.fmus.slow_plant import SlowPlant
 from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
 from nfal.models.damping import DampingCorrection
-from nfal.errors import InvalidParameterError
 from nfal.models.fixed_step_plant import FixedStepPlant
-from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping, PlantState, SimplifiedPlant
+from nfal.models.plant import (RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping, PlantState,
+                               SimplifiedPlant)
 from nfal.models.rig import RigParameters
 
 RIG = RigParameters()

@@ -5,11 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nfal.errors import InvalidParameterError
 from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.errors import InvalidParameterError
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plant import SimplifiedPlant

@@ -2,8 +2,8 @@
 
 import pytest
 
-from nfal.models.calibration import paper_calibration
 from nfal.errors import InvalidParameterError
+from nfal.models.calibration import paper_calibration
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters

@@ -22,9 +22,9 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackLoggerTYPE)
 from fmpy.validation import validate_fmu
 
+from nfal.errors import InvalidParameterError
 from nfal.fmus import build
 from nfal.fmus.base import UNITS, NfalSlave, SampleClock
-from nfal.errors import InvalidParameterError
 
 FMI_ERROR = 3  # what our patched runtime (fmus/runtime/) answers a Python exception with
 

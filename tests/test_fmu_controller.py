@@ -12,11 +12,11 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 
+from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.fmus.controller import Controller
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
-from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.excitation import parse_shape
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import ExcessDamping, SimplifiedPlant

@@ -12,12 +12,12 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 
+from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.slow_plant import SlowPlant
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.calibration import paper_calibration
 from nfal.models.coupled import CoupledModel
-from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.models.excitation import paper_shape
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant

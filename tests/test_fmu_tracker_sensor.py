@@ -11,10 +11,10 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
+from nfal.errors import InvalidParameterError
 from nfal.fmus.build import build_fmus
 from nfal.fmus.resonance_tracker import ResonanceTracker
 from nfal.fmus.sensor_chain import SensorChain
-from nfal.errors import InvalidParameterError
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pll import PhaseLockedLoop, drift_ramp, simulate_tracking
 from nfal.models.pll import ResonanceTracker as TrackerModel

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from nfal.errors import InvalidParameterError
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel
-from nfal.errors import InvalidParameterError
 from nfal.models.excitation import parse_shape
 from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.harmonic_balance import HarmonicBalanceFilm, fourier_differentiation

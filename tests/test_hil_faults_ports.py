@@ -8,10 +8,11 @@ import time
 import pytest
 import serial
 
+from nfal.errors import InvalidParameterError, LinkError
 from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.ports import PtyPort, UrlPort
 from nfal.hil.protocol import RIG_TO_HOST, FrameDecoder, FrameEncoder, Measurement, Received
-from nfal.errors import InvalidParameterError, LinkError
+
 
 def measurements(n: int) -> tuple[list[Measurement], list[bytes]]:
     """``n`` MEASUREMENTs (every field different per frame; reals as binary32, as they come off the wire) and
@@ -302,7 +303,7 @@ def test_the_emulator_reports_a_failed_port_and_reopens_it_every_interval():
     """The first attempt comes at once, the next REOPEN_INTERVAL_S of rig time later."""
     import socket
 
-    from nfal.hil.emulator import REOPEN_INTERVAL_S, Emulator
+    from nfal.rig_emulator import REOPEN_INTERVAL_S, Emulator
 
     events: list[str] = []
     with socket.create_server(("127.0.0.1", 0)) as server:

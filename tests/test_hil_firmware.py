@@ -13,12 +13,11 @@ import struct
 import pytest
 from cobs import cobs
 
-from nfal.hil.firmware import Firmware, RigReading, RigTiming
-from nfal.hil.protocol import (
-    PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder, Hello, HelloAck,
-    HostHeartbeat, Measurement, Message, RigHeartbeat, StatusFlags, Stop, encode,
-)
 from nfal.errors import InvalidParameterError
+from nfal.hil.firmware import Firmware, RigReading, RigTiming
+from nfal.hil.protocol import (PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder,
+                               Hello, HelloAck, HostHeartbeat, Measurement, Message, RigHeartbeat, StatusFlags, Stop,
+                               encode)
 
 #: Short, round timing: watchdog 5 ticks, ramp 4 ticks, heartbeat every 10 ticks (1 ms ticks).
 FAST = RigTiming(sample_period_s=1e-3, watchdog_timeout_s=5e-3, ramp_down_s=4e-3, max_drive_voltage=150.0,

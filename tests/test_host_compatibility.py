@@ -15,7 +15,7 @@ from fmpy import simulate_fmu
 
 from nfal.errors import HostUnavailableError
 from nfal.fmus import build
-from nfal.fmus.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.orchestration.ssp_archive import pack
 
 pytestmark = [pytest.mark.slow,

@@ -11,12 +11,12 @@ from simulated_rig import SimulatedRig
 
 from nfal.cli import main
 from nfal.commands.identify import _run
+from nfal.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
 from nfal.identify import Experiments, SampleRecorder, analyse
 from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration, rig_calibration_from_dict
 from nfal.models.damping import DampingCorrection
-from nfal.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
-from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table,
-                                        fit_step, settled)
+from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,
+                                        settled)
 from nfal.models.plant import ExcessDamping, PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
 

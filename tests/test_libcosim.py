@@ -20,9 +20,14 @@ import pytest
 
 pytest.importorskip("libcosimpy")
 
+from nfal.errors import (  # noqa: E402
+    LibcosimUnavailableError,
+    SimulationError,
+    StructureError,
+    UnknownConnectorError,
+    UnknownElementError,
+)
 from nfal.orchestration import libcosim  # noqa: E402
-from nfal.errors import (LibcosimUnavailableError, SimulationError, StructureError,  # noqa: E402
-                         UnknownConnectorError, UnknownElementError)
 from nfal.orchestration.libcosim import run_ssp  # noqa: E402
 from nfal.orchestration.ssp_archive import pack  # noqa: E402
 from nfal.orchestration.ssp_schema import libcosim_portability, validate  # noqa: E402

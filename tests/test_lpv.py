@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from nfal.models.calibration import TabulatedK, paper_calibration, perturbation_calibration
 from nfal.errors import InvalidParameterError
+from nfal.models.calibration import TabulatedK, paper_calibration, perturbation_calibration
 from nfal.models.excitation import PistonShape
 from nfal.models.lpv import calibration_slope, lpv_coefficients
 from nfal.models.plant import SimplifiedPlant

@@ -8,13 +8,13 @@ import time
 
 import numpy as np
 import pytest
+from toy_fmus import build_toys, without_dependencies
+from toy_fmus.ssd import bindings, component, connection, connector, pack, parameter_set, ssd, system, write_folder
 
+from nfal.errors import UnknownConnectorError
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import (AlgebraicLoopError, CausalityError, FmuCallError, Master, PlotPanel, read_ssp, resolve,
                                 run_structure, staircase)
-from nfal.errors import UnknownConnectorError
-from toy_fmus import build_toys, without_dependencies
-from toy_fmus.ssd import bindings, component, connection, connector, pack, parameter_set, ssd, system, write_folder
 
 X0, GAIN, DT, STEPS = 1.0, -2.0, 0.1, 20
 

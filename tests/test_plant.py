@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from nfal.models.calibration import paper_calibration
 from nfal.errors import InvalidParameterError
+from nfal.models.calibration import paper_calibration
 from nfal.models.plant import PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
 

@@ -14,12 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from nfal.cli import main
-from nfal.orchestration import TypeMismatchError, read_ssp, resolve, run_structure
 from reference_fmus.build import build_reference_fmus, compiler
 from toy_fmus.ssd import component, connection, ssd, system, write_folder
 
+from nfal.cli import main
+from nfal.orchestration import TypeMismatchError, read_ssp, resolve, run_structure
 
 
 @pytest.fixture(scope="module")

@@ -121,6 +121,7 @@ RIG_OPTIONS = (
 
 def add_rig_options(parser: argparse.ArgumentParser) -> None:
     """--mass, --radius, ... overriding the paper's rig (defaults shown by --help)."""
+    # on use: `nfal --help` stays fast
     from nfal.models.rig import RigParameters
 
     defaults = RigParameters()
@@ -131,6 +132,7 @@ def add_rig_options(parser: argparse.ArgumentParser) -> None:
 
 
 def rig_from_args(args: argparse.Namespace):
+    # on use: `nfal --help` stays fast
     from nfal.models.rig import RigParameters
 
     changes = {name: getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS if getattr(args, f"rig_{name}") is not None}

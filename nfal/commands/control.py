@@ -7,8 +7,8 @@ import time
 
 import numpy as np
 
-from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, print_json, print_step_table,
-                                  progress_bar, rig_from_args)
+from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, print_json,
+                                  print_step_table, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
@@ -74,6 +74,7 @@ def _add_design_options(parser: argparse.ArgumentParser) -> None:
 
 def _model(args: argparse.Namespace):
     """(rig, RigCalibration, DesignSpec) of the design options."""
+    # on use: `nfal --help` stays fast
     from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
     from nfal.models.pid_design import DesignSpec
 
@@ -84,6 +85,7 @@ def _model(args: argparse.Namespace):
 
 
 def run_design(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.models.pid_design import design_schedule
     from nfal.models.stability import realizable_schedule, stability_map
 
@@ -110,6 +112,7 @@ def run_design(args: argparse.Namespace) -> int:
         "realizable_from_m": realizable_from,
     }
     if args.plot:
+        # on use: `nfal --help` stays fast
         from nfal.figures.control import plot_stability_map
 
         plot_stability_map(args.plot, grid)
@@ -144,6 +147,7 @@ def _parse_controllers(text: str) -> list[str]:
 
 
 def run_compare(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.models.closed_loop import Staircase, simulate_closed_loop
     from nfal.models.control_law import DiscreteControlLaw
     from nfal.models.measurement_noise import coloured_noise
@@ -183,6 +187,7 @@ def run_compare(args: argparse.Namespace) -> int:
               "sample_rate_hz": args.sample_rate, "max_excitation_m": args.max_excitation,
               "runtime_s": time.perf_counter() - started}
     if args.plot:
+        # on use: `nfal --help` stays fast
         from nfal.figures.control import plot_comparison
 
         plot_comparison(args.plot, runs)

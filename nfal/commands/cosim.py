@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import sys
 from pathlib import Path
 
 from nfal.commands.common import finite_float, positive_float, print_json, print_step_table
@@ -82,6 +83,7 @@ def register(commands) -> None:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.build import build_all
     from nfal.fmus.build import build_fmus
 
@@ -111,6 +113,7 @@ def parse_parameter(text: str) -> tuple[str, object]:
 def parse_input(text: str) -> tuple[str, object]:
     """``Element.var=SIGNAL`` -> (name, signal of time): a staircase as ``--reference`` takes it
     (:func:`~nfal.fig7.reference_staircase`), else as :func:`~nfal.orchestration.signals.signal_from_spec` reads it."""
+    # on use: `nfal --help` stays fast
     from nfal.fig7 import reference_staircase
     from nfal.orchestration.signals import signal_from_spec
 
@@ -121,6 +124,7 @@ def parse_input(text: str) -> tuple[str, object]:
 
 
 def _structure_path(args: argparse.Namespace) -> Path:
+    # on use: `nfal --help` stays fast
     from nfal.build import STRUCTURES, build_all
 
     if args.structure in STRUCTURES:
@@ -137,6 +141,7 @@ HARDWARE_LEAD_S = 1.0
 
 
 def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
+    # on use: `nfal --help` stays fast
     from nfal.fig7 import reference_staircase
     from nfal.orchestration.signals import csv_signal
 
@@ -145,6 +150,7 @@ def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
 
 
 def _element_names(structure: Path) -> list[str]:
+    # on use: `nfal --help` stays fast
     from nfal.orchestration import read_ssp
 
     with read_ssp(structure) as read:
@@ -152,8 +158,7 @@ def _element_names(structure: Path) -> list[str]:
 
 
 def run_run(args: argparse.Namespace) -> int:
-    import sys
-
+    # on use: `nfal --help` stays fast
     from nfal.fig7 import HARDWARE, loop_columns, loop_metrics, matched_design, response_panels
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration import SimulationError, run_structure
@@ -200,6 +205,7 @@ def run_run(args: argparse.Namespace) -> int:
 
 
 def _add_link_summary(result, columns) -> None:
+    # on use: `nfal --help` stays fast
     from nfal.fig7 import HARDWARE, link_summary
 
     if columns is HARDWARE and result.csv_path.is_file() and result.summary.get("steps_completed"):

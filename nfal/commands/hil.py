@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 from pathlib import Path
 
 from nfal.commands.common import finite_float, output_file, print_json
+from nfal.errors import InvalidParameterError
 
 
 def register(commands) -> None:
@@ -66,8 +68,8 @@ def register(commands) -> None:
 
 
 def _truth_path(truth: str, build_dir: str) -> Path:
+    # on use: `nfal --help` stays fast
     from nfal.build import build_all
-    from nfal.errors import InvalidParameterError
 
     if truth in ("slow", "reynolds"):
         name = f"rig_{truth}"
@@ -83,14 +85,14 @@ def _say(text: str) -> None:
 
 
 def run_emulator(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.commands.cosim import parse_parameter
-    from nfal.hil.emulator import Disconnection, Emulator
     from nfal.hil.faults import FaultSettings
     from nfal.hil.firmware import RigTiming
     from nfal.hil.ports import PtyPort, UrlPort
-    from nfal.hil.rig_model import open_rig
-    from nfal.errors import InvalidParameterError
     from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
+    from nfal.rig_emulator import Disconnection, Emulator
+    from nfal.rig_model import open_rig
 
     timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
     faults = FaultSettings(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate, delay_s=args.delay,
@@ -133,8 +135,6 @@ def _scheduling(priority: int | None) -> str:
 
 
 def _seconds(text: str) -> float:
-    from nfal.errors import InvalidParameterError
-
     try:
         seconds = float(text)
     except ValueError:
@@ -145,8 +145,6 @@ def _seconds(text: str) -> float:
 
 
 def _print_report(report, as_json: bool) -> None:
-    import dataclasses
-
     if as_json:
         print_json(dataclasses.asdict(report))
         return

@@ -83,6 +83,7 @@ def _print_plan(plan) -> None:
 
 
 def run_identify(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.identify import Experiments, LinkRig, SampleRecorder
     from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
 
@@ -114,6 +115,7 @@ def run_identify(args: argparse.Namespace) -> int:
     result = _analyse(equilibria, steps, rig, args, lag, raw)
     provenance = _provenance(args, hello, recorder, raw, lag)
     out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
+    # on use: `nfal --help` stays fast
     from nfal.figures.identify import plot_identification
 
     plot_identification(out.with_suffix(".png"), result, rig, lag)
@@ -141,6 +143,7 @@ def _run(experiments, link, raw: Path):
 
 
 def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
+    # on use: `nfal --help` stays fast
     from nfal.identify import analyse
 
     try:

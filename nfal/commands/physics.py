@@ -6,8 +6,9 @@ import argparse
 
 import numpy as np
 
-from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file, print_json,
-                                  progress_bar, rig_from_args)
+from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file,
+                                  print_json, progress_bar, rig_from_args)
+from nfal.errors import InvalidParameterError
 
 SHAPE_HELP = "excitation form: piston, plate:N (free circular plate, N nodal circles), paper (Fig. 3 stand-in) or a CSV of R,eps_hat"
 
@@ -66,16 +67,19 @@ def register(commands) -> None:
 
 
 def calibrate_numerical(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.models.calibration import TabulatedK, paper_calibration
     from nfal.models.excitation import parse_shape
 
     shape = parse_shape(args.shape)
     sigma = np.sort(args.sigma)
     if args.method == "perturbation":
+        # on use: `nfal --help` stays fast
         from nfal.models.perturbation import DEFAULT_NODES, perturbation_K
 
         K = perturbation_K(shape, sigma, args.nodes or DEFAULT_NODES)
     else:
+        # on use: `nfal --help` stays fast
         from nfal.models.reynolds import time_marching_K
 
         with progress_bar(sigma.size, "time-marching K(sigma)") as bar:
@@ -84,6 +88,7 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
     if args.out:
         TabulatedK(sigma, K, name=f"{args.method}, {shape.name}").save(args.out)
     if args.plot:
+        # on use: `nfal --help` stays fast
         from nfal.figures.physics import plot_calibration
 
         plot_calibration(args.plot, sigma, K, label=f"{args.method}, {shape.name}", reference=paper_calibration())
@@ -98,6 +103,7 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
 
 
 def calibrate_experimental(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.models.calibration import paper_calibration
     from nfal.models.experimental import EquilibriumData, VoltageAmplitudeMap, fit_calibration
 
@@ -111,6 +117,7 @@ def calibrate_experimental(args: argparse.Namespace) -> int:
     if args.out:
         result.fit.save(args.out)
     if args.plot:
+        # on use: `nfal --help` stays fast
         from nfal.figures.physics import plot_experimental_fit
 
         plot_experimental_fit(args.plot, result, reference=paper_calibration())
@@ -128,8 +135,8 @@ def calibrate_experimental(args: argparse.Namespace) -> int:
 
 
 def validate_table1(args: argparse.Namespace) -> int:
+    # on use: `nfal --help` stays fast
     from nfal.models.calibration import perturbation_calibration
-    from nfal.errors import InvalidParameterError
     from nfal.models.excitation import paper_shape
     from nfal.models.table1 import TABLE1, run_case
 
@@ -151,6 +158,7 @@ def validate_table1(args: argparse.Namespace) -> int:
             results.append(run_case(known[name], shape, calibration, nodes=args.nodes,
                                     steps_per_period=args.steps_per_period, progress=advance))
     if args.plot:
+        # on use: `nfal --help` stays fast
         from nfal.figures.physics import plot_table1
 
         plot_table1(args.plot, results)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 from nfal.commands.common import print_json
+from nfal.errors import InvalidParameterError
 
 
 def register(commands) -> None:
@@ -34,9 +36,7 @@ def register(commands) -> None:
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
-    import logging
-
-    from nfal.errors import InvalidParameterError
+    # on use: `nfal --help` stays fast
     from nfal.orchestration.sweep import run_sweep
     from nfal.sweeps import load_spec
 
@@ -50,6 +50,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
             logging.getLogger(name).setLevel(logging.ERROR)
     archives = None
     if spec.kind.needs_archive:
+        # on use: `nfal --help` stays fast
         from nfal.build import STRUCTURES, build_all
 
         if spec.settings["structure"] in STRUCTURES:

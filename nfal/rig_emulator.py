@@ -7,7 +7,7 @@ than real time: the host sees the stall as samples that did not come):
 
 1. read what the host sent and hand it to the :class:`~nfal.hil.firmware.Firmware` (HELLO, DRIVE, STOP);
 2. the firmware decides the voltage for this period (command, limit, watchdog ramp);
-3. the rig model (:mod:`nfal.hil.rig_model`: the rig structure's blocks) takes it, and its sensors are read;
+3. the rig model (:mod:`nfal.rig_model`: the rig structure's blocks) takes it, and its sensors are read;
 4. MEASUREMENT (and, when due, RIG_HEARTBEAT and any FAULT) go out through the
    :class:`~nfal.hil.faults.FaultInjector`;
 5. the rig model advances one period.
@@ -25,9 +25,9 @@ from collections.abc import Callable
 from typing import TextIO
 
 from nfal.errors import InvalidParameterError, LinkError
-
-from .faults import FaultInjector, FaultSettings
-from .firmware import Firmware, RigTiming
+from nfal.hil.faults import FaultInjector, FaultSettings
+from nfal.hil.firmware import Firmware, RigTiming
+from nfal.orchestration.pacing import RealTimePacer
 
 logger = logging.getLogger(__name__)
 
@@ -164,8 +164,6 @@ class Emulator:
 
     def run(self, duration_s: float | None = None) -> EmulatorReport:
         """Tick in real time until ``duration_s`` of wall time (None: until :meth:`stop`)."""
-        from nfal.orchestration.pacing import RealTimePacer
-
         period = self.timing.sample_period_s
         # sleep only (no busy wait): the rig needs no microsecond release, and the host beside it needs the CPU;
         # after a stall the rig's clock goes on from now (a burst of ticks would run its physics too fast)

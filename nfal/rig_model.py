@@ -20,8 +20,12 @@ import os
 from collections.abc import Mapping
 
 from nfal.errors import InvalidParameterError, require_positive
-
-from .firmware import RigReading
+from nfal.fmus.resonance_tracker import ResonanceTracker
+from nfal.fmus.reynolds_plant import ReynoldsPlant
+from nfal.fmus.sensor_chain import SensorChain
+from nfal.fmus.slow_plant import SlowPlant
+from nfal.hil.firmware import RigReading
+from nfal.orchestration import Master, read_ssp, resolve
 
 #: The rig structure's interface: the input the drive voltage goes to, and the outputs a rig reports.
 DRIVE_INPUT = "ResonanceTracker.drive_voltage"
@@ -44,8 +48,6 @@ class StructureRig:
     """
 
     def __init__(self, path: str | os.PathLike, period_s: float, parameters: Mapping[str, object] | None = None) -> None:
-        from nfal.orchestration import Master, read_ssp, resolve
-
         self.voltage = 0.0
         self._stack = contextlib.ExitStack()
         try:
@@ -106,27 +108,19 @@ RIG_LINKS = frozenset({("ResonanceTracker", "excitation_amplitude", "Plant", "ex
                        ("Plant", "height", "SensorChain", "true_height")})
 
 
-def _slave_classes() -> dict:
-    from nfal.fmus.resonance_tracker import ResonanceTracker
-    from nfal.fmus.reynolds_plant import ReynoldsPlant
-    from nfal.fmus.sensor_chain import SensorChain
-    from nfal.fmus.slow_plant import SlowPlant
-
-    return {cls.__name__: cls for cls in (SlowPlant, ReynoldsPlant, ResonanceTracker, SensorChain)}
+#: The nfal slave classes an :class:`InProcessRig` runs, by model identifier.
+SLAVE_CLASSES = {cls.__name__: cls for cls in (SlowPlant, ReynoldsPlant, ResonanceTracker, SensorChain)}
 
 
 def _resolved(path, parameters):
-    from nfal.orchestration import read_ssp, resolve
-
     with read_ssp(path) as structure:
         return resolve(structure, parameters)
 
 
 def in_process_capable(system) -> bool:
     """Whether every element is an nfal FMU :class:`InProcessRig` can run, wired as :data:`RIG_LINKS`."""
-    classes = _slave_classes()
     links = {(l.source.element, l.source.name, l.target.element, l.target.name) for l in system.links}
-    return links == RIG_LINKS and all(e.model_description.coSimulation.modelIdentifier in classes
+    return links == RIG_LINKS and all(e.model_description.coSimulation.modelIdentifier in SLAVE_CLASSES
                                       for e in system.elements)
 
 
@@ -142,12 +136,11 @@ class InProcessRig:
         if not in_process_capable(system):
             raise InvalidParameterError("rig structure", system.name, "ResonanceTracker -> Plant -> SensorChain of nfal FMUs")
         self.period_s = require_positive("period_s", period_s)
-        classes = _slave_classes()
         self.voltage = 0.0
         self.time = 0.0
         slaves = {}
         for element in system.elements:
-            slave = classes[element.model_description.coSimulation.modelIdentifier](instance_name=element.name)
+            slave = SLAVE_CLASSES[element.model_description.coSimulation.modelIdentifier](instance_name=element.name)
             for name, value in element.start_values.items():
                 slave.set_value(name, value)
             slave.setup_experiment(0.0)

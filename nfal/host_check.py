@@ -24,10 +24,11 @@ from pathlib import Path
 from fmpy import read_model_description
 
 from nfal.errors import HostUnavailableError
+from nfal.fmus.build import FMUS_DIR
 from nfal.orchestration.libcosim import preload_environment
 
 #: The C host's source.
-C_HOST_SOURCE = Path(__file__).resolve().parent / "hosts" / "fmi2_host.c"
+C_HOST_SOURCE = FMUS_DIR / "hosts" / "fmi2_host.c"
 HOST_TIMEOUT_S = 600
 
 
@@ -106,7 +107,7 @@ def ecos_executable(cache_dir: Path) -> Path:
     """The ``ecos`` command line of the installed ecospy wheel, copied to ``cache_dir`` with its exec bit set
     (the wheel ships it without)."""
     try:
-        import ecospy  # noqa: F401 - loads libecosc: fails here without libtbb12
+        import ecospy  # noqa: F401 - on use: optional (the test extra); loads libecosc, fails without libtbb12
     except ImportError as exc:
         raise HostUnavailableError("ecos needs the ecospy package: pip install ecospy") from exc
     except OSError as exc:

@@ -1,0 +1,43 @@
+"""nfal/fig7_names.py against the structures it names: every name there is a variable of the loop it is for."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from nfal import fig7_names
+from nfal.orchestration import read_ssp, resolve
+
+
+def variables(archive) -> set[str]:
+    """Every ``Element.variable`` of the structure's FMUs."""
+    with read_ssp(archive) as structure:
+        system = resolve(structure)
+    return {f"{element.name}.{variable.name}" for element in system.elements
+            for variable in element.model_description.modelVariables}
+
+
+def column_names(columns: fig7_names.LoopColumns) -> set[str]:
+    names = {getattr(columns, field.name) for field in dataclasses.fields(columns) if field.name != "extra_panels"}
+    return names | {name for panel in columns.extra_panels for name in panel[0]}
+
+
+CONTROLLER = {fig7_names.REFERENCE, fig7_names.EXCITATION_COMMAND, fig7_names.DRIVE_VOLTAGE,
+              fig7_names.SATURATED_TIME, fig7_names.CONTROLLER_CALIBRATION}
+RIG = {fig7_names.RIG_DRIVE_INPUT, fig7_names.RIG_TRUE_HEIGHT, *fig7_names.RIG_READINGS.values()}
+
+
+@pytest.mark.parametrize("structure, expected", [
+    ("fig7_slow", CONTROLLER | column_names(fig7_names.SIMULATED) | RIG),
+    ("fig7_reynolds", CONTROLLER | column_names(fig7_names.SIMULATED) | RIG | {fig7_names.PLANT_SHAPE}),
+    ("fig7_hil", CONTROLLER | column_names(fig7_names.HARDWARE)),
+    ("rig_slow", RIG),
+    ("rig_reynolds", RIG | {fig7_names.PLANT_SHAPE}),
+])
+def test_every_name_is_a_variable_of_its_structure(fig7_archives, structure, expected):
+    assert expected - variables(fig7_archives[structure]) == set()
+
+
+def test_a_misspelt_name_would_be_caught(fig7_archives):
+    assert "Controller.referense" not in variables(fig7_archives["fig7_slow"])

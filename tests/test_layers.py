@@ -1,0 +1,174 @@
+"""The layers of docs/architecture.md, checked on the source: who may import whom, no cycles, and no import
+inside a function without its stated reason.
+
+The import names map onto top-level folders (``nfal.models`` is ``models/``, pyproject's package-dir), so
+tools that walk ``nfal/`` alone miss the layers; this check reads every folder of :data:`LAYERS` itself.
+"""
+
+from __future__ import annotations
+
+import ast
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Import name -> folder, as pyproject.toml's package-dir maps them.
+FOLDERS = {"nfal.models": "models", "nfal.fmus": "fmus", "nfal.orchestration": "orchestration", "nfal.hil": "hil",
+           "nfal": "nfal"}
+#: The package root's foundation: the package itself and modules every layer may import.
+FOUNDATION = ("nfal", "nfal.errors", "nfal.csvdata")
+#: Layer -> the layers it may import besides itself and the foundation. "applications" is every other
+#: module of nfal/ (the Fig. 7 loop, sweep kinds, the rig emulator, ...); "cli" is nfal.cli and nfal.commands.
+ALLOWED = {
+    "foundation": set(),
+    "models": set(),
+    "fmus": {"models", "hil"},
+    "orchestration": set(),
+    "hil": set(),
+    "applications": {"models", "fmus", "orchestration", "hil"},
+    "cli": {"models", "fmus", "orchestration", "hil", "applications"},
+}
+
+
+def layer_of(module: str) -> str | None:
+    """The layer of a module of nfal (None for other packages)."""
+    if module in FOUNDATION:
+        return "foundation"
+    parts = module.split(".")
+    if parts[0] != "nfal":
+        return None
+    if len(parts) > 1 and parts[1] in ("models", "fmus", "orchestration", "hil"):
+        return parts[1]
+    if module == "nfal.cli" or module.startswith("nfal.commands") or module == "nfal.__main__":
+        return "cli"
+    return "applications"
+
+
+def modules(root: Path = ROOT) -> dict[str, Path]:
+    """Every module of the package: import name -> file."""
+    found = {}
+    for package, folder in FOLDERS.items():
+        for path in sorted((root / folder).rglob("*.py")):
+            relative = path.relative_to(root / folder).with_suffix("").parts
+            if package == "nfal" and relative and relative[0] in ("models", "fmus", "orchestration", "hil"):
+                continue
+            name = ".".join((package, *relative))
+            found[name.removesuffix(".__init__")] = path
+    return found
+
+
+def imports(module: str, path: Path) -> list[tuple[str, int, bool]]:
+    """(imported nfal module, line, inside a function) for every import of nfal in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    local = {id(node) for function in ast.walk(tree) if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef))
+             for node in ast.walk(function)}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            names = [base] + [f"{base}.{alias.name}" for alias in node.names]  # a submodule or a name in it
+        else:
+            continue
+        for name in names:
+            if name.split(".")[0] == "nfal":
+                found.append((name, node.lineno, id(node) in local))
+    return found
+
+
+def violations(root: Path = ROOT) -> list[str]:
+    """Every import that crosses the layers the wrong way, as ``file:line: a (layer) imports b (layer)``."""
+    known = modules(root)
+    problems = []
+    for module, path in known.items():
+        mine = layer_of(module)
+        for name, line, _ in imports(module, path):
+            if name not in known:  # a name inside a module, not a module
+                continue
+            theirs = layer_of(name)
+            if theirs not in (mine, "foundation") and theirs not in ALLOWED[mine]:
+                problems.append(f"{path.relative_to(root)}:{line}: {module} ({mine}) imports {name} ({theirs})")
+            if mine == "foundation" and theirs == "foundation" and name == module:
+                problems.append(f"{path.relative_to(root)}:{line}: {module} imports itself")
+    return problems
+
+
+def layer_cycles(root: Path = ROOT) -> list[tuple[str, str]]:
+    """Pairs of layers that import each other (at module level or inside functions)."""
+    known = modules(root)
+    edges = {(layer_of(module), layer_of(name)) for module, path in known.items()
+             for name, _, _ in imports(module, path) if name in known}
+    return sorted((a, b) for a, b in edges if a < b and (b, a) in edges)
+
+
+def unexplained_local_imports(root: Path = ROOT) -> list[str]:
+    """Imports inside a function (of any package) with no comment on their line or on the line above the
+    block of imports they belong to: each needs its stated reason (an optional or slow dependency)."""
+    found = []
+    for module, path in modules(root).items():
+        lines = path.read_text(encoding="utf-8").splitlines()
+        tree = ast.parse("\n".join(lines))
+        for function in ast.walk(tree):
+            if not isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(function):
+                if not isinstance(node, (ast.Import, ast.ImportFrom)):
+                    continue
+                first = node.lineno - 1
+                while first > 0 and lines[first - 1].strip().startswith(("import ", "from ")):
+                    first -= 1  # the block of imports this one is in
+                block = lines[first:node.end_lineno]
+                above = lines[first - 1] if first > 0 else ""
+                if not ("#" in above or any("#" in line for line in block)):
+                    found.append(f"{path.relative_to(root)}:{node.lineno}: {lines[node.lineno - 1].strip()}")
+    return found
+
+
+def test_every_module_is_in_a_layer():
+    found = modules()
+    assert "nfal.models.plant" in found and "nfal.fmus.base" in found and "nfal.orchestration.master" in found
+    assert all(layer_of(name) for name in found)
+
+
+def test_the_layers_are_kept():
+    assert violations() == []
+
+
+def test_no_two_layers_import_each_other():
+    assert layer_cycles() == []
+
+
+def test_every_import_inside_a_function_says_why():
+    assert unexplained_local_imports() == []
+
+
+def test_the_check_catches_a_deliberate_violation(tmp_path):
+    for package, folder in FOLDERS.items():
+        (tmp_path / folder).mkdir(exist_ok=True)
+        (tmp_path / folder / "__init__.py").write_text("")
+    (tmp_path / "nfal" / "errors.py").write_text("")
+    (tmp_path / "models" / "plant.py").write_text("from nfal.errors import NfalError\n")
+    (tmp_path / "fmus" / "base.py").write_text("from nfal.models import plant\n")
+    assert violations(tmp_path) == [] and layer_cycles(tmp_path) == []
+    (tmp_path / "models" / "plant.py").write_text(textwrap.dedent("""\
+        from nfal.errors import NfalError
+
+
+        def plant():
+            from nfal.fmus.base import NfalSlave
+    """))
+    assert violations(tmp_path) == ["models/plant.py:5: nfal.models.plant (models) imports nfal.fmus.base (fmus)"]
+    assert layer_cycles(tmp_path) == [("fmus", "models")]
+    assert unexplained_local_imports(tmp_path) == ["models/plant.py:5: from nfal.fmus.base import NfalSlave"]
+    (tmp_path / "orchestration" / "run.py").write_text("from .. import fig7\nfrom nfal.fmus import base\n")
+    (tmp_path / "nfal" / "fig7.py").write_text("")
+    assert violations(tmp_path)[1:] == [
+        "orchestration/run.py:1: nfal.orchestration.run (orchestration) imports nfal.fig7 (applications)",
+        "orchestration/run.py:2: nfal.orchestration.run (orchestration) imports nfal.fmus (fmus)",
+        "orchestration/run.py:2: nfal.orchestration.run (orchestration) imports nfal.fmus.base (fmus)"]
+
