@@ -78,6 +78,7 @@ from nfal.errors import FmuStateError, InvalidParameterError, SlaveCallError, re
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
+from nfal.models.plant import DEFAULT_REST_GAP
 from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from nfal.models.rig import RigParameters
 
@@ -111,12 +112,13 @@ UNITS: dict[str, dict[str, int]] = {
 #: The contract's rig parameters: (name, start, unit, description). SlowPlant, ReynoldsPlant and
 #: Controller carry them; :meth:`NfalSlave.build_rig` turns them into a RigParameters.
 RIG_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
-    ("mass", 0.1347, "kg", "mass m of the levitated object"),
-    ("radius", 0.05, "m", "radius r0 of the object and of the driving surface"),
-    ("nominal_frequency", 28500.0, "Hz", "nominal excitation frequency f (sets sigma with the clearance, eq. 2)"),
-    ("viscosity", 1.81e-5, "Pa.s", "dynamic viscosity mu of the gas"),
-    ("ambient_pressure", 101325.0, "Pa", "ambient pressure p_a"),
-    ("gravity", 9.81, "m/s2", "gravitational acceleration g"),
+    ("mass", RigParameters.mass, "kg", "mass m of the levitated object"),
+    ("radius", RigParameters.radius, "m", "radius r0 of the object and of the driving surface"),
+    ("nominal_frequency", RigParameters.frequency, "Hz", "nominal excitation frequency f (sets sigma with the "
+     "clearance, eq. 2)"),
+    ("viscosity", RigParameters.viscosity, "Pa.s", "dynamic viscosity mu of the gas"),
+    ("ambient_pressure", RigParameters.ambient_pressure, "Pa", "ambient pressure p_a"),
+    ("gravity", RigParameters.gravity, "m/s2", "gravitational acceleration g"),
 )
 #: ``calibration`` values besides a path to a calibration JSON written by ``nfal calibrate``.
 CALIBRATION_CHOICES = ("paper", "perturbation")
@@ -196,6 +198,10 @@ class NfalSlave(Fmi2Slave):
     initialized : bool
         True once :meth:`setup` has run (``exit_initialization_mode``).
     """
+
+    #: Whether the FMU saves, restores and serialises its state (modelDescription.xml's canGetAndSetFMUstate
+    #: and canSerializeFMUstate); a slave that cannot be rewound (hardware) says False.
+    CAN_SAVE_STATE = True
 
     author = "nfal"
     license = "MIT"
@@ -313,7 +319,7 @@ class NfalSlave(Fmi2Slave):
         self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
         self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
         self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
-        self.add_parameter("rest_gap", 5e-6, unit="m", description="closest approach: the object lands and rests here")
+        self.add_parameter("rest_gap", DEFAULT_REST_GAP, unit="m", description="closest approach: the object lands and rests here")
         self.add_rig_parameters()
 
     def checked_release(self) -> tuple[float, float, float]:
@@ -523,7 +529,7 @@ class NfalSlave(Fmi2Slave):
     # --- modelDescription.xml -----------------------------------------------------------------------
     def to_xml(self, model_options: dict | None = None) -> Element:
         """pythonfmu's model description plus units, output dependencies and initial unknowns."""
-        options = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
+        options = {"canGetAndSetFMUstate": self.CAN_SAVE_STATE, "canSerializeFMUstate": self.CAN_SAVE_STATE}
         options.update(model_options or {})
         root = super().to_xml(options)
         used = sorted({d.unit for d in self._declarations.values() if d.unit is not None})

@@ -53,7 +53,7 @@ import nfal.hil
 import nfal.models
 from nfal.errors import InvalidParameterError
 from nfal.fmus.export_runtime import PLATFORM, RUNTIME_SOURCES, runtime_library
-from nfal.fmus.fmi3 import COSIMULATION_ATTRIBUTES, fmi3_script
+from nfal.fmus.fmi3 import fmi3_script
 
 logger = logging.getLogger(__name__)
 
@@ -75,12 +75,6 @@ BUNDLE_LOADER = "bundle_loader.py"
 MODULE_PREFIX, FMI3_PREFIX = "nfal_", "nfal3_"
 #: The FMI versions ``build_fmu`` makes: 2 with pythonfmu, 3 with pythonfmu3 (fmus/fmi3.py).
 FMI_VERSIONS = (2, 3)
-#: Capabilities written into modelDescription.xml (NfalSlave saves its whole state as JSON) ...
-BUILD_OPTIONS = {"canGetAndSetFMUstate": True, "canSerializeFMUstate": True}
-#: ... except where an FMU says otherwise (hardware cannot be rewound).
-FMU_BUILD_OPTIONS: dict[str, dict[str, bool]] = {
-    "HardwareProxy": {"canGetAndSetFMUstate": False, "canSerializeFMUstate": False},
-}
 #: Modules of nfal.hil an FMU carries beside nfal.models (the host's side of the rig protocol).
 HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "protocol.py", "link.py")}
 
@@ -186,10 +180,6 @@ def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]
     return script, [stage / "nfal", runtime, staged]
 
 
-def _fmi3_options(options: dict[str, bool]) -> dict[str, bool]:
-    return {COSIMULATION_ATTRIBUTES.get(key, key): value for key, value in options.items()}
-
-
 def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi_version: int = 2) -> Path:
     """Build the FMU ``name`` into ``out_dir``/``name``.fmu (kept if up to date unless ``force``),
     FMI 2.0 (pythonfmu) or, with ``fmi_version=3``, FMI 3.0 (pythonfmu3, fmus/fmi3.py)."""
@@ -207,14 +197,12 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
         stage.mkdir()
         staged = _stage(name, stage)
         script, project_files = staged, [stage / "nfal"]
-        options = {**BUILD_OPTIONS, **FMU_BUILD_OPTIONS.get(name, {})}
         if fmi_version == 3:
             script, project_files = _fmi3_stage(name, stage, staged)
-            options = _fmi3_options(options)
         path_before = list(sys.path)
         sys.modules.pop(staged.stem, None)  # a slave module of a loaded FMU must not stand in for the new script
         try:
-            built = FmuBuilder.build_FMU(script, dest=Path(temp) / f"{name}.fmu", project_files=project_files, **options)
+            built = FmuBuilder.build_FMU(script, dest=Path(temp) / f"{name}.fmu", project_files=project_files)
         finally:
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)

@@ -33,10 +33,13 @@ from pythonfmu.enums import Fmi2Status
 
 from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
+from nfal.models.control_law import MAX_EXCITATION_M, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.stability import realizable_schedule
+from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, SAMPLING_RATE_HZ,
+                                WORK_RANGE_M)
+from nfal.models.transducer import METRES_PER_VOLT
 
 DESIGNS = ("gain-scheduled", "fixed")
 PLACEMENTS = ("continuous", "sampled")
@@ -63,18 +66,18 @@ class Controller(NfalSlave):
                         depends_on=("reference", "measured_height"), getter=self._command)
         self.add_parameter("design", "gain-scheduled", description="'gain-scheduled' (eqs. 23-24 over the work "
                            "range) or 'fixed' (the design at design_height everywhere)")
-        self.add_parameter("design_height", 120e-6, unit="m", description="design height of the fixed controller")
+        self.add_parameter("design_height", FIXED_DESIGN_HEIGHT_M, unit="m", description="design height of the fixed controller")
         self.add_parameter("placement", "sampled", description="poles placed for the 'sampled' loop the law "
                            "realises at sample_rate (default) or the 'continuous' one of eqs. (23)-(24) (the paper)")
         self.add_parameter("realizable_only", True, description="hold the gains below the lowest height the "
                            "sampled loop realises (Fig. 8; the sampled placement realises all)")
-        self.add_parameter("sample_rate", 2000.0, unit="Hz", description="sampling rate (Table 2)")
-        self.add_parameter("closed_loop_cutoff", 10.0, unit="Hz", description="closed-loop -3 dB bandwidth, eq. (23) (Table 2)")
-        self.add_parameter("filter_cutoff", 300.0, unit="Hz", description="derivative filter cut-off, eq. (22) (Table 2)")
-        self.add_parameter("max_excitation", 10e-6, unit="m", description="actuator saturation |a|max")
-        self.add_parameter("metres_per_volt", 0.1e-6, unit="m/V", description="|a| per volt at resonance (assumption)")
-        self.add_parameter("reference_min", 50e-6, unit="m", description="smallest accepted reference")
-        self.add_parameter("reference_max", 200e-6, unit="m", description="largest accepted reference")
+        self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="sampling rate (Table 2)")
+        self.add_parameter("closed_loop_cutoff", CLOSED_LOOP_CUTOFF_HZ, unit="Hz", description="closed-loop -3 dB bandwidth, eq. (23) (Table 2)")
+        self.add_parameter("filter_cutoff", FILTER_CUTOFF_HZ, unit="Hz", description="derivative filter cut-off, eq. (22) (Table 2)")
+        self.add_parameter("max_excitation", MAX_EXCITATION_M, unit="m", description="actuator saturation |a|max")
+        self.add_parameter("metres_per_volt", METRES_PER_VOLT, unit="m/V", description="|a| per volt at resonance (assumption)")
+        self.add_parameter("reference_min", WORK_RANGE_M[0], unit="m", description="smallest accepted reference")
+        self.add_parameter("reference_max", WORK_RANGE_M[1], unit="m", description="largest accepted reference")
         self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) when the drive "
                            "stays saturated at max_excitation this long: the reference is out of the film's reach")
         self.add_output("saturated_time", unit="s", description="how long the drive has been saturated at "

@@ -31,6 +31,7 @@ from nfal.errors import FmuStateError, InvalidParameterError, LinkError, require
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.hil.link import RigLink
 from nfal.hil.protocol import StatusFlags
+from nfal.models.table2 import SAMPLING_RATE_HZ
 
 _LOCKED, _RESTING, _TRIPPED, _OUT_OF_RANGE = (int(flag) for flag in (
     StatusFlags.PLL_LOCKED, StatusFlags.RESTING, StatusFlags.WATCHDOG_TRIPPED, StatusFlags.SENSOR_OUT_OF_RANGE))
@@ -40,6 +41,8 @@ RATE_TOLERANCE = 0.01
 
 class HardwareProxy(NfalSlave):
     """Drive voltage out to the rig, the rig's measurements in, over the nfal rig protocol."""
+
+    CAN_SAVE_STATE = False  # the rig cannot be rewound
 
     description = ("Hardware proxy: sends the drive voltage to the levitation rig over a serial port and outputs its "
                    "measured height, drive frequency, lock and the link's health (nfal rig protocol v1)")
@@ -74,7 +77,7 @@ class HardwareProxy(NfalSlave):
         self.add_parameter("max_missed_samples", 20, description="samples the rig may miss in a row (by the wall "
                            "clock) before the step fails (20 = 10 ms at 2 kHz)")
         self.add_parameter("reconnect", True, description="reopen the port and say HELLO again after a lost link")
-        self.add_parameter("sample_rate", 2000.0, unit="Hz", description="the rig's sample rate, checked at connection")
+        self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="the rig's sample rate, checked at connection")
         self._link: RigLink | None = None
         self._settings: tuple | None = None
         self._seen = 0

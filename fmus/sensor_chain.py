@@ -15,6 +15,7 @@ from __future__ import annotations
 from nfal.errors import InvalidParameterError
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import sensor_chain as sensor_model
+from nfal.models.table2 import ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
 
 
 class SensorChain(NfalSlave):
@@ -29,12 +30,12 @@ class SensorChain(NfalSlave):
         self.add_input("true_height", 60e-6, unit="m", description="true clearance h of the levitated object")
         self.add_output("measured_height", unit="m", description="sampled, filtered, quantised measurement (held)",
                         depends_on=("true_height",), getter=self._measured)
-        self.add_parameter("sample_rate", sensor_model.SAMPLE_RATE_HZ, unit="Hz", description="sampling rate")
-        self.add_parameter("noise_peak", 2e-6, unit="m",
+        self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="sampling rate")
+        self.add_parameter("noise_peak", NOISE_PEAK_M, unit="m",
                            description="maximal noise magnitude (3 standard deviations, clip level); 0: none")
-        self.add_parameter("noise_cutoff", 300.0, unit="Hz", description="cut-off of the noise's colouring filter")
+        self.add_parameter("noise_cutoff", NOISE_CUTOFF_HZ, unit="Hz", description="cut-off of the noise's colouring filter")
         self.add_parameter("seed", 0, description="seed of the noise (>= 0)")
-        self.add_parameter("analog_cutoff", sensor_model.ANALOG_CUTOFF_HZ, unit="Hz",
+        self.add_parameter("analog_cutoff", ANALOG_FILTER_CUTOFF_HZ, unit="Hz",
                            description="cut-off of the analog 2nd-order Butterworth low-pass; 0: no filter")
         self.add_parameter("resolution", 0.0, unit="m", description="quantisation step; 0: none")
         self._chain: sensor_model.SensorChain | None = None

@@ -25,11 +25,9 @@ import math
 
 from nfal.errors import InvalidParameterError, require_positive
 
-from .pid_design import SAMPLING_RATE_HZ, WORK_RANGE_M, FixedGains, GainSchedule
+from .pid_design import FixedGains, GainSchedule
+from .table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ, WORK_RANGE_M  # noqa: F401 - MAX_EXCITATION_M re-exported
 
-#: Default actuator limit |a|_max [m]: 1.6 x the 6.2 um the paper's rig needs to hold 200 um (eq. 16),
-#: above the 7 um of Table 1's curve (a); not given by the paper.
-MAX_EXCITATION_M = 10e-6
 #: A drive saturated at the limit this long [s] is reported: the reference is out of the film's reach.
 SATURATION_WARNING_S = 0.1
 #: Accepted measurements [m]: a clearance between touchdown and 1 mm (the sensor's span; assumed).

@@ -28,6 +28,8 @@ from scipy import signal
 
 from nfal.errors import InvalidParameterError, require_positive
 
+from .table2 import NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
+
 #: Least number of samples filtered and discarded so that the stream starts in the filter's steady state.
 BURN_IN = 200
 #: White numbers drawn and filtered at a time (part of the definition of the sequence: do not change).
@@ -72,7 +74,7 @@ class ColouredNoise:
     True
     """
 
-    def __init__(self, sample_rate_hz: float = 2000.0, cutoff_hz: float = 300.0, peak_m: float = 2e-6,
+    def __init__(self, sample_rate_hz: float = SAMPLING_RATE_HZ, cutoff_hz: float = NOISE_CUTOFF_HZ, peak_m: float = NOISE_PEAK_M,
                  seed: int | None = 0) -> None:
         self.sample_rate_hz, self.cutoff_hz, self.peak_m = _check_settings(sample_rate_hz, cutoff_hz, peak_m)
         if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0):
@@ -157,8 +159,8 @@ class ColouredNoise:
         self._rng, self._zi, self._buffer, self._position = rng, zi, buffer, position
 
 
-def coloured_noise(samples: int, *, sample_rate_hz: float = 2000.0, cutoff_hz: float = 300.0,
-                   peak_m: float = 2e-6, seed: int | None = 0) -> np.ndarray:
+def coloured_noise(samples: int, *, sample_rate_hz: float = SAMPLING_RATE_HZ, cutoff_hz: float = NOISE_CUTOFF_HZ,
+                   peak_m: float = NOISE_PEAK_M, seed: int | None = 0) -> np.ndarray:
     """The first ``samples`` values [m] of :class:`ColouredNoise` (std ``peak_m``/3, clipped at ``peak_m``).
 
     Parameters

@@ -37,16 +37,10 @@ from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel
 from .rig import RigParameters
 from .sampled_design import SampledLoop
+from .table2 import ANALOG_FILTER_CUTOFF_HZ, CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, SAMPLING_RATE_HZ, WORK_RANGE_M  # noqa: F401 - re-exported
 
 logger = logging.getLogger(__name__)
 
-#: Table 2 of the paper.
-CLOSED_LOOP_CUTOFF_HZ = 10.0
-FILTER_CUTOFF_HZ = 300.0
-ANALOG_FILTER_CUTOFF_HZ = 2000.0
-SAMPLING_RATE_HZ = 2000.0
-#: The work range of Sec. 4 used for the default schedule and maps [m].
-WORK_RANGE_M = (50e-6, 200e-6)
 _HALF_POWER = 1.0 / math.sqrt(2.0)
 
 

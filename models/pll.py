@@ -51,12 +51,13 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError, require_positive
 
+from .table2 import SAMPLING_RATE_HZ
 from .transducer import Transducer
 
 logger = logging.getLogger(__name__)
 
 #: Default PLL sample rate [Hz] (the loop's, Table 2).
-PLL_RATE_HZ = 2000.0
+PLL_RATE_HZ = SAMPLING_RATE_HZ
 #: Default closed-loop bandwidth of the PLL [Hz] (see the module docstring).
 PLL_BANDWIDTH_HZ = 10.0
 #: Default lock threshold on |phase error| [rad]: ||a|| within cos(0.1) = 99.5 % of resonance.

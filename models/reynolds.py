@@ -289,19 +289,10 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
     sigma = float(sigmas[0])
     delta, nodes, steps, tol, max_periods = _check_settings(delta, nodes, steps_per_period, tolerance, max_periods)
     R, faces, volumes = radial_grid(nodes)
-    eps_nodes = np.ascontiguousarray(shape(R), dtype=float)
-    eps_faces = np.ascontiguousarray(shape(faces), dtype=float)
-    if delta * max(np.max(eps_nodes), np.max(eps_faces)) >= 1.0:
-        raise InvalidParameterError("delta", delta, f"small enough that the gap stays open: delta * max(eps_hat) < 1 "
-                                    f"(max eps_hat = {max(np.max(eps_nodes), np.max(eps_faces)):.4g})")
+    eps_nodes, eps_faces = _form_on_grid(shape, delta, R, faces)
     conductance = faces / R[1]
     dt = 2.0 * np.pi / steps
-
-    # Initial state: perturbation solution P = 1 + delta Re(Pi e^{iT}) + delta^2 Pi_5 at T = 0 and -dT.
-    _, amplitude = first_order_pressure(shape, sigma, nodes)
-    mean = discrete_mean_correction(shape, amplitude, R, faces)
-    u_now = delta * amplitude.real + delta**2 * mean
-    u_prev = delta * np.real(amplitude * np.exp(-1j * dt)) + delta**2 * mean
+    u_now, u_prev = _perturbation_start(shape, sigma, delta, R, faces, dt)
     record = np.empty((steps, nodes))
     scale_force = 2.0 / (steps * delta**2)
 
@@ -313,11 +304,7 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
     for period in range(1, max_periods + 1):
         force_sum, status = _march_fixed_film(u_now, u_prev, eps_nodes, eps_faces, conductance, volumes,
                                               sigma, delta, steps, record)
-        if status == 1:
-            raise ConvergenceError(f"Newton did not converge in a time step (sigma = {sigma:g}, delta = {delta:g}); "
-                                   "try more steps_per_period")
-        if status == 2:  # excluded by the check above; kept as a guard
-            raise ConvergenceError(f"the gap closed (sigma = {sigma:g}, delta = {delta:g})")
+        _check_march(status, sigma, delta)
         K_last, K_value = K_value, scale_force * force_sum
         if not np.isfinite(K_value):
             raise ConvergenceError(f"the film solution blew up (sigma = {sigma:g}, delta = {delta:g})")
@@ -340,6 +327,35 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
             states = states[-2:]
     raise ConvergenceError(f"K did not converge within {max_periods} periods (sigma = {sigma:g}, delta = {delta:g}): "
                            f"last K = {K_value:.8g}, estimated remaining change {change:.3g}")
+
+
+def _form_on_grid(shape: ExcitationShape, delta: float, R: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """eps_hat at the nodes and faces; refused if delta * eps_hat would close the gap."""
+    eps_nodes = np.ascontiguousarray(shape(R), dtype=float)
+    eps_faces = np.ascontiguousarray(shape(faces), dtype=float)
+    if delta * max(np.max(eps_nodes), np.max(eps_faces)) >= 1.0:
+        raise InvalidParameterError("delta", delta, f"small enough that the gap stays open: delta * max(eps_hat) < 1 "
+                                    f"(max eps_hat = {max(np.max(eps_nodes), np.max(eps_faces)):.4g})")
+    return eps_nodes, eps_faces
+
+
+def _perturbation_start(shape: ExcitationShape, sigma: float, delta: float, R: np.ndarray, faces: np.ndarray,
+                        dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The march's initial state: the perturbation solution P - 1 = delta Re(Pi e^{iT}) + delta^2 Pi_5 at
+    T = 0 and T = -dT."""
+    _, amplitude = first_order_pressure(shape, sigma, R.size)
+    mean = discrete_mean_correction(shape, amplitude, R, faces)
+    return (delta * amplitude.real + delta**2 * mean,
+            delta * np.real(amplitude * np.exp(-1j * dt)) + delta**2 * mean)
+
+
+def _check_march(status: int, sigma: float, delta: float) -> None:
+    """Raise for a period the march could not complete (status 1: Newton failed; 2: the gap closed)."""
+    if status == 1:
+        raise ConvergenceError(f"Newton did not converge in a time step (sigma = {sigma:g}, delta = {delta:g}); "
+                               "try more steps_per_period")
+    if status == 2:  # excluded by _form_on_grid; kept as a guard
+        raise ConvergenceError(f"the gap closed (sigma = {sigma:g}, delta = {delta:g})")
 
 
 def reduced_rank_extrapolation(states: np.ndarray) -> np.ndarray:

@@ -31,10 +31,9 @@ from scipy import linalg
 from nfal.errors import InvalidParameterError, require_positive
 
 from .measurement_noise import ColouredNoise
+from .table2 import ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
 
 #: Table 2: cut-off of the analog low-pass [Hz] and the sampling rate [Hz].
-ANALOG_CUTOFF_HZ = 2000.0
-SAMPLE_RATE_HZ = 2000.0
 
 #: Relative difference of two step sizes below which the filter's transition matrix is reused.
 STEP_TOLERANCE = 1e-9
@@ -88,8 +87,8 @@ class SensorChain:
         Quantisation step [m]; 0: none.
     """
 
-    def __init__(self, *, sample_rate_hz: float = SAMPLE_RATE_HZ, noise_peak_m: float = 2e-6,
-                 noise_cutoff_hz: float = 300.0, seed: int = 0, analog_cutoff_hz: float = ANALOG_CUTOFF_HZ,
+    def __init__(self, *, sample_rate_hz: float = SAMPLING_RATE_HZ, noise_peak_m: float = NOISE_PEAK_M,
+                 noise_cutoff_hz: float = NOISE_CUTOFF_HZ, seed: int = 0, analog_cutoff_hz: float = ANALOG_FILTER_CUTOFF_HZ,
                  resolution_m: float = 0.0) -> None:
         self.sample_rate_hz = require_positive("sample_rate_hz", sample_rate_hz)
         self.noise = ColouredNoise(self.sample_rate_hz, noise_cutoff_hz, noise_peak_m, seed)

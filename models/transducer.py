@@ -50,8 +50,10 @@ import math
 
 from nfal.errors import InvalidParameterError, require_finite, require_positive
 
+from .rig import RigParameters
+
 #: Nominal resonance [Hz] (the rig's nominal frequency).
-RESONANCE_FREQUENCY_HZ = 28500.0
+RESONANCE_FREQUENCY_HZ = RigParameters.frequency
 #: Quality factor of the loaded transducer (assumption; see the module docstring).
 QUALITY_FACTOR = 500.0
 #: ||a|| per volt of drive amplitude at resonance in steady state [m/V] (assumption, as the Controller FMU).

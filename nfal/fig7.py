@@ -12,13 +12,22 @@ import dataclasses
 import numpy as np
 
 from nfal.errors import InvalidParameterError
+from nfal.fig7_names import (  # noqa: F401
+    CONTROLLER_CALIBRATION,
+    EXCITATION_COMMAND,
+    HARDWARE,
+    PLANT_SHAPE,
+    PROXY,
+    REFERENCE,
+    SATURATED_TIME,
+    SIMULATED,
+    LoopColumns,
+)
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
 from nfal.models.control_law import SATURATION_WARNING_S
 from nfal.models.step_metrics import step_metrics, total_iae
 from nfal.orchestration import PlotPanel
 
-REFERENCE = "Controller.reference"
-PROXY = "proxy"
 #: The staircase of the Reynolds loop: the part of Figs. 9-10's range the film of the Fig. 3 stand-in form
 #: holds with |a| <= 10 um (up to ~107 um; its K is negative above 118 um): the paper's 60 -> 100 and
 #: 100 -> 60 steps (the first and last of Figs. 9-10), three times over the paper's 3.7 s
@@ -50,28 +59,11 @@ def matched_design(parameters: dict) -> dict:
     """``parameters`` with Controller.calibration = 'perturbation:SHAPE' added when Plant.shape = SHAPE is
     given and Controller.calibration is not: the Reynolds loop's controller is designed on the film it
     controls (docs/cosimulation.md)."""
-    if "Plant.shape" in parameters and "Controller.calibration" not in parameters:
-        return {**parameters, "Controller.calibration": f"perturbation:{parameters['Plant.shape']}"}
+    if PLANT_SHAPE in parameters and CONTROLLER_CALIBRATION not in parameters:
+        return {**parameters, CONTROLLER_CALIBRATION: f"perturbation:{parameters[PLANT_SHAPE]}"}
     return parameters
 
 
-@dataclasses.dataclass(frozen=True)
-class LoopColumns:
-    """Where a loop variant keeps the quantities the metrics and the plot need."""
-
-    height: str       #: the height the metrics judge (the true one where known)
-    measured: str
-    excitation: str
-    frequency: str
-    extra_panels: tuple = ()
-
-
-SIMULATED = LoopColumns("Plant.height", "SensorChain.measured_height", "ResonanceTracker.excitation_amplitude",
-                        "ResonanceTracker.drive_frequency")
-HARDWARE = LoopColumns(f"{PROXY}.measured_height", f"{PROXY}.measured_height", "Controller.excitation_command",
-                       f"{PROXY}.drive_frequency",
-                       extra_panels=(((("Controller.drive_voltage", f"{PROXY}.applied_voltage"), 1.0, "drive [V]")),
-                                     (((f"{PROXY}.measurement_age",), 1e3, "sample age [ms]"))))
 
 
 def loop_columns(element_names) -> LoopColumns:
@@ -83,7 +75,7 @@ def response_panels(columns: LoopColumns = SIMULATED) -> list:
     """Height (reference, true, measured) in um; excitation in um; the drive frequency's change in Hz (and, with
     hardware, the commanded and applied voltage and the age of the sample used)."""
     heights = (REFERENCE, columns.measured) + ((columns.height,) if columns.height != columns.measured else ())
-    excitation = tuple(dict.fromkeys(("Controller.excitation_command", columns.excitation)))
+    excitation = tuple(dict.fromkeys((EXCITATION_COMMAND, columns.excitation)))
     return [PlotPanel(heights, 1e6, "height [um]"), PlotPanel(excitation, 1e6, "|a| [um]"),
             PlotPanel((columns.frequency,), 1.0, "drive frequency change [Hz]", from_start=True),
             *(PlotPanel(*panel) for panel in columns.extra_panels)]
@@ -103,7 +95,6 @@ def loop_metrics(table, reference: Staircase, columns: LoopColumns = SIMULATED) 
             "saturation": saturation_episodes(table)}
 
 
-SATURATED_TIME = "Controller.saturated_time"
 
 
 def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S) -> list[dict]:

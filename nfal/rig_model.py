@@ -20,18 +20,13 @@ import os
 from collections.abc import Mapping
 
 from nfal.errors import InvalidParameterError, require_positive
+from nfal.fig7_names import RIG_DRIVE_INPUT, RIG_READINGS, RIG_TRUE_HEIGHT
 from nfal.fmus.resonance_tracker import ResonanceTracker
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.sensor_chain import SensorChain
 from nfal.fmus.slow_plant import SlowPlant
 from nfal.hil.firmware import RigReading
 from nfal.orchestration import Master, read_ssp, resolve
-
-#: The rig structure's interface: the input the drive voltage goes to, and the outputs a rig reports.
-DRIVE_INPUT = "ResonanceTracker.drive_voltage"
-READINGS = {"height": "SensorChain.measured_height", "drive_frequency": "ResonanceTracker.drive_frequency",
-            "locked": "ResonanceTracker.locked", "resting": "Plant.resting"}
-TRUE_HEIGHT = "Plant.height"
 
 
 class StructureRig:
@@ -40,7 +35,7 @@ class StructureRig:
     Parameters
     ----------
     path : path-like
-        An SSP archive, folder or .ssd of a rig structure (see :data:`READINGS` for the names it needs).
+        An SSP archive, folder or .ssd of a rig structure (see :data:`RIG_READINGS` for the names it needs).
     period_s : float
         The sample period [s] (the step).
     parameters : mapping, optional
@@ -54,13 +49,13 @@ class StructureRig:
             structure = self._stack.enter_context(read_ssp(path))
             system = resolve(structure, parameters)
             self.master = self._stack.enter_context(
-                Master(system, step_size=period_s, inputs={DRIVE_INPUT: lambda t: self.voltage}))
+                Master(system, step_size=period_s, inputs={RIG_DRIVE_INPUT: lambda t: self.voltage}))
             columns = {column.name: index for index, column in enumerate(self.master.columns)}
-            missing = [name for name in (*READINGS.values(), TRUE_HEIGHT) if name not in columns]
+            missing = [name for name in (*RIG_READINGS.values(), RIG_TRUE_HEIGHT) if name not in columns]
             if missing:
                 raise InvalidParameterError("rig structure", str(path), f"one with the outputs {', '.join(missing)}")
-            self._index = {key: columns[name] for key, name in READINGS.items()}
-            self._true_height = columns[TRUE_HEIGHT]
+            self._index = {key: columns[name] for key, name in RIG_READINGS.items()}
+            self._true_height = columns[RIG_TRUE_HEIGHT]
             self.master.instantiate()
             self.master.initialize(0.0)
         except BaseException:

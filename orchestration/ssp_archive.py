@@ -103,6 +103,28 @@ def pack(ssd_path: str | Path, fmu_dir: str | Path, out_path: str | Path,
         raise InvalidParameterError("out_path", str(out_path), "a file name ending in .ssp")
     if not fmu_dir.is_dir():
         raise InvalidParameterError("fmu_dir", str(fmu_dir), "an existing folder holding the FMUs")
+    members = _members(ssd_path, fmu_dir, ssv_paths)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    partial = out_path.with_name(f".{out_path.stem}.partial.ssp")
+    try:
+        with zipfile.ZipFile(partial, "w") as archive:
+            _write(archive, DEFAULT_SSD, ssd_path.read_bytes(), zipfile.ZIP_DEFLATED)
+            for member in sorted(members):
+                method = zipfile.ZIP_STORED if member.endswith(".fmu") else zipfile.ZIP_DEFLATED
+                _write(archive, member, members[member].read_bytes(), method)
+        if check:
+            problems = validate(partial)
+            if problems:
+                raise StructureError(f"{out_path.name} is not a valid SSP 1.0 archive:\n" + "\n".join(problems))
+        os.replace(partial, out_path)
+    finally:
+        partial.unlink(missing_ok=True)
+    logger.info("packed %s: %s", out_path, ", ".join(sorted(members)))
+    return out_path
+
+
+def _members(ssd_path: Path, fmu_dir: Path, ssv_paths: Iterable[str | Path] | None) -> dict[str, Path]:
+    """The archive's members besides the SSD: ``resources/<name>`` -> the FMU or parameter set to pack."""
     sources = referenced_resources(ssd_path)
     if sources["other"]:
         raise StructureError(f"{ssd_path.name}: source {sources['other'][0]!r} is neither an .fmu nor an .ssv")
@@ -137,24 +159,7 @@ def pack(ssd_path: str | Path, fmu_dir: str | Path, out_path: str | Path,
         members[f"{RESOURCES}/{name}"] = ssv
     for name, ssv in given.items():
         members.setdefault(f"{RESOURCES}/{name}", ssv)
-
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    partial = out_path.with_name(f".{out_path.stem}.partial.ssp")
-    try:
-        with zipfile.ZipFile(partial, "w") as archive:
-            _write(archive, DEFAULT_SSD, ssd_path.read_bytes(), zipfile.ZIP_DEFLATED)
-            for member in sorted(members):
-                method = zipfile.ZIP_STORED if member.endswith(".fmu") else zipfile.ZIP_DEFLATED
-                _write(archive, member, members[member].read_bytes(), method)
-        if check:
-            problems = validate(partial)
-            if problems:
-                raise StructureError(f"{out_path.name} is not a valid SSP 1.0 archive:\n" + "\n".join(problems))
-        os.replace(partial, out_path)
-    finally:
-        partial.unlink(missing_ok=True)
-    logger.info("packed %s: %s", out_path, ", ".join(sorted(members)))
-    return out_path
+    return members
 
 
 def _write(archive: zipfile.ZipFile, name: str, data: bytes, method: int) -> None:

@@ -265,8 +265,6 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     SweepError
         The folder holds another sweep's table, the archive is missing, or the scheduler is unreachable.
     """
-    from dask.distributed import as_completed  # on use: Dask takes a second to import
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     runs = spec.runs()
@@ -278,13 +276,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     if foreign:
         logger.warning("%s holds %d rows of runs this spec does not have (its run settings or values changed); "
                        "they are kept", table.path, foreign)
-    (out / SPEC_JSON).write_text(json.dumps({"name": spec.name, "kind": spec.kind.name, "settings": spec.settings,
-                                             "grid": spec.grid, "random": spec.random, "draws": spec.draws,
-                                             "seed": spec.seed, "runs": [dataclasses.asdict(r) | {"settings": None}
-                                                                         for r in runs]}, indent=2) + "\n")
+    _write_spec(out / SPEC_JSON, spec, runs)
     summary = {"name": spec.name, "kind": spec.kind.name, "runs": len(runs), "skipped": skipped, "other_rows": foreign,
-               "new": 0, "ok": 0,
-               "failed": 0, "status": "running", "scheduler": scheduler or "local", "workers": None,
+               "new": 0, "ok": 0, "failed": 0, "status": "running", "scheduler": scheduler or "local", "workers": None,
                "wall_time_s": 0.0, "task_wall_time_s": 0.0}
     logger.info("%s: %d runs, %d already finished in %s", spec.name, len(runs), skipped, out)
     started = time.perf_counter()
@@ -302,21 +296,11 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
             if spec.kind.needs_archive:
                 archive = client.scatter(data, broadcast=True)  # once per worker, not per task
             futures = [client.submit(run_task, run, spec.kind.task, archive, sha, pure=False) for run in todo]
-            by_future = {f.key: r for f, r in zip(futures, todo)}
-            for future in as_completed(futures):
-                run = by_future[future.key]
-                try:
-                    row = future.result()
-                except Exception as exc:  # noqa: BLE001 - the task died (worker lost): a failed row
-                    row = {"run_id": run.run_id, "index": run.index, "status": "failed",
-                           "error": f"{type(exc).__name__}: {exc}", "wall_time_s": None, "worker": ""}
-                row.update({f"param:{k}": v for k, v in run.parameters.items()})
+            for run, row in _as_finished(futures, todo):
                 table.append(row)
                 summary["new"] += 1
                 summary["task_wall_time_s"] += row.get("wall_time_s") or 0.0
                 bar.update(1)
-                if row["status"] != "ok":
-                    logger.warning("run %s (%s) failed: %s", run.run_id, canonical_json(run.parameters), row["error"])
                 if on_row is not None:
                     on_row(row)
         summary["status"] = "ok"
@@ -332,12 +316,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
         if cluster is not None:
             cluster.close()
         summary["wall_time_s"] = time.perf_counter() - started
-        ids = {r.run_id for r in runs}
-        rows = [r for r in read_table(out / RESULTS_CSV) if r["run_id"] in ids]
-        summary["ok"] = sum(r["status"] == "ok" for r in rows)
-        summary["failed"] = sum(r["status"] != "ok" for r in rows)
-        summary["finished"] = len(rows)
-        (out / SUMMARY_JSON).write_text(json.dumps(summary, indent=2, default=str) + "\n")
+        rows = _close_summary(out, summary, runs)
     plot_path = None
     if plot:
         try:
@@ -345,6 +324,42 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
         except Exception as exc:  # a plot must not hide the sweep's outcome
             logger.warning("no sweep plot: %s", exc)
     return SweepResult(out, out / RESULTS_CSV, plot_path, summary)
+
+
+def _write_spec(path: Path, spec: SweepSpec, runs: list[RunSpec]) -> None:
+    """``spec.json``: the expanded spec, every run with its id and parameters."""
+    path.write_text(json.dumps({"name": spec.name, "kind": spec.kind.name, "settings": spec.settings, "grid": spec.grid,
+                                "random": spec.random, "draws": spec.draws, "seed": spec.seed,
+                                "runs": [dataclasses.asdict(r) | {"settings": None} for r in runs]}, indent=2) + "\n")
+
+
+def _as_finished(futures, todo: list[RunSpec]):
+    """(run, row) as each task finishes; a task that died (worker lost) is a failed row."""
+    from dask.distributed import as_completed  # on use: Dask takes a second to import
+
+    by_future = {f.key: r for f, r in zip(futures, todo)}
+    for future in as_completed(futures):
+        run = by_future[future.key]
+        try:
+            row = future.result()
+        except Exception as exc:  # noqa: BLE001 - the task died: a failed row, the sweep goes on
+            row = {"run_id": run.run_id, "index": run.index, "status": "failed",
+                   "error": f"{type(exc).__name__}: {exc}", "wall_time_s": None, "worker": ""}
+        row.update({f"param:{k}": v for k, v in run.parameters.items()})
+        if row["status"] != "ok":
+            logger.warning("run %s (%s) failed: %s", run.run_id, canonical_json(run.parameters), row["error"])
+        yield run, row
+
+
+def _close_summary(out: Path, summary: dict, runs: list[RunSpec]) -> list[dict]:
+    """Count this spec's rows in ``results.csv`` into the summary, write ``summary.json``; return the rows."""
+    ids = {r.run_id for r in runs}
+    rows = [r for r in read_table(out / RESULTS_CSV) if r["run_id"] in ids]
+    summary["ok"] = sum(r["status"] == "ok" for r in rows)
+    summary["failed"] = sum(r["status"] != "ok" for r in rows)
+    summary["finished"] = len(rows)
+    (out / SUMMARY_JSON).write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    return rows
 
 
 def plot_sweep(spec: SweepSpec, rows: list[dict], path: Path) -> Path | None:

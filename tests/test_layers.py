@@ -172,3 +172,30 @@ def test_the_check_catches_a_deliberate_violation(tmp_path):
         "orchestration/run.py:2: nfal.orchestration.run (orchestration) imports nfal.fmus (fmus)",
         "orchestration/run.py:2: nfal.orchestration.run (orchestration) imports nfal.fmus.base (fmus)"]
 
+
+
+#: The longest a function may be, in lines of code (its docstring not counted); numba kernels are exempt.
+MAX_FUNCTION_LINES = 80
+
+
+def long_functions(root: Path = ROOT) -> list[str]:
+    """Functions longer than :data:`MAX_FUNCTION_LINES` (without the docstring), numba kernels left out."""
+    found = []
+    for module, path in modules(root).items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            if any("numba" in ast.unparse(decorator) for decorator in node.decorator_list):
+                continue
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(getattr(body[0], "value", None), ast.Constant):
+                length = node.end_lineno - node.lineno + 1 - (body[0].end_lineno - body[0].lineno + 1)
+            else:
+                length = node.end_lineno - node.lineno + 1
+            if length > MAX_FUNCTION_LINES:
+                found.append(f"{path.relative_to(root)}:{node.lineno}: {node.name} ({length} lines)")
+    return found
+
+
+def test_no_function_is_longer_than_80_lines():
+    assert long_functions() == []

@@ -14,6 +14,10 @@ from hypothesis import strategies as st
 from lxml import etree
 
 from nfal.build import structure_sources
+from nfal.fmus.controller import Controller
+from nfal.fmus.resonance_tracker import ResonanceTracker
+from nfal.fmus.sensor_chain import SensorChain
+from nfal.fmus.slow_plant import SlowPlant
 from nfal.errors import MissingFmuError, StructureError
 from nfal.orchestration.ssp_archive import pack, referenced_resources
 from nfal.orchestration.ssp_schema import (SSC_NS, SSD_NS, SSV_NS, libcosim_portability, schema_dir, validate,
@@ -206,6 +210,27 @@ def test_paper_rig_parameter_set():
 
 def test_table2_parameter_set():
     assert _parameters("table2.ssv") == pytest.approx(TABLE2)
+
+
+def _slave_starts(*classes) -> dict:
+    """Every parameter's declared start (from the models' defaults) of the FMU slave ``classes``."""
+    starts = {}
+    for cls in classes:
+        slave = cls(instance_name="defaults")
+        starts.update({name: slave.value(name) for name in slave._declarations})
+    return starts
+
+
+@pytest.mark.parametrize("name, slaves", [("paper_rig.ssv", (SlowPlant, Controller)),
+                                          ("table2.ssv", (Controller, ResonanceTracker, SensorChain))])
+def test_a_parameter_set_holds_the_fmus_own_defaults(name, slaves):
+    """The shipped sets are data (SSP files cannot import a constant): each value equals the default the FMUs
+    take from the models (models/rig.py, models/table2.py, models/transducer.py), so a constant changed there
+    and not here fails."""
+    starts = _slave_starts(*slaves)
+    values = _parameters(name)
+    assert set(values) <= set(starts)
+    assert values == pytest.approx({key: starts[key] for key in values})
 
 
 @pytest.mark.parametrize("name", [*STRUCTURES, "fig7_hil.ssd"])

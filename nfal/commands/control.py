@@ -10,6 +10,14 @@ import numpy as np
 from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, print_json,
                                   print_step_table, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
+from nfal.models.table2 import (  # light
+    CLOSED_LOOP_CUTOFF_HZ,
+    FILTER_CUTOFF_HZ,
+    MAX_EXCITATION_M,
+    NOISE_CUTOFF_HZ,
+    NOISE_PEAK_M,
+    SAMPLING_RATE_HZ,
+)
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
 PLACEMENTS = ("continuous", "sampled")
@@ -43,12 +51,12 @@ def register(commands) -> None:
     compare.add_argument("--controllers", default="gs,80,120,160",
                          help="'gs' and/or design heights of linear controllers in um (default gs,80,120,160)")
     compare.add_argument("--seed", type=int, default=0, help="seed of the measurement noise (default 0)")
-    compare.add_argument("--noise-peak", type=finite_float, default=2e-6, help="peak noise magnitude [m] (default 2e-6; 0: none)")
-    compare.add_argument("--noise-cutoff", type=finite_float, default=300.0, help="noise colouring cut-off [Hz] (default 300)")
+    compare.add_argument("--noise-peak", type=finite_float, default=NOISE_PEAK_M, help="peak noise magnitude [m] (default %(default)s; 0: none)")
+    compare.add_argument("--noise-cutoff", type=finite_float, default=NOISE_CUTOFF_HZ, help="noise colouring cut-off [Hz] (default %(default)s)")
     compare.add_argument("--levels", type=number_list, default=number_list("60e-6,100e-6,140e-6,180e-6,140e-6,100e-6,60e-6"),
                          help="reference levels [m] (default 60,100,140,180,140,100,60 um)")
     compare.add_argument("--hold", type=finite_float, default=0.6, help="hold time of each level [s] (default 0.6)")
-    compare.add_argument("--max-excitation", type=finite_float, default=10e-6, help="actuator limit |a|max [m] (default 10e-6)")
+    compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M, help="actuator limit |a|max [m] (default %(default)s)")
     compare.add_argument("--full-schedule", action="store_true",
                          help="with --placement continuous: schedule the paper's designs at every height, even those "
                          "the 2 kHz forward-Euler loop cannot realise (default: hold the gains below the lowest "
@@ -59,9 +67,12 @@ def register(commands) -> None:
 
 
 def _add_design_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--closed-loop-cutoff", type=finite_float, default=10.0, help="closed-loop -3 dB bandwidth [Hz] (default 10)")
-    parser.add_argument("--filter-cutoff", type=finite_float, default=300.0, help="derivative filter cut-off [Hz] (default 300)")
-    parser.add_argument("--sample-rate", type=finite_float, default=2000.0, help="controller sampling rate [Hz] (default 2000)")
+    parser.add_argument("--closed-loop-cutoff", type=finite_float, default=CLOSED_LOOP_CUTOFF_HZ,
+                        help="closed-loop -3 dB bandwidth [Hz] (default %(default)s)")
+    parser.add_argument("--filter-cutoff", type=finite_float, default=FILTER_CUTOFF_HZ,
+                        help="derivative filter cut-off [Hz] (default %(default)s)")
+    parser.add_argument("--sample-rate", type=finite_float, default=SAMPLING_RATE_HZ,
+                        help="controller sampling rate [Hz] (default %(default)s)")
     parser.add_argument("--placement", choices=PLACEMENTS, default="sampled",
                         help="loop whose poles are placed: sampled (the loop the discrete law realises at --sample-rate: "
                         "ZOH plant, forward-Euler integrator and derivative filter; the Controller FMU's default) or "

@@ -9,8 +9,7 @@ from pathlib import Path
 
 from nfal.commands.common import finite_float, positive_float, print_json, print_step_table
 from nfal.errors import InvalidParameterError
-
-REFERENCE_INPUT = "Controller.reference"
+from nfal.fig7_names import REFERENCE
 
 
 def register(commands) -> None:
@@ -58,7 +57,7 @@ def register(commands) -> None:
                      "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
                      "perturbation:SHAPE) unless Controller.calibration is given")
     run.add_argument("--reference-input", metavar="ELEMENT.VAR",
-                     help=f"the input the reference drives (default {REFERENCE_INPUT} if the structure has a Controller "
+                     help=f"the input the reference drives (default {REFERENCE} if the structure has a Controller "
                      "element, else none; 'none' for no external input)")
     run.add_argument("--input", action="append", default=[], metavar="ELEMENT.VAR=SIGNAL",
                      help="drive another input (repeatable): SIGNAL is constant:V, step:INITIAL,FINAL,AT_S, "
@@ -177,7 +176,7 @@ def run_run(args: argparse.Namespace) -> int:
     if args.rt_priority is not None and not args.realtime:
         raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
     reference = _reference(args, columns is HARDWARE, structure)
-    reference_input = args.reference_input or (REFERENCE_INPUT if "Controller" in names else "none")
+    reference_input = args.reference_input or (REFERENCE if "Controller" in names else "none")
     inputs = {} if reference_input == "none" else {reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
     stop_time = args.stop_time
@@ -185,7 +184,7 @@ def run_run(args: argparse.Namespace) -> int:
         stop_time = reference.duration_s  # the staircase's steps complete (against hardware, after its lead)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
-    fig7 = reference_input == REFERENCE_INPUT
+    fig7 = reference_input == REFERENCE
     completed = reference.completed_by(stop_time) if fig7 and isinstance(reference, Staircase) else None
     metrics = None if completed is None else (lambda table: loop_metrics(table, completed, columns))
     try:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from nfal.commands.common import finite_float, output_file, print_json
 from nfal.errors import InvalidParameterError
+from nfal.hil.firmware import RigTiming  # light: the firmware's defaults are the flags' defaults
 
 
 def register(commands) -> None:
@@ -48,12 +49,12 @@ def register(commands) -> None:
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
                           help="reconnect the port this long after --disconnect-at (default 1.0)")
     emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
-    emulator.add_argument("--watchdog", type=finite_float, default=0.02, metavar="SECONDS",
-                          help="no DRIVE for this long trips the watchdog (default 0.02)")
-    emulator.add_argument("--ramp-down", type=finite_float, default=0.05, metavar="SECONDS",
-                          help="the watchdog's ramp of the drive to 0 V (default 0.05)")
-    emulator.add_argument("--max-voltage", type=finite_float, default=150.0, metavar="V",
-                          help="drive commands above this are clamped (default 150)")
+    emulator.add_argument("--watchdog", type=finite_float, default=RigTiming.watchdog_timeout_s, metavar="SECONDS",
+                          help="no DRIVE for this long trips the watchdog (default %(default)s)")
+    emulator.add_argument("--ramp-down", type=finite_float, default=RigTiming.ramp_down_s, metavar="SECONDS",
+                          help="the watchdog's ramp of the drive to 0 V (default %(default)s)")
+    emulator.add_argument("--max-voltage", type=finite_float, default=RigTiming.max_drive_voltage, metavar="V",
+                          help="drive commands above this are clamped (default %(default)s)")
     emulator.add_argument("--duration", type=finite_float, metavar="SECONDS", help="stop after this long (default: run until "
                           "Ctrl-C or SIGTERM)")
     emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
@@ -88,7 +89,6 @@ def run_emulator(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.commands.cosim import parse_parameter
     from nfal.hil.faults import FaultSettings
-    from nfal.hil.firmware import RigTiming
     from nfal.hil.ports import PtyPort, UrlPort
     from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
     from nfal.rig_emulator import Disconnection, Emulator

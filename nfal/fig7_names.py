@@ -1,0 +1,46 @@
+"""The names of the Fig. 7 loop's elements and variables, the one place the code spells them.
+
+The structures (``ssp/fig7_*.ssd``, ``ssp/rig_*.ssd``) are the loop's wiring; this module only names what the
+applications read and drive in them, and ``tests/test_fig7_names.py`` holds every name here to those files.
+It imports nothing heavy, so the command line can use it at start-up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+#: The element that stands for the rig in the hardware-in-the-loop structure (fig7_hil).
+PROXY = "proxy"
+#: The Controller's reference input (what ``--reference`` drives) and its outputs.
+REFERENCE = "Controller.reference"
+EXCITATION_COMMAND = "Controller.excitation_command"
+DRIVE_VOLTAGE = "Controller.drive_voltage"
+SATURATED_TIME = "Controller.saturated_time"
+CONTROLLER_CALIBRATION = "Controller.calibration"
+PLANT_SHAPE = "Plant.shape"
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopColumns:
+    """Where a loop variant keeps the quantities the metrics and the plot need."""
+
+    height: str       #: the height the metrics judge (the true one where known)
+    measured: str
+    excitation: str
+    frequency: str
+    extra_panels: tuple = ()
+
+
+SIMULATED = LoopColumns("Plant.height", "SensorChain.measured_height", "ResonanceTracker.excitation_amplitude",
+                        "ResonanceTracker.drive_frequency")
+HARDWARE = LoopColumns(f"{PROXY}.measured_height", f"{PROXY}.measured_height", EXCITATION_COMMAND,
+                       f"{PROXY}.drive_frequency",
+                       extra_panels=((((DRIVE_VOLTAGE, f"{PROXY}.applied_voltage"), 1.0, "drive [V]")),
+                                     (((f"{PROXY}.measurement_age",), 1e3, "sample age [ms]"))))
+
+#: The rig structures (the loop without the Controller): the input the emulator's drive voltage goes to, the
+#: outputs a rig reports (nfal.rig_model), and the true height.
+RIG_DRIVE_INPUT = "ResonanceTracker.drive_voltage"
+RIG_READINGS = {"height": SIMULATED.measured, "drive_frequency": SIMULATED.frequency,
+                "locked": "ResonanceTracker.locked", "resting": "Plant.resting"}
+RIG_TRUE_HEIGHT = SIMULATED.height
