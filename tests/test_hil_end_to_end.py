@@ -131,8 +131,10 @@ def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7
     rig = emulator("--corrupt", "0.05", "--drop", "0.05", "--duplicate", "0.05", "--seed", "3", "--record", str(record),
                    *LONG_WATCHDOG)
     out = tmp_path / "run"
-    assert main(["run", str(fig7_archives["fig7_hil"]), "--param", f"proxy.port={rig.port}", "--stop-time", "1.5",
-                 "--out", str(out), "--json"]) == 0
+    # a generous missed-sample limit: this test is about what reaches the host, not about how late (a starved
+    # emulator on a loaded machine was once silent for 11 ms, above the default 10 ms)
+    assert main(["run", str(fig7_archives["fig7_hil"]), "--param", f"proxy.port={rig.port}", "--param",
+                 "proxy.max_missed_samples=400", "--stop-time", "1.5", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     rig.stop()
     assert summary["status"] == "ok" and summary["realtime"]["steps"] == 3000
@@ -161,7 +163,7 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     # machine move the disconnect within the run)
     fresh = np.flatnonzero(result.table()["proxy.fresh"] > 0)
     assert fresh.size > 100
-    assert completed - fresh[-1] <= 25
+    assert completed - fresh[-1] <= 2 * 20 + 5  # the limit, and as many stale steps before it (27 seen at load 6)
     rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 1 + completed  # header, the initial row, one per completed step
     time.sleep(0.5)  # the rig's watchdog needs 200 ms and its ramp 50 ms after the last DRIVE
