@@ -151,9 +151,11 @@ def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7
 
 @pytest.mark.slow
 def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(fig7_archives, emulator, tmp_path):
-    rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "never", *LONG_WATCHDOG)
+    # the disconnect comes 2.5 s of rig time after the host's HELLO, which precedes the Controller's set-up (1.5 s
+    # at load 6): the loop has run ~1 s by then, and would run 6.5 s without it
+    rig = emulator("--disconnect-at", "2.5", "--reconnect-after", "never", *LONG_WATCHDOG)
     with pytest.raises(SimulationError, match="no measurement from the rig") as failure:
-        _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=1.0, lead_s=0.5))
+        _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=6.0, lead_s=0.5))
     result = failure.value.result
     assert "link lost" in result.summary["error"]
     assert result.summary["status"] == "failed"
