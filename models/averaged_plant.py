@@ -26,10 +26,13 @@ import math
 import numba
 import numpy as np
 
+from . import numba_cache
 from .calibration import CalibrationFunction
 from .film_force_table import FilmForceTable, table_K
 from .plant import DEFAULT_REST_GAP, SimplifiedPlant
 from .rig import RigParameters
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 
 class AveragedFilmPlant(SimplifiedPlant):

@@ -31,11 +31,14 @@ from typing import Callable
 import numba
 import numpy as np
 
+from . import numba_cache
 from .errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
 from .excitation import ExcitationShape
 from .perturbation import first_order_pressure, radial_grid
 from .reynolds import check_grid, discrete_mean_correction
 from .rig import RigParameters
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
 

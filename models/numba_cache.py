@@ -45,7 +45,8 @@ class ContentKeyedCacheLocator(caching.InTreeCacheLocator):
 
 def install() -> None:
     """Try :class:`ContentKeyedCacheLocator` first for every kernel defined after this (idempotent; a numba
-    without the list of locators keeps its own behaviour)."""
+    without the list of locators keeps its own behaviour). Called by each kernel module before its kernels,
+    not by the package: modules without kernels (the Controller's, the proxy's) do not import numba."""
     locators = getattr(getattr(caching, "CacheImpl", None), "_locator_classes", None)
     if isinstance(locators, list) and ContentKeyedCacheLocator not in locators:
         locators.insert(0, ContentKeyedCacheLocator)

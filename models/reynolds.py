@@ -39,9 +39,12 @@ from typing import Callable
 import numba
 import numpy as np
 
+from . import numba_cache
 from .errors import ConvergenceError, InvalidParameterError
 from .excitation import ExcitationShape
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
 
