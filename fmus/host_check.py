@@ -126,7 +126,8 @@ def ecos_executable(cache_dir: Path) -> Path:
 
 def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: float,
                 step_size: float = 5e-4) -> HostRuns:
-    """Simulate ``ssp`` ``runs`` times with ``ecos simulate``; ``outputs`` holds each run's CSV columns."""
+    """Simulate ``ssp`` (an SSP archive, or one FMU alone: FMI 2.0 or 3.0) ``runs`` times with ``ecos simulate``;
+    ``outputs`` holds each run's CSV columns."""
     result = HostRuns()
     for k in range(runs):
         folder = Path(work_dir) / f"ecos_{k}"

@@ -121,12 +121,15 @@ public:
         FMIString message,
         Args&&... args) CPPFMU_NOEXCEPT
     {
-        if (m_settings->loggedCategories.empty() ||
-            detail::CanFind(m_settings->loggedCategories, category)) {
+        // nfal: errors are always reported, under the standard's "logStatusError" when they have no
+        // category (upstream: ""); the callback may be NULL in FMI 3.0 (upstream called it regardless).
+        const bool error = status >= FMIError;
+        if (m_fmiLogger != nullptr && (error || m_settings->loggedCategories.empty() ||
+            detail::CanFind(m_settings->loggedCategories, category))) {
             m_fmiLogger(
                 m_component,
                 status,
-                category,
+                error && (category == nullptr || *category == '\0') ? "logStatusError" : category,
                 message);
         }
     }
@@ -141,7 +144,7 @@ public:
         FMIString message,
         Args&&... args) CPPFMU_NOEXCEPT
     {
-        if (m_settings->debugLoggingEnabled) {
+        if (m_settings->debugLoggingEnabled || status >= FMIError) {  // nfal: errors are always reported
             Log(
                 status,
                 category,

@@ -118,7 +118,7 @@ fmi3Instance fmi3InstantiateCoSimulation(
     } catch (const std::exception& e) {
         if (logMessage)
         {
-            logMessage(environment, fmi3Error, "", e.what());
+            logMessage(environment, fmi3Error, "logStatusError", e.what());  // nfal: was ""
         }
         return nullptr;
     }
@@ -157,7 +157,7 @@ fmi3Instance fmi3InstantiateModelExchange(
     } catch (const std::exception& e) {
         if (logMessage)
         {
-            logMessage(environment, fmi3Error, "", e.what());
+            logMessage(environment, fmi3Error, "logStatusError", e.what());  // nfal: was ""
         }
         return nullptr;
     }

@@ -71,16 +71,23 @@ PySlaveInstance::PySlaveInstance(std::string instanceName, std::string resources
         }
 
         std::string moduleName = getline(resources_ + "/slavemodule.txt");
+        // nfal: import this instance's own slave module. An FMU of the same name loaded earlier in the process
+        // (from another, perhaps deleted, folder) left its module in sys.modules; its __file__ would name that folder.
+        if (PyDict_DelItemString(PyImport_GetModuleDict(), moduleName.c_str()) != 0) {
+            PyErr_Clear(); // not imported before
+        }
         PyObject* pModule = PyImport_ImportModule(moduleName.c_str());
         if (pModule == nullptr) {
-            PyErr_Print();
+            // nfal: upstream printed (and so cleared) the exception first, then went on with a null module
             handle_py_exception("[ctor] PyImport_ImportModule", gilState);
         }
 
         std::string className = findClassName(resources_ + "/" + moduleName + ".py");
         if (className.empty()) {
-            cleanPyObject();
-            throw cppfmu::FatalError("Unable to find class extending Fmi3SlaveBase!");
+            // nfal: upstream released objects it did not hold and kept the GIL
+            Py_DECREF(pModule);
+            PyGILState_Release(gilState);
+            throw std::runtime_error("Unable to find class extending Fmi3SlaveBase in " + moduleName + ".py");
         }
 
         PyObject* pyClassName = Py_BuildValue("s", className.c_str());
@@ -739,6 +746,7 @@ void PySlaveInstance::SetFMUstate(const fmi3FMUState& state)
         if (f == nullptr) {
             handle_py_exception("[_set_fmu_state] PyObject_CallMethod", gilState);
         }
+        Py_DECREF(f);  // nfal: was leaked
         clearLogBuffer();
     });
 }
@@ -796,48 +804,44 @@ void PySlaveInstance::DeSerializeFMUstate(const fmi3Byte bytes[], size_t size, f
             handle_py_exception("[DeSerializeFMUstate] PyBytes_FromStringAndSize", gilState);
         }
         PyObject* pyState = PyObject_CallMethod(pClass_, "_fmu_state_from_bytes", "(O)", pyStateBytes);
+        Py_DECREF(pyStateBytes);  // nfal: was leaked on the error path
         if (pyState == nullptr) {
             handle_py_exception("[DeSerializeFMUstate] PyObject_CallMethod", gilState);
         }
         state = reinterpret_cast<fmi3FMUState*>(pyState);
-        Py_DECREF(pyStateBytes);
         clearLogBuffer();
     });
 }
 
+// nfal: upstream released pClass_, pInstance_ and pMessages_ here (and again in the destructor, a double
+// release), read the slave's log queue while the exception was still pending (every attribute read
+// failed: SIGSEGV in PyObject_IsTrue(NULL) when a message was queued) and threw FatalError (fmi3Fatal).
+// Here the exception is taken first, the slave's log messages are then delivered, and its str() becomes
+// the error (fmi_functions.cpp logs it once and answers fmi3Error); the instance stays whole and can be freed.
 void PySlaveInstance::handle_py_exception(const std::string& what, PyGILState_STATE gilState) const
 {
-    auto err = PyErr_Occurred();
-    if (err != nullptr) {
-        cleanPyObject();
-
+    std::string message = what + ": failed without a Python exception";
+    if (PyErr_Occurred() != nullptr) {
         PyObject *pExcType, *pExcValue, *pExcTraceback;
         PyErr_Fetch(&pExcType, &pExcValue, &pExcTraceback);
-
-        std::ostringstream oss;
-        oss << "Fatal py exception encountered: ";
-        oss << what << "\n";
+        message = what + ": unknown error";
         if (pExcValue != nullptr) {
-            PyObject* pRepr = PyObject_Repr(pExcValue);
-            PyObject* pyStr = PyUnicode_AsEncodedString(pRepr, "utf-8", nullptr);
-            oss << PyBytes_AsString(pyStr);
-            Py_DECREF(pyStr);
-            Py_DECREF(pRepr);
-        } else {
-            oss << "unknown error";
+            PyObject* pStr = PyObject_Str(pExcValue);
+            PyObject* pBytes = pStr != nullptr ? PyUnicode_AsEncodedString(pStr, "utf-8", "replace") : nullptr;
+            if (pBytes != nullptr) {
+                message = PyBytes_AsString(pBytes);
+            }
+            Py_XDECREF(pBytes);
+            Py_XDECREF(pStr);
         }
-
         PyErr_Clear();
-
         Py_XDECREF(pExcType);
         Py_XDECREF(pExcValue);
         Py_XDECREF(pExcTraceback);
-
-        PyGILState_Release(gilState);
-
-        auto msg = oss.str();
-        throw cppfmu::FatalError(msg.c_str());
     }
+    clearLogBuffer();
+    PyGILState_Release(gilState);
+    throw std::runtime_error(message);
 }
 
 PySlaveInstance::~PySlaveInstance()

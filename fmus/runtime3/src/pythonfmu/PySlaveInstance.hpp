@@ -79,7 +79,7 @@ public:
 
 private:
     std::shared_ptr<IPyState> pyState_;
-    PyObject* pClass_;
+    PyObject* pClass_{};  // nfal: initialised (released by cleanPyObject)
     PyObject* pInstance_{};
     PyObject* pMessages_{};
 

@@ -68,8 +68,10 @@ namespace pythonfmu
                     auto lock = std::unique_lock{ mutex_ };
                     conditionalVariable_.wait(lock, [&] { return destroyRequested_; });
 
-                    PyEval_RestoreThread(mainPyThread);
-                    Py_Finalize();
+                    // nfal: the interpreter is left running, not finalised: finalising it from this exit-time
+                    // destructor crashed non-Python hosts at exit (numpy's, scipy's and numba's extension
+                    // libraries have torn down their state by then), numpy cannot be loaded again into a
+                    // re-initialised interpreter, and the process's end frees everything anyway.
                 }
         }
 
