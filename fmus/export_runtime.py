@@ -15,7 +15,7 @@ imports its own slave module. FMI 2.0 only: the slave module's borrowed ``__dict
 released (``findClass``) and ``%`` is escaped (the FMI 2.0 logger takes a printf format; FMI 3.0's does
 not). FMI 3.0 only: the log queue is read after the exception is taken (it was read with the exception
 pending: SIGSEGV), an import failure is no longer printed away before it is reported, a NULL logger
-callback is allowed, and two leaks are closed.
+callback is allowed, two leaks are closed, and a failed reset leaves no dangling references.
 
 :func:`runtime_library` builds one with CMake for the running Python (once; the result is cached by
 the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU in place of the stock one.

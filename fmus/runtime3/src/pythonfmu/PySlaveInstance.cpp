@@ -154,8 +154,10 @@ void PySlaveInstance::clearLogBuffer() const
 
 void PySlaveInstance::initialize(PyGILState_STATE gilState)
 {
-    Py_XDECREF(pInstance_);
-    Py_XDECREF(pMessages_);
+    // nfal: cleared, not only released: a failed re-creation (fmi3Reset) left them dangling, to be read by
+    // handle_py_exception (the log queue) and released again by the destructor
+    Py_CLEAR(pInstance_);
+    Py_CLEAR(pMessages_);
 
     PyObject* args = PyTuple_New(0);
     PyObject* kwargs = Py_BuildValue("{ss,ss,sn,si}",
