@@ -2,7 +2,8 @@
 
 Each FMU is the same slave (fmus/<slave>.py) packed with pythonfmu3's FMI 3.0 wrapper; FMPy runs both
 builds with the same start values and inputs, and the outputs must agree exactly (the same Python code
-computes them; only the C wrapper and the FMI calls differ).
+computes them; only the C wrapper and the FMI calls differ). In the non-Python hosts (the ``ecos`` command line and
+fmus/hosts/fmi3_host.c) every run must also exit with 0: the patched runtime of fmus/runtime3/ (issue 15).
 """
 
 from __future__ import annotations
