@@ -3,7 +3,7 @@
     python bench/ecos_exit_codes.py [--runs N] [--fmi 2 3] [--out DIR]
 
 Builds the FMUs (FMI 2.0 and FMI 3.0, ``nfal build``), then runs ``ecos simulate`` on each (0.01 s at
-0.5 ms, no CSV) with libpython preloaded, and prints a markdown table of exit codes per FMU: 0 is a
+0.5 ms, ``host_check.run_in_ecos``) with libpython preloaded, and prints a markdown table of exit codes per FMU: 0 is a
 clean exit, -11 a segmentation fault (issue 15, item 1: the embedded interpreter's teardown). The
 HardwareProxy is left out (it needs a rig). Needs ecospy and Debian's libtbb12.
 """
@@ -12,24 +12,18 @@ from __future__ import annotations
 
 import argparse
 import collections
-import subprocess
 import tempfile
 from pathlib import Path
 
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
-from nfal.host_check import ecos_executable, host_environment
+from nfal.host_check import ecos_executable, run_in_ecos
 
 FMUS = [name for name in FMU_SCRIPTS if name != "HardwareProxy"]
 
 
 def exit_codes(ecos: Path, fmu: Path, runs: int) -> collections.Counter:
-    environment, codes = host_environment(), collections.Counter()
-    for _ in range(runs):
-        with tempfile.TemporaryDirectory() as work:
-            done = subprocess.run([str(ecos), "simulate", "--path", str(fmu), "--stopTime", "0.01", "--stepSize",
-                                   "0.0005", "--noCsv"], env=environment, cwd=work, capture_output=True, timeout=600)
-        codes[done.returncode] += 1
-    return codes
+    with tempfile.TemporaryDirectory() as work:
+        return collections.Counter(run_in_ecos(ecos, fmu, Path(work), runs=runs, stop_time=0.01).exit_codes)
 
 
 def main() -> None:

@@ -19,7 +19,8 @@ everything the slave imports from nfal, under the same import names as in the in
                                   instance is released twice: freeing a failed one may crash the host)
 
 ``fmi_version=3`` builds the same slave as an FMI 3.0 FMU with pythonfmu3: the layout above (the FMI 3.0
-binary under ``binaries/x86_64-linux/``, pythonfmu3's own, not patched), plus ``pythonfmu/`` (pythonfmu's
+binary under ``binaries/x86_64-linux/``: the patched pythonfmu3 runtime built from fmus/runtime3/;
+``binaries/x86_64-windows/`` keeps pythonfmu3's own, not patched and not tested), plus ``pythonfmu/`` (pythonfmu's
 Python side, which NfalSlave builds on), ``pythonfmu3/`` (added by pythonfmu3) and the generated slave module
 ``nfal3_<script>.py`` (:func:`nfal.fmus.fmi3.fmi3_script`), named in ``slavemodule.txt``.
 
@@ -51,8 +52,8 @@ from pythonfmu3 import FmuBuilder as Fmi3Builder
 import nfal
 import nfal.hil
 import nfal.models
-from nfal.errors import InvalidParameterError
-from nfal.fmus.export_runtime import PLATFORM, RUNTIME_SOURCES, runtime_library
+from nfal.errors import InvalidParameterError, RuntimeBuildError
+from nfal.fmus.export_runtime import RUNTIMES, runtime_library
 from nfal.fmus.fmi3 import fmi3_script
 
 logger = logging.getLogger(__name__)
@@ -107,19 +108,19 @@ def script_path(name: str) -> Path:
     return path if path.is_absolute() else FMUS_DIR / path
 
 
-def sources(name: str) -> list[Path]:
+def sources(name: str, fmi_version: int = 2) -> list[Path]:
     """Every file the FMU ``name`` is built from (its staleness is judged against these)."""
-    runtime = sorted(p for p in RUNTIME_SOURCES.rglob("*") if p.is_file())
     return [script_path(name), Path(__file__).resolve(), FMUS_DIR / BUNDLE_LOADER, FMUS_DIR / "export_runtime.py",
-            *FOUNDATION_MODULES, *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name), *runtime]
+            *FOUNDATION_MODULES, *(FMUS_DIR / f for f in FMUS_SUPPORT), *_model_files(), *_hil_files(name),
+            *RUNTIMES[fmi_version].source_files()]
 
 
-def is_up_to_date(fmu: Path, name: str) -> bool:
-    """Whether ``fmu`` exists and is newer than every source of ``name``."""
+def is_up_to_date(fmu: Path, name: str, fmi_version: int = 2) -> bool:
+    """Whether ``fmu`` exists and is newer than every source of ``name`` (built for ``fmi_version``)."""
     if not fmu.is_file():
         return False
     built = fmu.stat().st_mtime
-    return all(source.stat().st_mtime < built for source in sources(name))
+    return all(source.stat().st_mtime < built for source in sources(name, fmi_version))
 
 
 def _minimal_package_init() -> str:
@@ -158,14 +159,19 @@ def _stage(name: str, stage: Path) -> Path:
     return staged
 
 
-def _with_runtime(built: Path, name: str, target: Path) -> None:
-    """Copy the FMU ``built`` to ``target`` with the patched runtime as its Linux binary."""
-    binary = f"binaries/{PLATFORM}/{name}.so"
+def _with_runtime(built: Path, name: str, target: Path, fmi_version: int) -> None:
+    """Copy the FMU ``built`` to ``target`` with the patched runtime of ``fmi_version`` as its Linux binary."""
+    binary = f"binaries/{RUNTIMES[fmi_version].platform}/{name}.so"
     with zipfile.ZipFile(built) as source, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as out:
+        replaced = False
         for item in source.infolist():
-            if item.filename != binary:
+            if item.filename == binary:
+                replaced = True
+            else:
                 out.writestr(item, source.read(item))
-        out.write(runtime_library(), binary)
+        if not replaced:  # the builder's layout changed: the stock binary would stay beside ours
+            raise RuntimeBuildError(f"{built.name} has no {binary} to replace with the patched runtime")
+        out.write(runtime_library(fmi_version), binary)
 
 
 def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]:
@@ -189,7 +195,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{name}.fmu"
-    if not force and is_up_to_date(target, name):
+    if not force and is_up_to_date(target, name, fmi_version):
         logger.info("%s is up to date", target)
         return target
     with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:
@@ -207,10 +213,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)
         partial = out / f".{name}.fmu.partial-{os.getpid()}"
-        if fmi_version == 2:
-            _with_runtime(built, name, partial)
-        else:  # pythonfmu3's own binary (the patched runtime is FMI 2.0's)
-            shutil.copy2(built, partial)
+        _with_runtime(built, name, partial, fmi_version)
         os.replace(partial, target)
     logger.info("built %s", target)
     return target

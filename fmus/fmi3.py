@@ -15,11 +15,10 @@ calls that differ in FMI 3.0 and writes an FMI 3.0 modelDescription.xml:
   in FMI 3.0) and an ``<InitialUnknown>`` per output.
 
 pythonfmu3 (0.3.4) calls the same Python entry points (``setup_experiment(start_time)``,
-``enter/exit_initialization_mode``, ``do_step``, ``_get_fmu_state`` ...) and, like pythonfmu, answers
-a Python exception with a fatal status after dropping its references to the instance: the
-:class:`~nfal.fmus.base.NfalSlave` guard that gives them back serves here too; but the reason cannot
-go through the log queue (:meth:`Fmi3Adapter._fail`), so it reaches the host as the wrapper's fatal
-message, ``Fatal py exception encountered: [<call>] <the exception's repr>``.
+``enter/exit_initialization_mode``, ``do_step``, ``_get_fmu_state`` ...). The FMU's binary is our
+patched build of pythonfmu3's runtime (``fmus/runtime3/``, :mod:`nfal.fmus.export_runtime`): as in
+FMI 2.0, a failed call is one logged line ``"<instance>: <call> failed: <reason>"`` with fmi3Error,
+and the instance stays usable.
 """
 
 from __future__ import annotations
@@ -62,14 +61,6 @@ class Fmi3Adapter:
 
     def set_int32(self, vrs, values) -> None:
         self.set_integer(vrs, values)
-
-    def _fail(self, what: str, exc: BaseException) -> None:
-        """NfalSlave's guard, without leaving the reason in the log queue: pythonfmu3 0.3.4 reads the queue
-        while the exception is still pending (``handle_py_exception`` -> ``cleanPyObject`` ->
-        ``clearLogBuffer``), where every attribute read fails and a queued message crashes the host
-        (SIGSEGV in ``PyObject_IsTrue(NULL)``). Its fatal message carries the exception's repr instead."""
-        super()._fail(what, exc)
-        self.log_queue.clear()  # the list the wrapper holds: only this call's messages are in it
 
     def to_xml(self, model_options: dict | None = None) -> Element:
         """The FMI 3.0 modelDescription of the slave (see the module docstring)."""
@@ -142,8 +133,10 @@ def fmi3_script(model: str, fmi2_module: str, docstring: str) -> str:
     """The pythonfmu3 slave script of ``model``: its FMI 2.0 slave class (from the bundle loader module
     ``fmi2_module``) with :class:`Fmi3Adapter` before it, both from the FMU's own nfal. pythonfmu3 finds the class by the literal ``class X(... Fmi3Slave...)``."""
     return (f'"""{model}, FMI 3.0 (nfal build --fmi 3): {docstring}"""\n\n'
-            "from pythonfmu3 import Fmi3SlaveBase\n\n"
-            f"import {fmi2_module} as _bundle\n\n"
+            "from pythonfmu3 import Fmi3SlaveBase\n"
+            "import sys\n\n"
+            f"sys.modules.pop({fmi2_module!r}, None)  # this FMU's own, not a same-named one loaded before\n"
+            f"import {fmi2_module} as _bundle  # noqa: E402\n\n"
             "# the adapter from this FMU's own nfal, as the slave (fmus/bundle_loader.py)\n"
             'Fmi3Adapter = _bundle.load_slave(_bundle.__file__, "nfal.fmus.fmi3", "Fmi3Adapter")\n'
             f"_Slave = _bundle.{model}\n\n\n"

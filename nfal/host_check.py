@@ -1,7 +1,8 @@
 """Run nfal FMUs in non-Python hosts many times and count the crashes (docs/cosimulation.md, "Crash at exit").
 
 Two hosts nobody here wrote the runtime for: a minimal C host (``fmus/hosts/fmi2_host.c``, what the
-FMI Compliance Checker does: dlopen, instantiate, set up, step, terminate, free, dlclose, exit),
+FMI Compliance Checker does: dlopen, instantiate, set up, step, terminate, free, dlclose, exit; and
+``fmus/hosts/fmi3_host.c``, the same for FMI 3.0),
 compiled with the system's C compiler, and the ``ecos`` command line that comes with the ``ecospy``
 wheel (needs Debian's ``libtbb12``). Both load the FMUs' binaries with libpython preloaded and the
 running Python's packages on ``PYTHONPATH`` (:func:`host_environment`, as the README shows). A run
@@ -27,8 +28,8 @@ from nfal.errors import HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
 from nfal.orchestration.libcosim import preload_environment
 
-#: The C host's source.
-C_HOST_SOURCE = FMUS_DIR / "hosts" / "fmi2_host.c"
+#: The C hosts' sources, per FMI version.
+C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
 HOST_TIMEOUT_S = 600
 
 
@@ -56,15 +57,40 @@ def host_environment() -> dict[str, str]:
     return env
 
 
-def compile_c_host(out_dir: Path) -> Path:
-    """Compile ``fmus/hosts/fmi2_host.c`` into ``out_dir``; return the executable."""
+def compile_c_host(out_dir: Path, fmi_version: int = 2) -> Path:
+    """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable."""
     compiler = shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
-    executable = Path(out_dir) / "fmi2_host"
-    subprocess.run([compiler, "-O1", "-Wall", "-o", str(executable), str(C_HOST_SOURCE), "-ldl"], check=True,
+    source = C_HOST_SOURCES[fmi_version]
+    executable = Path(out_dir) / source.stem
+    subprocess.run([compiler, "-O1", "-Wall", "-o", str(executable), str(source), "-ldl"], check=True,
                    capture_output=True, text=True)
     return executable
+
+
+def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[list[str], dict[str, str], list[str]]:
+    """The C host's command line for the FMU extracted to ``folder`` (up to the stop time), {value reference:
+    name} of its Real (Float64) outputs, and the ``VR=TEXT`` arguments that set the String variables
+    ``strings`` before initialisation (FMI 2.0 host only). The host must be the FMU's FMI version's."""
+    description = read_model_description(str(folder))
+    references = {v.name: v.valueReference for v in description.modelVariables if v.type == "String"}
+    if set(strings) - set(references):
+        raise KeyError(f"no String variables {sorted(set(strings) - set(references))} in {folder.name}")
+    version = int(description.fmiVersion[0])
+    if strings and version != 2:
+        raise HostUnavailableError("only the FMI 2.0 C host sets String variables")
+    if host.name != C_HOST_SOURCES[version].stem:
+        raise HostUnavailableError(f"{folder.name} is FMI {description.fmiVersion}: run it in "
+                                   f"{C_HOST_SOURCES[version].stem}, not {host.name}")
+    outputs = {str(v.valueReference): v.name for v in description.modelVariables
+               if v.causality == "output" and v.type in ("Real", "Float64")}
+    platform = "linux64" if version == 2 else "x86_64-linux"
+    binary = folder / "binaries" / platform / f"{description.coSimulation.modelIdentifier}.so"
+    # FMI 2.0 passes the resources as a file URI, FMI 3.0 as a path ending in a separator
+    resources = (folder / "resources").as_uri() if version == 2 else f"{folder / 'resources'}{os.sep}"
+    settings = [f"{references[name]}={value}" for name, value in strings.items()]
+    return [str(host), str(binary), description.guid, resources], outputs, settings
 
 
 def _run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
@@ -73,22 +99,22 @@ def _run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
 
 
 def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time: float = 0.01,
-                  step_size: float = 5e-4, workers: int = 2, runtime: Path | None = None) -> HostRuns:
-    """Run ``fmu`` ``runs`` times in the C host from its default start values; read every Real output.
+                  step_size: float = 5e-4, workers: int = 2, runtime: Path | None = None,
+                  strings: dict[str, str] | None = None) -> HostRuns:
+    """Run ``fmu`` ``runs`` times in the C host of its FMI version (:func:`compile_c_host`) from its default
+    start values; read every Real (Float64) output.
 
-    ``runtime``: a library to run in place of the FMU's binary (e.g. pythonfmu's stock one, to compare).
+    ``runtime``: a library to run in place of the FMU's binary (e.g. pythonfmu's stock one, to compare);
+    ``strings``: String parameters to set first, by name (FMI 2.0), e.g. ``{"port": ...}`` for the HardwareProxy;
+    ``workers``: runs at a time after the first (1 for an FMU that holds a device).
     """
     folder = Path(work_dir) / fmu.stem
     with zipfile.ZipFile(fmu) as archive:
         archive.extractall(folder)
-    description = read_model_description(str(folder))
-    outputs = {str(v.valueReference): v.name for v in description.modelVariables
-               if v.causality == "output" and v.type == "Real"}
-    binary = folder / "binaries" / "linux64" / f"{description.coSimulation.modelIdentifier}.so"
+    command, outputs, settings = _c_host_command(Path(host), folder, strings or {})
     if runtime is not None:
-        shutil.copy2(runtime, binary)
-    command = [str(host), str(binary), description.guid, (folder / "resources").as_uri(), repr(stop_time),
-               repr(step_size), *outputs]
+        shutil.copy2(runtime, command[1])
+    command += [repr(stop_time), repr(step_size), *outputs, *settings]
     first = _run(command, folder)  # alone: it fills numba's on-disk cache (models/numba_cache.py)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         done = [first, *pool.map(lambda _: _run(command, folder), range(runs - 1))]
@@ -123,7 +149,8 @@ def ecos_executable(cache_dir: Path) -> Path:
 
 def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: float,
                 step_size: float = 5e-4) -> HostRuns:
-    """Simulate ``ssp`` ``runs`` times with ``ecos simulate``; ``outputs`` holds each run's CSV columns."""
+    """Simulate ``ssp`` (an SSP archive, or one FMU alone: FMI 2.0 or 3.0) ``runs`` times with ``ecos simulate``;
+    ``outputs`` holds each run's CSV columns."""
     result = HostRuns()
     for k in range(runs):
         folder = Path(work_dir) / f"ecos_{k}"

@@ -208,6 +208,32 @@ def test_libcosim_runs_the_hil_structure_against_the_emulator(fig7_archives, emu
         assert np.all(np.abs(height[(t >= start) & (t < end)] - level) < 5e-6)
 
 
+#: Sessions of the proxy in the C host, one process each (``python bench/proxy_c_host.py`` makes the long count).
+PROXY_C_HOST_RUNS = 4
+
+
+@pytest.mark.slow
+def test_the_proxy_in_a_c_host_talks_to_the_emulator_and_exits_cleanly(fig7_archives, emulator, tmp_path):
+    """A non-Python host (fmus/hosts/fmi2_host.c) sets the proxy's port to the emulator's pty, initialises (HELLO,
+    the first sample), steps 10 ms, terminates (STOP), frees and exits: every process exits with 0, each run a
+    session of its own with a live measurement."""
+    from nfal.errors import HostUnavailableError
+    from nfal.host_check import compile_c_host, run_in_c_host
+
+    try:
+        host = compile_c_host(tmp_path)
+    except HostUnavailableError as exc:
+        pytest.skip(str(exc))
+    rig = emulator(*LONG_WATCHDOG)
+    runs = run_in_c_host(host, fig7_archives["fig7_hil"].parent / "HardwareProxy.fmu", tmp_path,
+                         runs=PROXY_C_HOST_RUNS, workers=1, strings={"port": rig.port})
+    assert runs.exit_codes == [0] * PROXY_C_HOST_RUNS, runs.first_failure[-3000:]
+    for outputs in runs.outputs:
+        assert 0 < outputs["measured_height"] < 1e-3 and outputs["rig_time"] > 0
+    log = rig.stop()  # the firmware's log: each process opened a session (HELLO) and ended it (STOP, fmi2Terminate)
+    assert log.count("HELLO: session open") >= PROXY_C_HOST_RUNS and log.count("STOP: session ended") == PROXY_C_HOST_RUNS
+
+
 @pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"], ids=["Ctrl-C", "SIGTERM"])
 def test_the_emulator_stopped_by_a_signal_reports_the_whole_run(fig7_archives, signal_name):
     import signal

@@ -3,16 +3,19 @@
  * terminate, free, dlclose, exit. A crash anywhere (also in the library's teardown at exit) shows
  * in the exit code. nfal.fmus.host_check compiles and runs it (tests/test_host_compatibility.py, bench/host_compat.py).
  *
- * usage: fmi2_host BINARY GUID RESOURCES_URI STOP_TIME STEP_SIZE [VR ...]
+ * usage: fmi2_host BINARY GUID RESOURCES_URI STOP_TIME STEP_SIZE [VR | VR=TEXT ...]
+ * VR=TEXT sets the String variable VR to TEXT before initialisation (e.g. the HardwareProxy's port);
  * prints "t=<stop>" and then "vr=<value>" (%.17g) for each Real value reference VR;
  * every FMI log message goes to stdout as "log <status> <category>: <message>".
  * Exit codes: 0 ok; 1 library or symbol not found; 2 fmi2Instantiate failed; 3 an FMI call did not
  * return fmi2OK (the call is named on stdout).
  */
-#include <dlfcn.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
+
+#include "host_common.h"
 
 typedef void *Component;
 typedef int Status; /* fmi2OK = 0, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending */
@@ -30,6 +33,7 @@ typedef Status (*SetupExperiment)(Component, int, double, double, int, double);
 typedef Status (*Call)(Component);
 typedef Status (*DoStep)(Component, double, double, int);
 typedef Status (*GetReal)(Component, const unsigned int *, size_t, double *);
+typedef Status (*SetString)(Component, const unsigned int *, size_t, const char *const *);
 typedef void (*FreeInstance)(Component);
 
 static void log_message(void *env, const char *instance, Status status, const char *category, const char *message, ...) {
@@ -42,40 +46,20 @@ static void log_message(void *env, const char *instance, Status status, const ch
     printf(" [%s]\n", instance);
 }
 
-static void *symbol(void *library, const char *name) {
-    void *found = dlsym(library, name);
-    if (!found) {
-        printf("missing symbol %s\n", name);
-        exit(1);
-    }
-    return found;
-}
-
-static void check(Status status, const char *call) {
-    if (status != 0) {
-        printf("%s returned %d\n", call, status);
-        fflush(stdout);
-        exit(3);
-    }
-}
-
 int main(int argc, char **argv) {
     if (argc < 6) {
         printf("usage: %s BINARY GUID RESOURCES_URI STOP_TIME STEP_SIZE [VR ...]\n", argv[0]);
         return 1;
     }
     double stop = atof(argv[4]), step = atof(argv[5]), t = 0.0;
-    void *library = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL);
-    if (!library) {
-        printf("dlopen failed: %s\n", dlerror());
-        return 1;
-    }
+    void *library = open_library(argv[1]);
     Instantiate instantiate = (Instantiate)symbol(library, "fmi2Instantiate");
     SetupExperiment setup = (SetupExperiment)symbol(library, "fmi2SetupExperiment");
     Call enter = (Call)symbol(library, "fmi2EnterInitializationMode");
     Call exit_init = (Call)symbol(library, "fmi2ExitInitializationMode");
     DoStep do_step = (DoStep)symbol(library, "fmi2DoStep");
     GetReal get_real = (GetReal)symbol(library, "fmi2GetReal");
+    SetString set_string = (SetString)symbol(library, "fmi2SetString");
     Call terminate = (Call)symbol(library, "fmi2Terminate");
     FreeInstance free_instance = (FreeInstance)symbol(library, "fmi2FreeInstance");
 
@@ -84,6 +68,14 @@ int main(int argc, char **argv) {
     if (!c) {
         printf("fmi2Instantiate failed\n");
         return 2;
+    }
+    for (int i = 6; i < argc; ++i) {
+        const char *text = strchr(argv[i], '=');
+        if (text) {
+            unsigned int vr = (unsigned int)atoi(argv[i]);
+            ++text;
+            check(set_string(c, &vr, 1, &text), "fmi2SetString");
+        }
     }
     check(setup(c, 0, 0.0, 0, 1, stop), "fmi2SetupExperiment");
     check(enter(c), "fmi2EnterInitializationMode");
@@ -94,6 +86,7 @@ int main(int argc, char **argv) {
     }
     printf("t=%.17g\n", n * step);
     for (int i = 6; i < argc; ++i) {
+        if (strchr(argv[i], '=')) continue;
         unsigned int vr = (unsigned int)atoi(argv[i]);
         double value = 0.0;
         check(get_real(c, &vr, 1, &value), "fmi2GetReal");
