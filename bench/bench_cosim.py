@@ -71,18 +71,16 @@ def libcosim_bare(archive: Path, stop: float) -> tuple[float, float, float]:
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimManipulator import CosimManipulator
 
-    from nfal.orchestration.libcosim import _convert, _set_initial, _Structure, _variables
+    from nfal.orchestration.libcosim import _apply_bindings, _bindings, _Variables
+    from nfal.orchestration.ssp import read_ssp
 
     CosimLogging.log_output_level(CosimLogging.CosimLogLevel.ERROR)  # as run_ssp
     started = time.perf_counter()
+    with read_ssp(archive) as structure:
+        bindings = _bindings(structure.system)
     execution = CosimExecution.from_ssp_file(str(archive), round(STEP * 1e9))
-    variables = _variables(execution)
-    for element, sets in _Structure(archive).parameter_bindings().items():
-        for label, values in sets:
-            for name, _, text in values:
-                variable = variables.get(f"{element}.{name}")
-                if variable is not None and variable.causality in (0, 1):
-                    _set_initial(execution, variable, _convert(text, variable.type, label), f"{element}.{name}")
+    variables = _Variables(execution)
+    _apply_bindings(execution, variables, bindings)
     manipulator = CosimManipulator.create_override()
     execution.add_manipulator(manipulator)
     reference, driven = Staircase(), variables[REFERENCE]

@@ -1,12 +1,16 @@
 """Hardware-in-the-loop benchmark: fig7_hil paced at 2 kHz against `nfal rig-emulator` on a pty. Prints markdown.
 
     python bench/bench_hil.py [--seconds 60] [--rt-priority 50] [--rounds 6] [--round-seconds 10]
+                              [--truth slow|reynolds] [--ab fifo|truth]
 
 Goal (issue): zero overruns and p99 step-start jitter <= 100 us over 60 s at 2 kHz on this 2-core machine.
 Baseline, measured in the same run: the simulated loop fig7_slow paced the same way for the same time (no
 link, no emulator). Also in the same run: a paced loop that does nothing (what the machine itself gives),
 and an A/B of HIL under normal scheduling and under SCHED_FIFO (``--rt-priority``; 0 leaves it out) in
-short runs that alternate, since this virtual machine's speed drifts from minute to minute. Reported per
+short runs that alternate, since this virtual machine's speed drifts from minute to minute (``--ab truth``:
+the A/B is the emulator's truth instead, rig_slow against rig_reynolds, both at ``--rt-priority``; whatever
+differs between the two columns is the truth's doing). ``--truth`` chooses the emulator's truth of the HIL
+case and of the SCHED_FIFO A/B (default slow). Reported per
 case: overruns, step-start jitter p50/p99/max, step duration mean/max, time in each FMU's doStep, the CPU
 the process used, the CPU time the hypervisor took (steal), and for HIL the link's health and the
 emulator's own pacing.
@@ -25,11 +29,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import timed_emulator
 from machine import describe
 
 from nfal.build import build_all
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
+from nfal.errors import FmuCallError
 from nfal.orchestration.pacing import RealTimePacer, realtime_priority, realtime_priority_refusal
 
 #: The reference: the staircase of Figs. 9-10, its levels repeated to fill the run.
@@ -82,11 +88,20 @@ def floor(seconds: float, rt_priority: int | None) -> dict:
 
 
 def paced(archive: Path, seconds: float, out: Path, parameters: dict, rt_priority: int | None) -> dict:
+    """One paced run; a run the link ends early (this machine stalls for longer than the proxy allows) still
+    reports its pacing up to there, with ``error`` set."""
     summary: dict = {}
     with measured(summary):
-        result = run_structure(archive, stop_time=seconds, inputs={"Controller.reference": reference(seconds)},
-                               parameters=parameters, realtime=True, plot=False, progress=False, out_dir=out,
-                               rt_priority=rt_priority)
+        try:
+            result = run_structure(archive, stop_time=seconds, inputs={"Controller.reference": reference(seconds)},
+                                   parameters=parameters, realtime=True, plot=False, progress=False, out_dir=out,
+                                   rt_priority=rt_priority, overwrite=True)
+        except FmuCallError:
+            result = None
+    if result is None:
+        summary.update(json.loads((out / "summary.json").read_text()))
+        summary["error"] = f"ended at t = {summary['end_time_s']:.3f} s: {summary['error']}"
+        return summary
     summary.update(result.summary)
     if "proxy" in summary["timing"]:
         from nfal.fig7 import link_summary
@@ -95,12 +110,14 @@ def paced(archive: Path, seconds: float, out: Path, parameters: dict, rt_priorit
     return summary
 
 
-def hil(archives: dict, seconds: float, out: Path, rt_priority: int | None) -> dict:
-    """fig7_hil against the emulator in a child process (both at ``rt_priority``); the emulator's report in "rig"."""
-    command = [sys.executable, "-m", "nfal", "rig-emulator", "--truth", str(archives["rig_slow"]), "--json"]
+def hil(archives: dict, seconds: float, out: Path, rt_priority: int | None, truth: str = "slow") -> dict:
+    """fig7_hil against the emulator in a child process (both at ``rt_priority``) playing the rig structure
+    ``rig_<truth>``; the emulator's report in "rig"."""
+    command = [sys.executable, str(Path(__file__).with_name("timed_emulator.py")), "--truth",
+               str(archives[f"rig_{truth}"]), "--json"]
     if rt_priority is not None:
         command += ["--rt-priority", str(rt_priority)]
-    emulator = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    emulator = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         port = emulator.stdout.readline().strip()
         emulator.stdout.readline()  # the banner
@@ -110,8 +127,9 @@ def hil(archives: dict, seconds: float, out: Path, rt_priority: int | None) -> d
         summary["emulator_cpu_share"] = (cpu_seconds(emulator.pid) - cpu_at_start) / (time.perf_counter() - started)
     finally:
         emulator.terminate()
-        output = emulator.communicate(timeout=30)[0]
+        output, errors = emulator.communicate(timeout=30)
     summary["rig"] = json.loads(output[output.index("{"):])
+    summary["rig"]["plant_cpu"] = timed_emulator.parse(errors)
     return summary
 
 
@@ -127,7 +145,10 @@ def row(name: str, summary: dict, baseline: dict | None) -> str:
 
 
 def hil_details(name: str, summary: dict) -> str:
-    link, pacing = summary["link"], summary["rig"]["pacing"]
+    pacing = summary["rig"]["pacing"]
+    if summary.get("error"):
+        return f"- {name}: the run {summary['error']}. {plant_cpu(summary)}"
+    link = summary["link"]
     return (f"- {name}: link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} "
             f"rig faults; at most {link['samples_missed_max']} samples missed in a row; sample age mean "
             f"{link['measurement_age_mean_s'] * 1e6:.0f} µs, max {link['measurement_age_max_s'] * 1e6:.0f} µs; "
@@ -135,25 +156,39 @@ def hil_details(name: str, summary: dict) -> str:
             f"core; tick mean {pacing['step_duration_mean_s'] * 1e6:.0f} µs, max {pacing['step_duration_max_s'] * 1e6:.0f} "
             f"µs; {pacing['overruns']} late ticks; {pacing.get('resyncs', 0)} stalls over 2 ms "
             f"({pacing.get('time_given_up_s', 0.0) * 1e3:.1f} ms given up); tick-start lateness p50 "
-            f"{pacing['jitter_p50_s'] * 1e6:.0f} µs, p99 {pacing['jitter_p99_s'] * 1e6:.0f} µs (sleep only, no busy wait)")
+            f"{pacing['jitter_p50_s'] * 1e6:.0f} µs, p99 {pacing['jitter_p99_s'] * 1e6:.0f} µs (sleep only, no busy wait). "
+            f"{plant_cpu(summary)}")
 
 
-def fifo_rounds(archives: dict, rounds: int, seconds: float, priority: int, folder: Path) -> list[str]:
-    """HIL under normal scheduling and under SCHED_FIFO, alternating, ``rounds`` times: markdown rows."""
-    lines, totals = [], {None: [], priority: []}
+def plant_cpu(summary: dict) -> str:
+    """The truth's Plant doStep in CPU time per tick, as the emulator measured it."""
+    cpu = summary["rig"]["plant_cpu"]
+    if not cpu:
+        return "Plant doStep CPU time: not reported"
+    return (f"Plant doStep CPU time per tick: mean {cpu['mean_us']:.0f} µs, max {cpu['max_us']:.0f} µs, "
+            f"{cpu['over_500_us']} of {cpu['calls']} over the 500 µs tick")
+
+
+def ab_rounds(archives: dict, rounds: int, seconds: float, cases: tuple, folder: Path) -> list[str]:
+    """fig7_hil under each of two ``cases`` ((truth, SCHED_FIFO priority or None) each), alternating, ``rounds``
+    times: markdown rows."""
+    lines, totals = [], {case: [] for case in cases}
     for number in range(1, rounds + 1):
         cells = []
-        for scheduling in (None, priority):
-            summary = hil(archives, seconds, folder / "ab", scheduling)
-            totals[scheduling].append(summary["realtime"])
+        for truth, priority in cases:
+            summary = hil(archives, seconds, folder / "ab", priority, truth)
+            totals[truth, priority].append(summary["realtime"])
             r = summary["realtime"]
-            cells.append(f"{r['overruns']} | {r['jitter_p99_s'] * 1e6:.0f} | {r['jitter_max_s'] * 1e6:.0f}")
+            cpu = summary["rig"]["plant_cpu"] or {"max_us": float("nan")}
+            ended = f" (link lost at {summary['end_time_s']:.2f} s)" if summary.get("error") else ""
+            cells.append(f"{r['overruns']}{ended} | {r['jitter_p99_s'] * 1e6:.0f} | {r['jitter_max_s'] * 1e6:.0f} | "
+                         f"{summary['rig']['pacing']['overruns']} | {cpu['max_us']:.0f}")
         lines.append(f"| {number} | " + " | ".join(cells) + " |")
     cells = []
     for reports in totals.values():
         p99 = statistics.median(r["jitter_p99_s"] for r in reports)
         cells.append(f"**{sum(r['overruns'] for r in reports)}** | {p99 * 1e6:.0f} (median) | "
-                     f"{max(r['jitter_max_s'] for r in reports) * 1e6:.0f}")
+                     f"{max(r['jitter_max_s'] for r in reports) * 1e6:.0f} | - | -")
     return lines + ["| all | " + " | ".join(cells) + " |"]
 
 
@@ -164,6 +199,10 @@ def main() -> int:
                         "(default 50; 0: leave it out)")
     parser.add_argument("--rounds", type=int, default=6, help="rounds of the A/B comparison (default 6)")
     parser.add_argument("--round-seconds", type=float, default=10.0, help="length of each A/B run (default 10)")
+    parser.add_argument("--truth", choices=("slow", "reynolds"), default="slow",
+                        help="the emulator's truth (nfal rig-emulator --truth) for the HIL run and the SCHED_FIFO A/B")
+    parser.add_argument("--ab", choices=("fifo", "truth"), default="fifo", help="what the A/B rounds compare: normal "
+                        "scheduling against SCHED_FIFO (default), or the slow truth against the Reynolds one")
     args = parser.parse_args()
     fifo = args.rt_priority or None
     refusal = fifo and realtime_priority_refusal(fifo)
@@ -173,11 +212,15 @@ def main() -> int:
     print(f"machine: {describe()}; load average {os.getloadavg()[0]:.2f}\n")
     with tempfile.TemporaryDirectory(prefix="nfal-bench-hil-") as temp:
         folder = Path(temp)
-        archives = build_all(folder / "build", structures=("fig7_slow", "fig7_hil", "rig_slow"))
+        archives = build_all(folder / "build", structures=("fig7_slow", "fig7_hil", "rig_slow", "rig_reynolds"))
         baseline = paced(archives["fig7_slow"], args.seconds, folder / "sim", {}, None)
         empty = floor(args.seconds, None)
-        hardware = hil(archives, args.seconds, folder / "hil", None)
-        ab = fifo_rounds(archives, args.rounds, args.round_seconds, fifo, folder) if fifo else []
+        hardware = hil(archives, args.seconds, folder / "hil", None, args.truth)
+        if args.ab == "truth":
+            cases = (("slow", fifo), ("reynolds", fifo))
+        else:
+            cases = ((args.truth, None), (args.truth, fifo)) if fifo else ()
+        ab = ab_rounds(archives, args.rounds, args.round_seconds, cases, folder) if cases else []
     print(f"{args.seconds:g} s paced at 2 kHz (`python bench/bench_hil.py --seconds {args.seconds:g}`); jitter = "
           "step-start lateness; ratio = p99 jitter / the baseline's; steal = CPU time the hypervisor took, share of "
           "both CPUs\n")
@@ -186,14 +229,25 @@ def main() -> int:
     print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
     print(row("fig7_slow paced, no hardware (**baseline**)", baseline, baseline))
     print(row("empty paced loop: what the machine itself gives", empty, baseline))
-    print(row("fig7_hil against the emulator on a pty", hardware, baseline))
+    print(row(f"fig7_hil against the emulator on a pty (truth {args.truth})", hardware, baseline))
     print("\n" + hil_details("fig7_hil", hardware))
-    if ab:
+    if ab and args.ab == "truth":
+        print(f"\nThe emulator's truth, rig_slow against rig_reynolds (fig7_hil, scheduling "
+              f"{f'SCHED_FIFO {fifo}' if fifo else 'normal'}), {args.rounds} rounds of {args.round_seconds:g} s each, "
+              "alternating; the last two columns of each, the emulator's late ticks and its Plant's longest doStep in "
+              "CPU time:\n")
+        print("| round | overruns, slow | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] | overruns, Reynolds "
+              "| p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+        print("\n".join(ab))
+    elif ab:
         print(f"\nSCHED_FIFO {fifo} (`--rt-priority {fifo}` on both `nfal run` and `nfal rig-emulator`) against normal "
-              f"scheduling, fig7_hil, {args.rounds} rounds of {args.round_seconds:g} s each, the two alternating so that "
-              "both see the machine alike:\n")
-        print("| round | overruns, normal | p99 [µs] | max [µs] | overruns, SCHED_FIFO | p99 [µs] | max [µs] |")
-        print("|---|---:|---:|---:|---:|---:|---:|")
+              f"scheduling, fig7_hil (truth {args.truth}), {args.rounds} rounds of {args.round_seconds:g} s each, the two "
+              "alternating so that both see the machine alike; the last two columns of each, the emulator's late ticks "
+              "and its Plant's longest doStep in CPU time:\n")
+        print("| round | overruns, normal | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] | overruns, SCHED_FIFO "
+              "| p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
         print("\n".join(ab))
     print(f"\nload average after: {os.getloadavg()[0]:.2f}")
     return 0

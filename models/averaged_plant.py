@@ -26,10 +26,13 @@ import math
 import numba
 import numpy as np
 
+from . import numba_cache
 from .calibration import CalibrationFunction
 from .film_force_table import FilmForceTable, table_K
 from .plant import DEFAULT_REST_GAP, SimplifiedPlant
 from .rig import RigParameters
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 
 class AveragedFilmPlant(SimplifiedPlant):
@@ -54,8 +57,10 @@ class AveragedFilmPlant(SimplifiedPlant):
         # |zeta / delta| at the table's squeeze numbers, for oscillation()
         self._log_sigmas = np.log(table.sigmas)
         self._response = np.abs([table.response(sigma) for sigma in table.sigmas])
-        # numba loads (or compiles) the kernels at their first call, ~0.5 s: here, not in a real-time step
+        # numba loads (or compiles) the kernels at their first call, ~0.5 s: here, not in a real-time step (the
+        # table's own, used near the surface, cost 3 ms in the lift-off tick of the emulated rig when left lazy)
         self.free_flight(rig.reference_clearance, 0.0, 0.0, 1e-6, 1, 0.0)
+        table.scalar(float(rig.squeeze_number(rig.reference_clearance)), 0.0)
 
     def levitation_force(self, height, excitation):
         """Period-averaged film force pi r0^2 p_a delta^2 K(sigma, delta) [N] (eq. 12) at finite delta."""

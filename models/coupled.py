@@ -33,10 +33,13 @@ import numpy as np
 
 from nfal.errors import ConvergenceError, GapClosedError, InvalidParameterError, require_finite, require_positive
 
+from . import numba_cache
 from .excitation import ExcitationShape
 from .perturbation import first_order_pressure, radial_grid
 from .reynolds import check_grid, discrete_mean_correction
 from .rig import RigParameters
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
 

@@ -30,10 +30,13 @@ from scipy import interpolate
 
 from nfal.errors import InvalidParameterError
 
+from . import numba_cache
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure
 from .rig import RigParameters
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
 

@@ -42,8 +42,11 @@ from scipy.linalg import eigvalsh_tridiagonal
 
 from nfal.errors import ConvergenceError, InvalidParameterError
 
+from . import numba_cache
 from .excitation import ExcitationShape
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
+
+numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
 

@@ -89,7 +89,7 @@ def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time
         shutil.copy2(runtime, binary)
     command = [str(host), str(binary), description.guid, (folder / "resources").as_uri(), repr(stop_time),
                repr(step_size), *outputs]
-    first = _run(command, folder)  # alone: it fills numba's on-disk cache in the extracted folder
+    first = _run(command, folder)  # alone: it fills numba's on-disk cache (models/numba_cache.py)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         done = [first, *pool.map(lambda _: _run(command, folder), range(runs - 1))]
     result = HostRuns()

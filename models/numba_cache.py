@@ -1,0 +1,52 @@
+"""numba's on-disk cache of the film kernels, kept across FMU extractions.
+
+numba caches a ``cache=True`` kernel next to its source (``__pycache__``) and checks it against the
+source's content hash. An FMU carries its own copy of nfal, which every host run unpacks into a new
+temporary folder: each run would compile the kernels again in its set-up (the harmonic-balance plant's
+RK4: ~1 s idle, 2 s on a loaded machine; more than the 3.7 s staircase's whole loop). This locator, tried
+before numba's own, keeps the cache of this package's kernels in one folder per source *content*
+(``$NFAL_CACHE_DIR`` or ``~/.cache/nfal``, ``numba/<module>-<sha256>``): the checkout and every FMU's
+copy of the same source share one cache, different sources never meet. Where that folder cannot be
+written, numba's own locators take over.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+from numba.core import caching
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def cache_root() -> Path:
+    """The user-wide cache folder (shared with :func:`~nfal.models.film_force_table.cached_table`)."""
+    return Path(os.environ.get("NFAL_CACHE_DIR") or Path.home() / ".cache" / "nfal")
+
+
+class ContentKeyedCacheLocator(caching.InTreeCacheLocator):
+    """numba cache locator for the kernels of this package: a folder keyed by the source file's content."""
+
+    def __init__(self, py_func, py_file) -> None:
+        super().__init__(py_func, py_file)
+        digest = hashlib.sha256(Path(py_file).read_bytes()).hexdigest()[:24]
+        self._cache_path = str(cache_root() / "numba" / f"{Path(py_file).stem}-{digest}")
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        try:
+            ours = Path(py_file).resolve().parent == PACKAGE_DIR
+        except OSError:
+            return None
+        return super().from_function(py_func, py_file) if ours else None
+
+
+def install() -> None:
+    """Try :class:`ContentKeyedCacheLocator` first for every kernel defined after this (idempotent; a numba
+    without the list of locators keeps its own behaviour). Called by each kernel module before its kernels,
+    not by the package: modules without kernels (the Controller's, the proxy's) do not import numba."""
+    locators = getattr(getattr(caching, "CacheImpl", None), "_locator_classes", None)
+    if isinstance(locators, list) and ContentKeyedCacheLocator not in locators:
+        locators.insert(0, ContentKeyedCacheLocator)

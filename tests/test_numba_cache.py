@@ -1,0 +1,35 @@
+"""The film kernels' numba cache is keyed by source content, so an FMU's unpacked copy of nfal reuses it."""
+
+import shutil
+from pathlib import Path
+
+from nfal.models import film_force_table, numba_cache
+from nfal.models.numba_cache import ContentKeyedCacheLocator
+
+
+def test_the_kernels_use_the_content_keyed_locator():
+    assert isinstance(film_force_table.table_K._cache._impl.locator, ContentKeyedCacheLocator)
+
+
+def test_the_cache_folder_follows_the_content_not_the_place(tmp_path, monkeypatch):
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path / "cache"))
+    kernel, source = film_force_table.table_K.py_func, Path(film_force_table.__file__)
+    copy = tmp_path / "unpacked" / "nfal" / "models" / source.name  # where a host unpacks an FMU's copy
+    copy.parent.mkdir(parents=True)
+    shutil.copy(source, copy)
+    edited = tmp_path / "edited" / source.name
+    edited.parent.mkdir()
+    edited.write_text(source.read_text() + "\n# edited\n")
+    here, there, other = (ContentKeyedCacheLocator(kernel, str(path)).get_cache_path() for path in (source, copy, edited))
+    assert here == there != other
+    assert Path(here).parent == tmp_path / "cache" / "numba"
+
+
+def test_only_this_package_s_sources_are_located(tmp_path):
+    kernel = film_force_table.table_K.py_func
+    elsewhere = tmp_path / "film_force_table.py"
+    shutil.copy(film_force_table.__file__, elsewhere)
+    assert ContentKeyedCacheLocator.from_function(kernel, str(elsewhere)) is None  # numba's own locators take it
+    assert ContentKeyedCacheLocator.from_function(kernel, film_force_table.__file__) is not None
+    numba_cache.install()  # idempotent
+    assert numba_cache.caching.CacheImpl._locator_classes.count(ContentKeyedCacheLocator) == 1
