@@ -4,8 +4,10 @@
     python bench/identified_design.py --calibration k.json    (a file from `nfal identify` instead)
 
 fig7_slow over the Fig. 9-10 staircase with the emulator's default truth as its plant (eq. 17 and the
-rig-like excess damping, ``ssp/rig_truth.ssv``), sensor noise off, four Controllers: the continuous
-(paper's) and the sampled placement, each on eq. (6) and given the damping through a calibration file.
+rig-like excess damping, ``ssp/rig_truth.ssv``), sensor noise off: first the baseline, the paper's law
+(no lead, no lift-off mode) with the continuous placement on eq. (6); then four Controllers with their
+defaults: the continuous and the sampled placement, each on eq. (6) and given the damping through a
+calibration file. IAE ratios are against the baseline of the same run.
 Without ``--calibration`` that file is a perfect identification: ``ExcessDamping.rig_like()`` tabulated at
 7 heights over 50-200 um. ``--no-lag`` makes the transducer and analog filter transparent (what is left
 of the overshoot is then the design's own).
@@ -50,15 +52,22 @@ def main() -> None:
         calibration = args.calibration or perfect_identification(Path(tmp) / "identified.json")
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
         truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {})}
-        print(f"{'placement':<11} {'damping':<11} {'IAE [um s]':>10}  overshoot % per step")
+        paper_law = {"Controller.actuator_lag": 0.0, "Controller.lift_off_time": 0.0}
+        rows = [("continuous", "eq. (6)", "paper's", {"Controller.placement": "continuous", **paper_law})]
         for placement in ("continuous", "sampled"):
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
-                parameters = {**truth, "Controller.placement": placement, **extra}
-                result = run(archive, f"{tmp}/{placement}-{len(extra)}", reference, parameters=parameters)
-                metrics = loop_metrics(result.table(), reference)
-                overshoots = ", ".join(f"{step['overshoot_percent']:.1f}" for step in metrics["steps"])
-                print(f"{placement:<11} {damping:<11} {metrics['iae'] * 1e6:>10.3f}  {overshoots}")
-
+                rows.append((placement, damping, "with lead", {"Controller.placement": placement, **extra}))
+        print(f"{'placement':<11} {'damping':<11} {'law':<10} {'IAE [um s]':>10} {'ratio':>6}  overshoot % per step;"
+              " 2 % settling [ms]")
+        baseline = None
+        for number, (placement, damping, law, parameters) in enumerate(rows):
+            result = run(archive, f"{tmp}/{number}", reference, parameters={**truth, **parameters})
+            metrics = loop_metrics(result.table(), reference)
+            baseline = baseline or metrics["iae"]
+            overshoots = ", ".join(f"{step['overshoot_percent']:.1f}" for step in metrics["steps"])
+            settling = ", ".join(f"{(step['settling_time_s'] or float('nan')) * 1e3:.0f}" for step in metrics["steps"])
+            print(f"{placement:<11} {damping:<11} {law:<10} {metrics['iae'] * 1e6:>10.3f} {metrics['iae'] / baseline:>6.2f}"
+                  f"  {overshoots}; {settling}", flush=True)
 
 if __name__ == "__main__":
     main()

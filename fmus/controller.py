@@ -28,18 +28,21 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
 from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import MAX_EXCITATION_M, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
+from nfal.models.control_law import (LIFT_OFF_TIME_S, MAX_EXCITATION_M, SATURATION_WARNING_S, ControllerState,
+                                     DiscreteControlLaw)
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.stability import realizable_schedule
 from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, SAMPLING_RATE_HZ,
                                 WORK_RANGE_M)
-from nfal.models.transducer import METRES_PER_VOLT
+from nfal.models.transducer import METRES_PER_VOLT, Transducer
 
 DESIGNS = ("gain-scheduled", "fixed")
 PLACEMENTS = ("continuous", "sampled")
@@ -76,6 +79,12 @@ class Controller(NfalSlave):
         self.add_parameter("filter_cutoff", FILTER_CUTOFF_HZ, unit="Hz", description="derivative filter cut-off, eq. (22) (Table 2)")
         self.add_parameter("max_excitation", MAX_EXCITATION_M, unit="m", description="actuator saturation |a|max")
         self.add_parameter("metres_per_volt", METRES_PER_VOLT, unit="m/V", description="|a| per volt at resonance (assumption)")
+        self.add_parameter("reference_filter_time", 0.0, unit="s", description="time constant of the "
+                           "critically damped pair the reference passes through (smoother steps); 0: the reference as given")
+        self.add_parameter("lift_off_time", LIFT_OFF_TIME_S, unit="s", description="time constant of the lift-off "
+                           "reference pair when the first sample finds the object below reference_min; 0: no lift-off mode")
+        self.add_parameter("actuator_lag", Transducer().time_constant_s(), unit="s", description="the transducer's "
+                           "amplitude lag 2 Q / omega_r that a lead in the law cancels; 0: no lead (the paper's law)")
         self.add_parameter("reference_min", WORK_RANGE_M[0], unit="m", description="smallest accepted reference")
         self.add_parameter("reference_max", WORK_RANGE_M[1], unit="m", description="largest accepted reference")
         self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) when the drive "
@@ -116,9 +125,11 @@ class Controller(NfalSlave):
             self._gains = (key, self._design(design_height, sample_rate, rig, model, spec, (low, high)))
         gains = self._gains[1]
         require_positive("metres_per_volt", self.metres_per_volt)
+        lift_off, smoothing = (_optional_time(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
-                                      reference_range_m=(low, high))
+                                      reference_range_m=(low, high), reference_filter_s=smoothing, lift_off_time_s=lift_off,
+                                      actuator_lag_s=self.actuator_lag)
         reference = self._checked_reference()
         equilibrium = float(SimplifiedPlant(rig, calibration).equilibrium_excitation(reference))
         self._state = self.law.initial_state(reference, equilibrium)
@@ -197,14 +208,22 @@ class Controller(NfalSlave):
         state = self._state
         return {"held": self._held, "saturated_since": self._saturated_since, "warned": self._warned,
                 "last_at_limit": self._last_at_limit,
-                "law": None if state is None else [state.integrator_m, state.derivative_m_per_s, state.previous_measurement_m]}
+                "law": None if state is None else state.as_list()}
 
     def set_internal_state(self, state: dict) -> None:
         self._held = float(state["held"])
         self._saturated_since, self._warned = state.get("saturated_since"), bool(state.get("warned", False))
         self._last_at_limit = float(state.get("last_at_limit", 0.0))
         law = state["law"]
-        self._state = None if law is None else ControllerState(float(law[0]), float(law[1]), None if law[2] is None else float(law[2]))
+        self._state = None if law is None else ControllerState.from_list(law)
         self._cache = None
         if self.law is not None:
             self._clock = SampleClock(self.law.period_s, self.start_time)
+
+
+def _optional_time(name: str, value: float) -> float | None:
+    """A time constant parameter [s]: None for 0 (off), else the value if finite and > 0."""
+    number = float(value)
+    if not (math.isfinite(number) and number >= 0.0):
+        raise InvalidParameterError(name, value, "a finite time >= 0 s (0: off)")
+    return number or None

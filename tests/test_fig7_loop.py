@@ -19,7 +19,7 @@ from nfal.orchestration import run_structure
 ONE_STEP = Staircase((60e-6, 100e-6), hold_s=0.6, lead_s=0.1)
 #: The FMU loop with the blocks the pure-Python loop leaves out made transparent.
 AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.analog_cutoff": 0.0,
-                "SensorChain.resolution": 0.0}
+                "SensorChain.resolution": 0.0, "Controller.actuator_lag": 0.0, "Controller.reference_filter_time": 0.0}
 
 
 def pure_loop(reference: Staircase, seed: int = 0):

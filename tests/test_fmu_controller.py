@@ -15,12 +15,13 @@ from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.fmus.controller import Controller
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
-from nfal.models.control_law import DiscreteControlLaw
+from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
 from nfal.models.excitation import parse_shape
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
+from nfal.models.transducer import Transducer
 
 RIG = RigParameters()
 PERIOD = 5e-4  # 2 kHz
@@ -37,7 +38,8 @@ def make_law(design="gain-scheduled"):
         gains = fixed_design(120e-6, RIG, calibration, spec)
     else:
         gains = design_schedule(None, RIG, calibration, spec)
-    return DiscreteControlLaw(gains, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_range_m=(50e-6, 200e-6))
+    return DiscreteControlLaw(gains, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_range_m=(50e-6, 200e-6),
+                              lift_off_time_s=LIFT_OFF_TIME_S, actuator_lag_s=Transducer().time_constant_s())
 
 
 def reference_commands(law, references, measured):
@@ -266,7 +268,8 @@ def test_long_saturation_is_counted_and_warned_once():
     """Measured far below the reference: the drive sits at max_excitation; saturated_time counts it, one
     warning goes to the FMU log at saturation_warning_time, and a return below the limit for longer than
     SATURATION_GAP_S ends the episode."""
-    slave = initialised(reference=100e-6, measured_height=100e-6, saturation_warning_time=0.01, max_excitation=5e-6)
+    slave = initialised(reference=100e-6, measured_height=100e-6, saturation_warning_time=0.01, max_excitation=5e-6,
+                        lift_off_time=0.0)  # 20 um at the first sample would otherwise be a lift-off, not saturated
     logged = []
     slave.log = lambda message, status=None, *args: logged.append((message, status))
     slave.measured_height = 20e-6

@@ -246,3 +246,32 @@ def test_the_emulator_stopped_by_a_signal_reports_the_whole_run(fig7_archives, s
     assert rig.process.returncode == 0
     assert report["ticks"] > 500 and report["pacing"]["steps"] == report["ticks"]  # 0.5 s at 2 kHz, less start-up
     assert "dropped" in report["decoder"] and "dropped" in report["faults"]
+
+
+@pytest.mark.slow
+def test_compare_runs_each_controller_on_the_rig(fig7_archives, emulator, tmp_path, capsys):
+    """`nfal compare --port`: one run per controller on the rig from rest, each kept, metrics as in simulation."""
+    rig = emulator("--param", "SensorChain.noise_peak=0", *LONG_WATCHDOG)
+    runs = tmp_path / "runs"
+    assert main(["compare", "--port", rig.port, "--controllers", "gs,120", "--levels", "60e-6,80e-6", "--hold", "0.3",
+                 "--build-dir", str(fig7_archives["fig7_hil"].parent), "--runs-dir", str(runs),
+                 "--param", f"proxy.max_missed_samples={MISSED}", "--json"]) == 0
+    output = json.loads(capsys.readouterr().out)
+    assert output["rig"] == rig.port and output["reference"]["lead_s"] == 1.0
+    for key in ("gs", "120"):
+        [step] = output["controllers"][key]["steps"]
+        assert step["overshoot_percent"] < 25 and step["settling_time_s"] is not None
+        assert (runs / key / "results.csv").is_file()
+
+
+@pytest.mark.slow
+def test_the_hil_loop_lifts_off_from_rest_without_passing_the_first_level_by_ten_percent(fig7_archives, emulator,
+                                                                                          tmp_path):
+    rig = emulator("--param", "SensorChain.noise_peak=0", *LONG_WATCHDOG)
+    reference = Staircase((60e-6, 70e-6), hold_s=0.2, lead_s=1.0)
+    result = _hil(fig7_archives, rig.port, tmp_path / "run", reference=reference,
+                  **{"proxy.max_missed_samples": MISSED})
+    lead = result.table().time < 1.0
+    height = np.asarray(result[HARDWARE.measured])[lead]
+    assert height[0] < 10e-6 and height.max() <= 66e-6  # from rest on the surface to the 60 um level
+    assert abs(height[-1] - 60e-6) < 1e-6

@@ -3,21 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import datetime
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, print_json,
-                                  print_step_table, progress_bar, rig_from_args)
+from nfal.commands.common import (RIG_OPTIONS, add_output_options, add_rig_options, finite_float, number_list,
+                                  print_json, print_step_table, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
-from nfal.models.table2 import (  # light
-    CLOSED_LOOP_CUTOFF_HZ,
-    FILTER_CUTOFF_HZ,
-    MAX_EXCITATION_M,
-    NOISE_CUTOFF_HZ,
-    NOISE_PEAK_M,
-    SAMPLING_RATE_HZ,
-)
+from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, MAX_EXCITATION_M,  # light: constants only
+                               NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ)
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
 PLACEMENTS = ("continuous", "sampled")
@@ -47,7 +44,10 @@ def register(commands) -> None:
         "compare", help="gain-scheduled vs. linear controllers on a staircase reference (Figs. 9-10)",
         description="Simulate the sampled closed loop (simplified plant eq. (13), coloured sensor noise, the "
         "discrete PID with saturation and anti-windup) for each controller on the same reference and noise, "
-        "and report per step: rise time (10-90 %%), overshoot, 2 %% settling time, steady-state noise RMS, IAE.")
+        "and report per step: rise time (10-90 %%), overshoot, 2 %% settling time, steady-state noise RMS, IAE. "
+        "With --port, run each controller on the rig instead (Figs. 11-12): the hardware-in-the-loop structure "
+        "fig7_hil, paced in real time, one run per controller from rest (a 1 s first level for the lift-off); "
+        "the rig's own sensor gives the noise, and every run's results.csv is kept under --runs-dir.")
     compare.add_argument("--controllers", default="gs,80,120,160",
                          help="'gs' and/or design heights of linear controllers in um (default gs,80,120,160)")
     compare.add_argument("--seed", type=int, default=0, help="seed of the measurement noise (default 0)")
@@ -61,6 +61,15 @@ def register(commands) -> None:
                          help="with --placement continuous: schedule the paper's designs at every height, even those "
                          "the 2 kHz forward-Euler loop cannot realise (default: hold the gains below the lowest "
                          "realisable height; the sampled placement realises all)")
+    compare.add_argument("--port", metavar="URL", help="run on the rig at URL (a device, a pty of nfal rig-emulator, "
+                         "socket://host:port) instead of simulating; --noise-* and --seed are then the rig's own")
+    compare.add_argument("--runs-dir", metavar="DIR", help="with --port: where each run's folder goes (default "
+                         "runs/compare-<date-time>)")
+    compare.add_argument("--build-dir", default="build", metavar="DIR", help="with --port: where fig7_hil.ssp is built "
+                         "(default build)")
+    compare.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
+                         help="with --port: set a parameter of fig7_hil in every run (repeatable), e.g. "
+                         "proxy.max_missed_samples=100")
     _add_design_options(compare)
     add_output_options(compare)
     compare.set_defaults(handler=run_compare)
@@ -159,43 +168,26 @@ def _parse_controllers(text: str) -> list[str]:
 
 def run_compare(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.models.closed_loop import Staircase, simulate_closed_loop
-    from nfal.models.control_law import DiscreteControlLaw
-    from nfal.models.measurement_noise import coloured_noise
-    from nfal.models.pid_design import design_schedule, fixed_design
-    from nfal.models.plant import SimplifiedPlant
-    from nfal.models.stability import realizable_schedule
-    from nfal.models.step_metrics import step_metrics, total_iae
+    from nfal.models.closed_loop import Staircase
 
     keys = _parse_controllers(args.controllers)
+    if args.param and not args.port:
+        raise InvalidParameterError("--param", args.param[0], "given with --port (the parameters of the runs on the rig)")
     started = time.perf_counter()
-    rig, model, spec = _model(args)
-    plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
-    reference = Staircase(tuple(args.levels), hold_s=args.hold)
-    noise = coloured_noise(reference.samples(args.sample_rate), sample_rate_hz=args.sample_rate,
-                           cutoff_hz=args.noise_cutoff, peak_m=args.noise_peak, seed=args.seed)
-    work_range = (min(reference.levels_m), max(reference.levels_m))
-    results, runs = {}, {}
-    with progress_bar(len(keys), "closed-loop runs") as bar:
-        for key in keys:
-            if key == "gs":
-                gains = design_schedule(None, rig, model.calibration, spec, damping=model.damping)
-                if not args.full_schedule:
-                    gains = realizable_schedule(gains, rig, sample_rate_hz=args.sample_rate,
-                                                discretisation="zoh" if spec.sample_rate_hz else "forward_euler")
-            else:
-                gains = fixed_design(float(key) * 1e-6, rig, model.calibration, spec, damping=model.damping)
-            law = DiscreteControlLaw(gains, sample_rate_hz=args.sample_rate, max_excitation_m=args.max_excitation,
-                                     reference_range_m=work_range)
-            run = simulate_closed_loop(law, plant, reference, noise)
-            runs[key] = run
-            results[key] = {"name": law.name, "iae": total_iae(run),
-                            "steps": [m.to_dict() for m in step_metrics(run, reference)]}
-            bar.update()
+    if args.port:
+        from nfal.commands.cosim import HARDWARE_LEAD_S  # on use: `nfal --help` stays fast
+
+        reference = Staircase(tuple(args.levels), hold_s=args.hold, lead_s=HARDWARE_LEAD_S)  # from rest on a rig
+        runs = _rig_runs(args, keys, reference)
+        source = {"rig": args.port}
+    else:
+        reference = Staircase(tuple(args.levels), hold_s=args.hold)
+        runs = _simulated_runs(args, keys, reference)
+        source = {"noise": {"peak_m": args.noise_peak, "cutoff_hz": args.noise_cutoff, "seed": args.seed}}
+    results = {key: _run_metrics(run, reference) for key, run in runs.items()}
     output = {"controllers": results,
               "reference": {"levels_m": list(reference.levels_m), "hold_s": reference.hold_s, "lead_s": reference.lead_s},
-              "noise": {"peak_m": args.noise_peak, "cutoff_hz": args.noise_cutoff, "seed": args.seed},
-              "sample_rate_hz": args.sample_rate, "max_excitation_m": args.max_excitation,
+              **source, "sample_rate_hz": args.sample_rate, "max_excitation_m": args.max_excitation,
               "runtime_s": time.perf_counter() - started}
     if args.plot:
         # on use: `nfal --help` stays fast
@@ -207,6 +199,82 @@ def run_compare(args: argparse.Namespace) -> int:
         return 0
     _print_table(results)
     return 0
+
+
+def _run_metrics(run, reference) -> dict:
+    # on use: `nfal --help` stays fast
+    from nfal.models.step_metrics import step_metrics, total_iae
+
+    return {"name": run.controller, "iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)]}
+
+
+def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
+    """Each controller against the simplified plant (with the calibration's damping), same noise: key -> run."""
+    # on use: `nfal --help` stays fast
+    from nfal.models.closed_loop import simulate_closed_loop
+    from nfal.models.control_law import DiscreteControlLaw
+    from nfal.models.measurement_noise import coloured_noise
+    from nfal.models.pid_design import design_schedule, fixed_design
+    from nfal.models.plant import SimplifiedPlant
+    from nfal.models.stability import realizable_schedule
+
+    rig, model, spec = _model(args)
+    plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
+    noise = coloured_noise(reference.samples(args.sample_rate), sample_rate_hz=args.sample_rate,
+                           cutoff_hz=args.noise_cutoff, peak_m=args.noise_peak, seed=args.seed)
+    work_range = (min(reference.levels_m), max(reference.levels_m))
+    runs = {}
+    with progress_bar(len(keys), "closed-loop runs") as bar:
+        for key in keys:
+            if key == "gs":
+                gains = design_schedule(None, rig, model.calibration, spec, damping=model.damping)
+                if not args.full_schedule:
+                    gains = realizable_schedule(gains, rig, sample_rate_hz=args.sample_rate,
+                                                discretisation="zoh" if spec.sample_rate_hz else "forward_euler")
+            else:
+                gains = fixed_design(float(key) * 1e-6, rig, model.calibration, spec, damping=model.damping)
+            law = DiscreteControlLaw(gains, sample_rate_hz=args.sample_rate, max_excitation_m=args.max_excitation,
+                                     reference_range_m=work_range)
+            runs[key] = simulate_closed_loop(law, plant, reference, noise)
+            bar.update()
+    return runs
+
+
+def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
+    """Each controller on the rig at ``args.port`` (fig7_hil, real time, from rest): key -> run."""
+    # on use: `nfal --help` stays fast
+    from nfal.build import build_all
+    from nfal.commands.cosim import parse_parameter
+    from nfal.fig7 import HARDWARE, REFERENCE, loop_run
+    from nfal.orchestration import run_structure
+
+    archive = build_all(args.build_dir, structures=("fig7_hil",))["fig7_hil"]
+    folder = Path(args.runs_dir or Path("runs") / f"compare-{datetime.datetime.now():%Y%m%d-%H%M%S}")
+    common = {"proxy.port": args.port, "Controller.placement": args.placement,
+              "Controller.closed_loop_cutoff": args.closed_loop_cutoff, "Controller.filter_cutoff": args.filter_cutoff,
+              "Controller.max_excitation": args.max_excitation, "Controller.realizable_only": not args.full_schedule,
+              "Controller.reference_min": min(reference.levels_m), "Controller.reference_max": max(reference.levels_m),
+              **({"Controller.calibration": str(Path(args.calibration).resolve())} if args.calibration else {}),
+              **_rig_parameters(args), **dict(parse_parameter(text) for text in args.param)}
+    runs = {}
+    with progress_bar(len(keys), "runs on the rig") as bar:
+        for key in keys:
+            design = ({"Controller.design": "gain-scheduled"} if key == "gs"
+                      else {"Controller.design": "fixed", "Controller.design_height": float(key) * 1e-6})
+            result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / args.sample_rate,
+                                   inputs={REFERENCE: reference}, parameters={**common, **design}, realtime=True,
+                                   out_dir=folder / key, plot=False, progress=False)
+            runs[key] = loop_run(result.table(), "gain-scheduled" if key == "gs" else f"linear at {key} um", HARDWARE)
+            bar.update()
+    print(f"nfal compare: the runs on the rig are in {folder}", file=sys.stderr)
+    return runs
+
+
+def _rig_parameters(args: argparse.Namespace) -> dict:
+    """The rig options given (``--mass`` ...) as the Controller's parameters (its design model)."""
+    names = {"frequency": "nominal_frequency"}
+    return {f"Controller.{names.get(name, name)}": getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS
+            if name != "reference_clearance" and getattr(args, f"rig_{name}") is not None}
 
 
 def _print_table(results: dict) -> None:
