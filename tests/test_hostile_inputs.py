@@ -22,7 +22,7 @@ CASES = cases_by_id()
 #: Refused at the command line or while a file is read, before any FMU is loaded: run in this process.
 IN_PROCESS = {
     "tracebacks": ["run-stop-time-nan", "run-start-time-inf", "run-plot-extension", "calibrate-shape-plate-1000",
-                   "sweep-binary", "sweep-scheduler-bogus"],
+                   "sweep-binary", "sweep-scheduler-bogus", "design-calibration-deep-json"],
     "silently wrong": ["calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
                        "calibrate-experimental-mm-heights", "design-calibration-k-zero"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
@@ -35,7 +35,7 @@ OWN_PROCESS = {
     "silently wrong": ["run-param-calibration-k-zero", "run-param-mass-grams", "run-param-seed-2pow32",
                        "ssv-misspelt-parameter", "ssd-stop-time-honoured", "ssd-source-absolute-in-archive",
                        "fmu-SlowPlant-excitation-1m", "fmu-ResonanceTracker-drive-1e300"],
-    "crashes and hangs": ["ssd-source-dev-zero", "run-stop-1e9", "fmu-SlowPlant-excitation-1e200",
+    "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9", "fmu-SlowPlant-excitation-1e200",
                           "fmu-ReynoldsPlant-radial-nodes-2pow31", "ssp-self-nested"],
     "tracebacks": ["ssp-encrypted-flag", "ssp-unknown-compression", "identify-rig-random-bytes"],
 }
