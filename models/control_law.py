@@ -25,6 +25,8 @@ import math
 
 
 from .errors import InvalidParameterError, require_positive
+from .plausibility import MAX_EXCITATION_M as PLAUSIBLE_EXCITATION_M
+from .plausibility import require_plausible
 from .pid_design import SAMPLING_RATE_HZ, WORK_RANGE_M, FixedGains, GainSchedule
 
 #: Default actuator limit |a|_max [m]: 1.6 x the 6.2 um the paper's rig needs to hold 200 um (eq. 16),
@@ -80,7 +82,8 @@ class DiscreteControlLaw:
         self.gains = gains
         self.sample_rate_hz = require_positive("sample_rate_hz", sample_rate_hz)
         self.period_s = 1.0 / self.sample_rate_hz
-        self.max_excitation_m = require_positive("max_excitation_m", max_excitation_m)
+        self.max_excitation_m = require_plausible("max_excitation_m", require_positive("max_excitation_m", max_excitation_m),
+                                                  PLAUSIBLE_EXCITATION_M, "m")
         self.tracking_time_s = self.period_s if tracking_time_s is None else require_positive("tracking_time_s", tracking_time_s)
         low, high = (float(v) for v in reference_range_m)
         if not (0.0 < low <= high < math.inf):
