@@ -151,12 +151,17 @@ def run_compare(args: argparse.Namespace) -> int:
     from nfal.models.plant import SimplifiedPlant
     from nfal.models.stability import realizable_schedule
     from nfal.models.step_metrics import step_metrics, total_iae
+    from nfal.orchestration.run import MAX_STEPS
 
     keys = _parse_controllers(args.controllers)
     started = time.perf_counter()
     rig, model, spec = _model(args)
     plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
     reference = Staircase(tuple(args.levels), hold_s=args.hold)
+    samples = reference.duration_s * args.sample_rate
+    if samples > MAX_STEPS:  # a mistyped --hold would allocate terabytes
+        raise InvalidParameterError("--hold", args.hold, f"a staircase of at most {MAX_STEPS:,} samples at "
+                                    f"{args.sample_rate:g} Hz, not {samples:,.0f}")
     noise = coloured_noise(reference.samples(args.sample_rate), sample_rate_hz=args.sample_rate,
                            cutoff_hz=args.noise_cutoff, peak_m=args.noise_peak, seed=args.seed)
     work_range = (min(reference.levels_m), max(reference.levels_m))
