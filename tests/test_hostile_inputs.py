@@ -21,11 +21,13 @@ CASES = cases_by_id()
 
 #: Refused at the command line or while a file is read, before any FMU is loaded: run in this process.
 IN_PROCESS = {
-    "crashes and hangs": ["calibrate-sigma-huge-count", "design-heights-huge-count", "compare-hold-huge"],
+    "crashes and hangs": ["calibrate-sigma-huge-count", "design-heights-huge-count", "compare-hold-huge",
+                          "sweep-spec-dev-zero"],
     "tracebacks": ["run-stop-time-nan", "run-start-time-inf", "run-plot-extension", "calibrate-shape-plate-1000",
                    "sweep-binary", "sweep-scheduler-bogus", "design-calibration-deep-json"],
     "silently wrong": ["calibrate-nodes-0", "calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
-                       "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m"],
+                       "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m",
+                       "sweep-ssp-structure-absolute-outside"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
 }
 
