@@ -155,13 +155,13 @@ def run_compare(args: argparse.Namespace) -> int:
 
     keys = _parse_controllers(args.controllers)
     started = time.perf_counter()
-    rig, model, spec = _model(args)
-    plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
     reference = Staircase(tuple(args.levels), hold_s=args.hold)
     samples = reference.duration_s * args.sample_rate
     if samples > MAX_STEPS:  # a mistyped --hold would allocate terabytes
         raise InvalidParameterError("--hold", args.hold, f"a staircase of at most {MAX_STEPS:,} samples at "
                                     f"{args.sample_rate:g} Hz, not {samples:,.0f}")
+    rig, model, spec = _model(args)
+    plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
     noise = coloured_noise(reference.samples(args.sample_rate), sample_rate_hz=args.sample_rate,
                            cutoff_hz=args.noise_cutoff, peak_m=args.noise_peak, seed=args.seed)
     work_range = (min(reference.levels_m), max(reference.levels_m))
