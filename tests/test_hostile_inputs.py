@@ -25,7 +25,7 @@ IN_PROCESS = {
                           "sweep-spec-dev-zero"],
     "tracebacks": ["run-stop-time-nan", "run-start-time-inf", "run-plot-extension", "calibrate-shape-plate-1000",
                    "sweep-binary", "sweep-scheduler-bogus", "design-calibration-deep-json"],
-    "silently wrong": ["calibrate-nodes-0", "calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
+    "silently wrong": ["rig-emulator-seed-negative", "rig-emulator-duration-negative", "calibrate-nodes-0", "calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
                        "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m",
                        "sweep-ssp-structure-absolute-outside"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
@@ -34,7 +34,7 @@ IN_PROCESS = {
 #: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
 OWN_PROCESS = {
     "data lost": ["run-out-previous-run-fails-at-start", "run-out-overwrite-keeps-other-files",
-                  "rig-emulator-link-existing-file", "run-sigterm", "run-out-full-disk"],
+                  "rig-emulator-link-existing-file", "rig-emulator-sighup", "run-sigterm", "run-out-full-disk"],
     "silently wrong": ["run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams", "run-param-seed-2pow32",
                        "ssv-misspelt-parameter", "ssd-stop-time-honoured", "ssd-source-absolute-in-archive",
                        "fmu-SlowPlant-excitation-1m", "fmu-ResonanceTracker-drive-1e300"],
