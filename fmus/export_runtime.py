@@ -8,7 +8,8 @@ its source (NTNU-IHB/PythonFMU 6e6f489, MIT) with the fixes marked ``// nfal:``:
   is no longer released (``findClass``);
 * a Python exception is answered with fmi2Error and its ``str()`` as the logged message, and leaves
   the instance whole (``handle_py_exception``); errors reach the host's logger even when
-  ``loggingOn`` is false (``Logger.hpp``).
+  ``loggingOn`` is false (``Logger.hpp``);
+* a second ``fmi2FreeInstance`` of an instance does nothing (``fmi2.cpp`` keeps the set of live instances).
 
 :func:`runtime_library` builds it with CMake for the running Python (once; the result is cached by
 the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU in place of pythonfmu's.

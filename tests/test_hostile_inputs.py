@@ -39,7 +39,7 @@ OWN_PROCESS = {
                        "ssv-misspelt-parameter", "ssd-stop-time-honoured", "ssd-source-absolute-in-archive",
                        "fmu-SlowPlant-excitation-1m", "fmu-ResonanceTracker-drive-1e300"],
     "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9", "fmu-SlowPlant-excitation-1e200",
-                          "fmu-ReynoldsPlant-radial-nodes-2pow31", "ssp-self-nested"],
+                          "fmu-ReynoldsPlant-radial-nodes-2pow31", "fmu-SlowPlant-free-twice", "ssp-self-nested"],
     "tracebacks": ["ssp-encrypted-flag", "ssp-unknown-compression", "identify-rig-random-bytes"],
 }
 
