@@ -1002,7 +1002,13 @@ def hil_cases() -> list[Case]:
         ("equilibria-negative", ["--equilibria=-1e-4,1e-4"]), ("connect-timeout-nan", ["--connect-timeout", "nan"]),
         ("max-silence-zero", ["--max-silence", "0"]), ("time-constant-negative", ["--amplitude-time-constant", "-1"]),
         ("mass-grams", ["--mass", "134.7"])]]
+    short_identify = ["identify", "--port", "{port}", "--out", "rig.json", "--equilibria", "60e-6:180e-6:5",
+                      "--damping-heights", "80e-6,140e-6", "--steps", "2"]
     cases += [
+        Case("identify-previous-identification", "results", short_identify, setup=previous_identification,
+             protect=("rig.json", "rig-raw.csv"), timeout=120),
+        Case("identify-overwrite", "results", short_identify + ["--overwrite"], setup=previous_identification,
+             expect="ok", why="--overwrite: the user asked to replace a previous identification", timeout=120),
         Case("identify-no-port", "cli-identify", ["identify"]),
         Case("identify-out-readonly", "cli-identify", ["identify", "--port", "/dev/null", "--out", "ro/rig.json"],
              needs_permissions=True, setup=readonly_folder),
@@ -1011,6 +1017,28 @@ def hil_cases() -> list[Case]:
              setup=write("rig.json", "mine\n"), protect=("rig.json",)),
     ]
     return cases
+
+
+def running_emulator(folder: Path, build: Path) -> dict:
+    """A rig emulator for the case (stopped after it): ``{port}`` is its pty link."""
+    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--build-dir", str(build), "--watchdog", "1", "--duration",
+                                 "120"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                start_new_session=True)
+
+    def stop():
+        emulator.terminate()
+        try:
+            emulator.wait(10)
+        except subprocess.TimeoutExpired:
+            emulator.kill()
+            emulator.wait()
+    return {"port": emulator.stdout.readline().strip(), "_close": (stop,)}
+
+
+def previous_identification(folder: Path, build: Path) -> dict:
+    (folder / "rig.json").write_text('{"mine": true}\n')
+    (folder / "rig-raw.csv").write_text("time_s,height_m\n0,6e-05\n")
+    return running_emulator(folder, build)
 
 
 def _signal_emulator(number: int):

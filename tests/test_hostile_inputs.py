@@ -34,7 +34,7 @@ IN_PROCESS = {
 #: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
 OWN_PROCESS = {
     "data lost": ["run-out-previous-run-fails-at-start", "run-out-overwrite-keeps-other-files",
-                  "rig-emulator-link-existing-file", "rig-emulator-sighup", "run-sigterm", "run-out-full-disk"],
+                  "identify-previous-identification", "rig-emulator-link-existing-file", "rig-emulator-sighup", "run-sigterm", "run-out-full-disk"],
     "silently wrong": ["run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams", "run-param-seed-2pow32",
                        "ssv-misspelt-parameter", "ssd-stop-time-honoured", "ssd-source-absolute-in-archive",
                        "fmu-SlowPlant-excitation-1m", "fmu-ResonanceTracker-drive-1e300"],

@@ -39,6 +39,8 @@ def register(commands) -> None:
                           "socket://host:port")
     identify.add_argument("--out", default="rig-calibration.json", metavar="FILE.json",
                           help="the calibration file (default rig-calibration.json); FILE-raw.csv and FILE.png beside it")
+    identify.add_argument("--overwrite", action="store_true", help="replace FILE.json, FILE-raw.csv and FILE.png of a "
+                          "previous identification (refused otherwise)")
     identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration; open nothing")
     identify.add_argument("--equilibria", type=number_list, default=np.geomspace(47e-6, 210e-6, 12), metavar="HEIGHTS",
                           help="equilibrium heights [m], A,B,C or START:STOP:COUNT (default 12 heights spaced "
@@ -99,6 +101,10 @@ def run_identify(args: argparse.Namespace) -> int:
     if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
         raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
     raw = out.with_name(out.stem + "-raw.csv")
+    previous = [path.name for path in (out, raw, out.with_suffix(".png")) if path.exists()]
+    if previous and not args.overwrite:  # a previous identification's measurements are not ours to replace
+        raise InvalidParameterError("--out", args.out, f"a name of no previous identification ({', '.join(previous)} "
+                                    "exist); give another --out, or --overwrite to replace them")
     link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
     hello = link.hello
     try:
