@@ -87,19 +87,23 @@ def _print_plan(plan) -> None:
 def run_identify(args: argparse.Namespace) -> int:
     from nfal.identify import Experiments, LinkRig, SampleRecorder
     from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
+    from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 
     plan = _plan(args)
     for name in ("metres_per_volt", "max_voltage", "max_silence", "connect_timeout"):
         require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
+    require_plausible("--metres-per-volt", args.metres_per_volt, MAX_METRES_PER_VOLT, "m/V")
+    rig, out = rig_from_args(args), Path(args.out)  # every number checked before --dry-run says the plan is fine
+    lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
+    if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
+        raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
+    if out.suffix.lower() != ".json":
+        raise InvalidParameterError("--out", args.out, "a calibration file name ending in .json")
     if args.dry_run:
         _print_plan(plan)
         return 0
     if not args.port:
         raise InvalidParameterError("--port", args.port, "the rig's port URL (or --dry-run)")
-    rig, out = rig_from_args(args), Path(args.out)
-    lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
-    if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
-        raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
     raw = out.with_name(out.stem + "-raw.csv")
     previous = [path.name for path in (out, raw, out.with_suffix(".png")) if path.exists()]
     if previous and not args.overwrite:  # a previous identification's measurements are not ours to replace
