@@ -35,6 +35,7 @@ from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.errors import InvalidParameterError, require_positive
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
+from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.stability import realizable_schedule
 
@@ -112,7 +113,8 @@ class Controller(NfalSlave):
         if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
             self._gains = (key, self._design(design_height, sample_rate, rig, model, spec, (low, high)))
         gains = self._gains[1]
-        require_positive("metres_per_volt", self.metres_per_volt)
+        require_plausible("metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt),
+                          MAX_METRES_PER_VOLT, "m/V")
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
                                       reference_range_m=(low, high))
