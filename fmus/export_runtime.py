@@ -9,7 +9,9 @@ its source (NTNU-IHB/PythonFMU 6e6f489, MIT) with the fixes marked ``// nfal:``:
 * a Python exception is answered with fmi2Error and its ``str()`` as the logged message, and leaves
   the instance whole (``handle_py_exception``); errors reach the host's logger even when
   ``loggingOn`` is false (``Logger.hpp``);
-* a second ``fmi2FreeInstance`` of an instance does nothing (``fmi2.cpp`` keeps the set of live instances).
+* a second ``fmi2FreeInstance`` of an instance does nothing (``fmi2.cpp`` keeps the set of live instances);
+* the ``PyState`` pointer is never destroyed by ``exit()``, so the library's destructor does not release
+  it a second time (a host aborted at exit, "corrupted double-linked list").
 
 :func:`runtime_library` builds it with CMake for the running Python (once; the result is cached by
 the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU in place of pythonfmu's.

@@ -179,7 +179,7 @@ def classify(case: Case, done: subprocess.CompletedProcess, before: dict, after:
     """The outcome of a finished case and a one-line reason."""
     text = done.stderr + done.stdout
     if done.returncode < 0:
-        return CRASH, f"killed by {signal.Signals(-done.returncode).name}"
+        return CRASH, f"killed by {signal.Signals(-done.returncode).name}: {_last_line(done.stderr)}"
     if "Traceback (most recent call last)" in done.stderr or "internal error:" in done.stderr:
         line = [row for row in done.stderr.splitlines() if row.strip()][-1]
         return TRACEBACK, line[:200]

@@ -56,15 +56,17 @@ struct Fmi2Component
 
     Fmi2Component(std::unique_ptr<pythonfmu::SlaveInstance> slave, std::unique_ptr<Fmi2Logger> logger)
         : lastSuccessfulTime{std::numeric_limits<double>::quiet_NaN()}
-        , slave(std::move(slave))
         , logger(std::move(logger))
+        , slave(std::move(slave))
     { }
 
     double lastSuccessfulTime{0};
     bool wantsToTerminate{false};
 
-    std::unique_ptr<pythonfmu::SlaveInstance> slave;
+    // nfal: the logger is declared first, so it is destroyed last: the slave's destructor delivers its
+    // pending log messages through it (upstream destroyed the logger first, and that call used freed memory)
     std::unique_ptr<Fmi2Logger> logger;
+    std::unique_ptr<pythonfmu::SlaveInstance> slave;
 };
 
 } // namespace
