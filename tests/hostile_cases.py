@@ -549,24 +549,30 @@ def cli_cases() -> list[Case]:
         Case("run-out-overwrite-keeps-other-files", "results", RUN + ["--overwrite"], setup=previous_run,
              protect=("out/notes.txt",), expect="ok", why="--overwrite replaces only the run's three files"),
         Case("run-out-is-a-file", "results", RUN, setup=write("out", "mine\n"), protect=("out",)),
-        Case("run-out-readonly", "results", RUN[:-1] + ["ro/out"], needs_permissions=True, setup=readonly_folder, protect=("ro/keep.txt",)),
-        Case("run-out-readonly-itself", "results", RUN[:-1] + ["ro"], needs_permissions=True, setup=readonly_folder, protect=("ro/keep.txt", "ro")),
+        Case("run-out-readonly", "results", RUN[:-1] + ["ro/out"], needs_permissions=True,
+             setup=readonly_folder, protect=("ro/keep.txt",)),
+        Case("run-out-readonly-itself", "results", RUN[:-1] + ["ro"], needs_permissions=True,
+             setup=readonly_folder, protect=("ro/keep.txt", "ro")),
         Case("run-out-dev-null", "results", RUN[:-1] + ["/dev/null"]),
         Case("run-out-full-disk", "results", ["run", "{build}/fig7_slow.ssp", "--stop-time", "5", "--reference",
                                               "staircase:1e-4,1.4e-4:2", "--out", "out"], fsize_limit=1_000_000,
              check=summary_failed_with_reason),
         Case("run-sigint", "results", RUN[:-4] + ["--stop-time", "20", "--out", "out"], expect="ok",
-             why="Ctrl-C: summary 'interrupted', every row kept, exit 130", during=signal_when_rows(signal.SIGINT), exit_code=128 + signal.SIGINT,
+             why="Ctrl-C: summary 'interrupted', every row kept, exit 130",
+             during=signal_when_rows(signal.SIGINT), exit_code=128 + signal.SIGINT,
              check=interrupted_with_rows, timeout=90),
         Case("run-sigterm", "results", RUN[:-4] + ["--stop-time", "20", "--out", "out"], expect="ok",
-             why="SIGTERM: summary 'interrupted', every row kept, exit 143", during=signal_when_rows(signal.SIGTERM), exit_code=128 + signal.SIGTERM,
+             why="SIGTERM: summary 'interrupted', every row kept, exit 143",
+             during=signal_when_rows(signal.SIGTERM), exit_code=128 + signal.SIGTERM,
              check=interrupted_with_rows, timeout=90),
         Case("run-sighup", "results", RUN[:-4] + ["--stop-time", "20", "--out", "out"], expect="ok",
-             why="SIGHUP (terminal closed): summary 'interrupted', every row kept", during=signal_when_rows(signal.SIGHUP), exit_code=128 + signal.SIGHUP,
+             why="SIGHUP (terminal closed): summary 'interrupted', every row kept",
+             during=signal_when_rows(signal.SIGHUP), exit_code=128 + signal.SIGHUP,
              check=interrupted_with_rows, timeout=90),
         Case("run-plot-extension", "results", ["calibrate", "numerical", "--plot", "k.jpg"]),
         Case("run-plot-missing-folder", "results", ["calibrate", "numerical", "--plot", "no/such/k.png"]),
-        Case("calibrate-out-readonly", "results", ["calibrate", "numerical", "--out", "ro/k.json"], needs_permissions=True, setup=readonly_folder),
+        Case("calibrate-out-readonly", "results", ["calibrate", "numerical", "--out", "ro/k.json"],
+             needs_permissions=True, setup=readonly_folder),
         Case("calibrate-out-is-folder", "results", ["calibrate", "numerical", "--out", "k.json"],
              setup=lambda f, b: (f / "k.json").mkdir()),
         Case("calibrate-out-existing-file", "results", ["calibrate", "numerical", "--out", "k.json"],
@@ -894,27 +900,31 @@ def _truncated_archive(folder: Path, build: Path) -> None:
     (folder / "x.ssp").write_bytes(data[: len(data) // 2])
 
 
-def _encrypted_archive(folder: Path, build: Path) -> None:
-    archive_with({})(folder, build)
-    data = bytearray((folder / "x.ssp").read_bytes())
-    # set the 'encrypted' flag bit of every central-directory and local header
-    for signature, offset in ((b"PK\x01\x02", 8), (b"PK\x03\x04", 6)):
-        start = 0
-        while (start := data.find(signature, start)) >= 0:
-            data[start + offset] |= 1
-            start += 4
-    (folder / "x.ssp").write_bytes(bytes(data))
+def _patched_headers(central: int, local: int, patch: Callable[[bytearray, int], None]):
+    """fig7_slow.ssp as x.ssp with ``patch(data, at)`` applied at this offset of every central-directory
+    header and that of every local header."""
+    def setup(folder: Path, build: Path) -> None:
+        archive_with({})(folder, build)
+        data = bytearray((folder / "x.ssp").read_bytes())
+        for signature, offset in ((b"PK\x01\x02", central), (b"PK\x03\x04", local)):
+            start = 0
+            while (start := data.find(signature, start)) >= 0:
+                patch(data, start + offset)
+                start += 4
+        (folder / "x.ssp").write_bytes(bytes(data))
+    return setup
 
 
-def _odd_compression_archive(folder: Path, build: Path) -> None:
-    archive_with({})(folder, build)
-    data = bytearray((folder / "x.ssp").read_bytes())
-    for signature, offset in ((b"PK\x01\x02", 10), (b"PK\x03\x04", 8)):
-        start = 0
-        while (start := data.find(signature, start)) >= 0:
-            data[start + offset:start + offset + 2] = (99).to_bytes(2, "little")  # AE-x / unknown method
-            start += 4
-    (folder / "x.ssp").write_bytes(bytes(data))
+def _set_bit(data: bytearray, at: int) -> None:
+    data[at] |= 1  # general-purpose flag bit 0: encrypted
+
+
+def _method_99(data: bytearray, at: int) -> None:
+    data[at:at + 2] = (99).to_bytes(2, "little")  # compression method 99 (AE-x): not one zipfile reads
+
+
+_encrypted_archive = _patched_headers(8, 6, _set_bit)
+_odd_compression_archive = _patched_headers(10, 8, _method_99)
 
 
 def _self_nested_archive(folder: Path, build: Path) -> None:
@@ -1021,8 +1031,8 @@ def hil_cases() -> list[Case]:
 
 def running_emulator(folder: Path, build: Path) -> dict:
     """A rig emulator for the case (stopped after it): ``{port}`` is its pty link."""
-    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--build-dir", str(build), "--watchdog", "1", "--duration",
-                                 "120"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--build-dir", str(build), "--watchdog", "1",
+                                 "--duration", "120"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                 start_new_session=True)
 
     def stop():
