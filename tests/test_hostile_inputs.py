@@ -30,6 +30,7 @@ IN_PROCESS = {
                        "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m",
                        "sweep-ssp-structure-absolute-outside"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
+    "misleading messages": ["ssp-not-zip", "run-max-steps-0"],
 }
 
 #: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
