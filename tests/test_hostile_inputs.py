@@ -26,7 +26,8 @@ IN_PROCESS = {
     "tracebacks": ["run-stop-time-nan", "run-start-time-inf", "run-plot-extension", "calibrate-shape-plate-1000",
                    "sweep-binary", "sweep-scheduler-bogus", "design-calibration-deep-json"],
     "silently wrong": ["identify-metres-per-volt-1e300", "identify-mass-grams", "identify-out-bad-extension",
-                       "rig-emulator-seed-negative", "rig-emulator-duration-negative", "calibrate-nodes-0", "calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
+                       "rig-emulator-seed-negative", "rig-emulator-duration-negative", "calibrate-nodes-0",
+                       "calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
                        "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m",
                        "sweep-ssp-structure-absolute-outside"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
@@ -36,13 +37,16 @@ IN_PROCESS = {
 #: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
 OWN_PROCESS = {
     "data lost": ["run-out-previous-run-fails-at-start", "run-out-overwrite-keeps-other-files",
-                  "identify-previous-identification", "rig-emulator-link-existing-file", "rig-emulator-sighup", "run-sigterm", "run-out-full-disk"],
-    "silently wrong": ["run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams", "run-param-seed-2pow32",
-                       "ssv-misspelt-parameter", "ssd-stop-time-honoured", "ssd-source-absolute-in-archive",
-                       "fmu-SlowPlant-excitation-1m", "fmu-ResonanceTracker-drive-1e300", "fmu-ResonanceTracker-mpv-1e300",
+                  "identify-previous-identification", "rig-emulator-link-existing-file", "rig-emulator-sighup",
+                  "run-sigterm", "run-out-full-disk"],
+    "silently wrong": ["run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
+                       "run-param-seed-2pow32", "ssv-misspelt-parameter", "ssd-stop-time-honoured",
+                       "ssd-source-absolute-in-archive", "fmu-SlowPlant-excitation-1m",
+                       "fmu-ResonanceTracker-drive-1e300", "fmu-ResonanceTracker-mpv-1e300",
                        "fmu-SensorChain-true-height-1e300", "fmu-SlowPlant-excess-damping-nan"],
-    "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9", "fmu-SlowPlant-excitation-1e200",
-                          "fmu-ReynoldsPlant-radial-nodes-2pow31", "fmu-SlowPlant-free-twice", "ssp-self-nested"],
+    "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9",
+                          "fmu-SlowPlant-excitation-1e200", "fmu-ReynoldsPlant-radial-nodes-2pow31",
+                          "fmu-SlowPlant-free-twice", "ssp-self-nested"],
     "tracebacks": ["ssp-encrypted-flag", "ssp-unknown-compression", "identify-rig-random-bytes"],
 }
 
@@ -100,6 +104,13 @@ def test_the_judge(tmp_path, returncode, stderr, expect, outcome):
     """The classification itself: each kind of failure is seen as one (so the cases above can fail)."""
     case = Case("judge", "judge", ["run"], expect=expect)
     done = subprocess.CompletedProcess(["nfal", "run"], returncode, "", stderr)
+    assert classify(case, done, {}, {}, tmp_path)[0] == outcome
+
+
+@pytest.mark.parametrize("stdout, outcome", [("[ERROR] x: doStep failed: mass = -1 ...\n", CLEAR), ("", WRONG)])
+def test_the_judge_wants_an_fmus_reason(tmp_path, stdout, outcome):
+    case = Case("judge", "judge", fmu={"fmu": "SlowPlant"})
+    done = subprocess.CompletedProcess(["python"], 2, stdout, "fmu: error: doStep: fmi2DoStep failed\n")
     assert classify(case, done, {}, {}, tmp_path)[0] == outcome
 
 
