@@ -72,10 +72,13 @@ class SlowPlant(NfalSlave):
         height = require_finite("excess_damping_height", self.excess_damping_height, "a finite height >= 0 m (0: none)")
         if height < 0.0:
             raise InvalidParameterError("excess_damping_height", height, "a finite height >= 0 m (0: none)")
+        # a NaN is a mistake even while unused; the range applies when used (at height 0 the exponent is ignored)
         exponent = require_finite("excess_damping_exponent", self.excess_damping_exponent, "a finite number >= 1")
-        if exponent < 1.0:  # checked when unused too: a NaN set here is a mistake either way
+        if height == 0.0:
+            return None
+        if exponent < 1.0:
             raise InvalidParameterError("excess_damping_exponent", exponent, "a finite number >= 1")
-        return None if height == 0.0 else ExcessDamping(height, exponent)
+        return ExcessDamping(height, exponent)
 
     def _rebuild(self, frequency: float) -> None:
         plant = SimplifiedPlant(self.build_rig(frequency), self._calibration, rest_gap=self.rest_gap,
