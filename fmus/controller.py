@@ -38,6 +38,7 @@ from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import (LIFT_OFF_TIME_S, MAX_EXCITATION_M, SATURATION_WARNING_S, ControllerState,
                                      DiscreteControlLaw)
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
+from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.stability import realizable_schedule
 from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, SAMPLING_RATE_HZ,
@@ -124,7 +125,8 @@ class Controller(NfalSlave):
         if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
             self._gains = (key, self._design(design_height, sample_rate, rig, model, spec, (low, high)))
         gains = self._gains[1]
-        require_positive("metres_per_volt", self.metres_per_volt)
+        require_plausible("metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt),
+                          MAX_METRES_PER_VOLT, "m/V")
         lift_off, smoothing = (_optional_time(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),

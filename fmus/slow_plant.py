@@ -72,9 +72,10 @@ class SlowPlant(NfalSlave):
         height = require_finite("excess_damping_height", self.excess_damping_height, "a finite height >= 0 m (0: none)")
         if height < 0.0:
             raise InvalidParameterError("excess_damping_height", height, "a finite height >= 0 m (0: none)")
+        # a NaN is a mistake even while unused; the range applies when used (at height 0 the exponent is ignored)
+        exponent = require_finite("excess_damping_exponent", self.excess_damping_exponent, "a finite number >= 1")
         if height == 0.0:
             return None
-        exponent = require_finite("excess_damping_exponent", self.excess_damping_exponent, "a finite number >= 1")
         if exponent < 1.0:
             raise InvalidParameterError("excess_damping_exponent", exponent, "a finite number >= 1")
         return ExcessDamping(height, exponent)

@@ -31,6 +31,8 @@ class FaultSettings:
                 raise InvalidParameterError(name, value, "a rate in [0, 1]")
         if not 0.0 <= self.delay_s <= 10.0:
             raise InvalidParameterError("delay_s", self.delay_s, "in [0, 10] s")
+        if not isinstance(self.seed, int) or self.seed < 0:  # random.Random(-n) is random.Random(n): not a new seed
+            raise InvalidParameterError("seed", self.seed, "a whole number >= 0")
 
     @property
     def active(self) -> bool:

@@ -26,6 +26,7 @@ import numpy as np
 from scipy import interpolate
 
 from nfal.errors import DataFormatError, InvalidParameterError
+from nfal.csvdata import read_user_text
 
 from .damping import DampingCorrection
 from .excitation import ExcitationShape
@@ -248,10 +249,11 @@ def load_rig_calibration(path: str | os.PathLike, rig: RigParameters | None = No
     DataFormatError
         Unreadable file, unknown version, bad content, or another rig's calibration.
     """
+    text = read_user_text(path, "calibration")
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # ValueError: not JSON, or not UTF-8 text at all
-        raise DataFormatError(f"cannot read calibration {path}: {exc}") from None
+        data = json.loads(text)
+    except (ValueError, RecursionError) as exc:  # not JSON, or nested deeper than the parser goes
+        raise DataFormatError(f"cannot read calibration {path}: {exc or 'nested too deeply'}") from None
     try:
         loaded = rig_calibration_from_dict(data)
         require_lift(loaded.calibration, "K")

@@ -42,6 +42,8 @@ import math
 from nfal.errors import InvalidParameterError, require_positive
 
 from .pid_design import FixedGains, GainSchedule
+from .plausibility import MAX_EXCITATION_M as PLAUSIBLE_EXCITATION_M
+from .plausibility import require_plausible
 from .table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ, WORK_RANGE_M  # noqa: F401 - MAX_EXCITATION_M re-exported
 
 #: A drive saturated at the limit this long [s] is reported: the reference is out of the film's reach.
@@ -132,7 +134,8 @@ class DiscreteControlLaw:
         self.gains = gains
         self.sample_rate_hz = require_positive("sample_rate_hz", sample_rate_hz)
         self.period_s = 1.0 / self.sample_rate_hz
-        self.max_excitation_m = require_positive("max_excitation_m", max_excitation_m)
+        self.max_excitation_m = require_plausible("max_excitation_m", require_positive("max_excitation_m", max_excitation_m),
+                                                  PLAUSIBLE_EXCITATION_M, "m")
         self.tracking_time_s = self.period_s if tracking_time_s is None else require_positive("tracking_time_s", tracking_time_s)
         low, high = (float(v) for v in reference_range_m)
         if not (0.0 < low <= high < math.inf):

@@ -19,8 +19,11 @@ MAX_EXCITATION_M = 1e-4
 MAX_MASS_KG = 100.0
 #: Largest radius of object and surface [m].
 MAX_RADIUS_M = 1.0
+#: Largest gain of the voltage -> |a| map [m/V]: the excitation ceiling reached at 10 V (the paper's
+#: transducer: 1e-7 m/V, 10 um at 100 V). A 1e300 made every drive voltage 0 V.
+MAX_METRES_PER_VOLT = 1e-5
 
-_HINTS = {"m": "did you give um or mm as m?", "kg": "did you give grams as kg?"}
+_HINTS = {"m": "did you give um or mm as m?", "kg": "did you give grams as kg?", "m/V": "did you give um/V as m/V?"}
 
 
 def require_plausible(name: str, value: float, ceiling: float, unit: str) -> float:

@@ -51,6 +51,7 @@ import math
 from nfal.errors import InvalidParameterError, require_finite, require_positive
 
 from .rig import RigParameters
+from .plausibility import MAX_METRES_PER_VOLT, require_plausible
 
 #: Nominal resonance [Hz] (the rig's nominal frequency).
 RESONANCE_FREQUENCY_HZ = RigParameters.frequency
@@ -85,7 +86,8 @@ class Transducer:
         if q <= 0.5:
             raise InvalidParameterError("quality_factor", self.quality_factor, "> 0.5 (an underdamped resonance)")
         object.__setattr__(self, "quality_factor", q)
-        object.__setattr__(self, "metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt))
+        object.__setattr__(self, "metres_per_volt", require_plausible(
+            "metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt), MAX_METRES_PER_VOLT, "m/V"))
 
     # --- derived quantities -------------------------------------------------------------------------
     def resonance_hz(self, resonance_shift_hz: float = 0.0) -> float:

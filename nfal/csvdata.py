@@ -10,6 +10,28 @@ import numpy as np
 
 from nfal.errors import DataFormatError
 
+#: Largest text file a user brings (a calibration, a shape scan, equilibria): far above any real one (kB).
+MAX_TEXT_BYTES = 16 << 20
+
+
+def read_user_text(path: str | os.PathLike, what: str) -> str:
+    """The text of a small UTF-8 file a user names; :class:`DataFormatError` for anything else (missing, a
+    folder, a device such as /dev/zero that never ends, more than :data:`MAX_TEXT_BYTES`, not text)."""
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise DataFormatError(f"cannot read {what} {path}: " + ("not a regular file" if path.exists()
+                                                                     else "no such file"))
+        size = path.stat().st_size
+        if size > MAX_TEXT_BYTES:
+            raise DataFormatError(f"{what} {path}: {size / 2**20:,.0f} MiB, more than the {MAX_TEXT_BYTES >> 20} MiB "
+                                  "such a file can be")
+        return path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DataFormatError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise DataFormatError(f"{what} {path}: not a UTF-8 text file") from None
+
 
 def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     """Read a CSV of numbers with an optional header line and ``#`` comment lines.
@@ -21,12 +43,7 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     rows : ndarray, shape (n_rows, n_columns)
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise DataFormatError(f"cannot read {path}: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise DataFormatError(f"{path}: not a UTF-8 text file") from None
+    text = read_user_text(path, "the table")
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
     try:
         records = [[cell.strip() for cell in row] for row in csv.reader(lines)]

@@ -311,6 +311,8 @@ def _locate_ssd(path: Path, ssd_name: str, temporary: list) -> Path:
         if not ssd.is_file():
             raise StructureError(f"{path}: the archive has no {ssd_name} at its root")
         return ssd
+    if path.suffix.lower() == ".ssp":  # read as an SSD it would be "not well-formed XML", which misleads
+        raise StructureError(f"{path}: not an .ssp archive (a zip file): damaged, cut short, or not an archive")
     return path
 
 

@@ -219,6 +219,8 @@ def _archive_path(spec: SweepSpec, archives: Mapping[str, os.PathLike] | None) -
     if not path.is_file():
         known = ", ".join(archives or ()) or "none given"
         raise SweepError(f"[run] structure = {structure!r}: no such .ssp archive ({path}); built-in: {known}")
+    if not zipfile.is_zipfile(path):
+        raise SweepError(f"[run] structure = {structure!r}: {path} is not an .ssp archive (a zip file)")
     return path
 
 

@@ -51,6 +51,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
+#: Largest spec file read (a grid of 100 000 runs fits in a few MiB).
+MAX_SPEC_BYTES = 16 << 20
 DISTRIBUTIONS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"),
                  "integers": ("low", "high")}
 
@@ -152,6 +154,11 @@ def run_id(kind: str, settings: dict, parameters: dict) -> str:
 def load_spec(path: str | os.PathLike, kinds: Mapping[str, SweepKind]) -> SweepSpec:
     """Read and check a sweep spec of one of ``kinds`` from a TOML file (paths in it are relative to the file)."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a folder, or a device such as /dev/zero that never ends
+        raise SweepSpecError(f"{path}: not a regular file; a sweep spec is a TOML file")
+    if path.is_file() and path.stat().st_size > MAX_SPEC_BYTES:
+        raise SweepSpecError(f"{path}: {path.stat().st_size / 2**20:,.0f} MiB; a sweep spec is at most "
+                             f"{MAX_SPEC_BYTES >> 20} MiB of TOML")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:

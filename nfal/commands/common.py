@@ -52,13 +52,20 @@ def output_file(*suffixes: str):
     return check
 
 
+#: Most values a number list may hold (a mistyped COUNT would allocate gigabytes before anything is computed).
+MAX_LIST_VALUES = 100_000
+
+
 def number_list(text: str) -> np.ndarray:
-    """``1,2,5`` (a list) or ``START:STOP:COUNT`` (evenly spaced, both ends included)."""
+    """``1,2,5`` (a list) or ``START:STOP:COUNT`` (evenly spaced, both ends included; at most
+    :data:`MAX_LIST_VALUES`)."""
     try:
         if text.count(":") == 2:
             start, stop, count = text.split(":")
             if int(count) < 1:
                 raise ValueError
+            if int(count) > MAX_LIST_VALUES:
+                raise argparse.ArgumentTypeError(f"{text!r}: {int(count):,} values; at most {MAX_LIST_VALUES:,}")
             values = np.linspace(float(start), float(stop), int(count))
         else:
             values = np.array([float(item) for item in text.split(",") if item.strip()])

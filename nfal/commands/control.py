@@ -168,20 +168,24 @@ def _parse_controllers(text: str) -> list[str]:
 
 def run_compare(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
+    from nfal.commands.cosim import HARDWARE_LEAD_S
     from nfal.models.closed_loop import Staircase
+    from nfal.orchestration.run import MAX_STEPS
 
     keys = _parse_controllers(args.controllers)
     if args.param and not args.port:
         raise InvalidParameterError("--param", args.param[0], "given with --port (the parameters of the runs on the rig)")
     started = time.perf_counter()
+    # from rest on a rig: a 1 s first level for the lift-off
+    reference = Staircase(tuple(args.levels), hold_s=args.hold, **({"lead_s": HARDWARE_LEAD_S} if args.port else {}))
+    samples = reference.duration_s * args.sample_rate
+    if samples > MAX_STEPS:  # a mistyped --hold would allocate terabytes
+        raise InvalidParameterError("--hold", args.hold, f"a staircase of at most {MAX_STEPS:,} samples at "
+                                    f"{args.sample_rate:g} Hz, not {samples:,.0f}")
     if args.port:
-        from nfal.commands.cosim import HARDWARE_LEAD_S  # on use: `nfal --help` stays fast
-
-        reference = Staircase(tuple(args.levels), hold_s=args.hold, lead_s=HARDWARE_LEAD_S)  # from rest on a rig
         runs = _rig_runs(args, keys, reference)
         source = {"rig": args.port}
     else:
-        reference = Staircase(tuple(args.levels), hold_s=args.hold)
         runs = _simulated_runs(args, keys, reference)
         source = {"noise": {"peak_m": args.noise_peak, "cutoff_hz": args.noise_cutoff, "seed": args.seed}}
     results = {key: _run_metrics(run, reference) for key, run in runs.items()}

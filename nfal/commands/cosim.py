@@ -162,6 +162,8 @@ def run_run(args: argparse.Namespace) -> int:
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration import SimulationError, run_structure
 
+    if args.max_steps is not None and args.max_steps < 1:
+        raise InvalidParameterError("--max-steps", args.max_steps, "a whole number of steps >= 1")
     parameters = matched_design(dict(parse_parameter(text) for text in args.param))
     structure = _structure_path(args)
     names = _element_names(structure)

@@ -7,7 +7,7 @@ import dataclasses
 import signal
 from pathlib import Path
 
-from nfal.commands.common import finite_float, output_file, print_json
+from nfal.commands.common import finite_float, output_file, positive_float, print_json
 from nfal.errors import InvalidParameterError
 from nfal.hil.firmware import RigTiming  # light: the firmware's defaults are the flags' defaults
 
@@ -55,7 +55,7 @@ def register(commands) -> None:
                           help="the watchdog's ramp of the drive to 0 V (default %(default)s)")
     emulator.add_argument("--max-voltage", type=finite_float, default=RigTiming.max_drive_voltage, metavar="V",
                           help="drive commands above this are clamped (default %(default)s)")
-    emulator.add_argument("--duration", type=finite_float, metavar="SECONDS", help="stop after this long (default: run until "
+    emulator.add_argument("--duration", type=positive_float, metavar="SECONDS", help="stop after this long (default: run until "
                           "Ctrl-C or SIGTERM)")
     emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
                           "(default build/)")
@@ -90,6 +90,7 @@ def run_emulator(args: argparse.Namespace) -> int:
     from nfal.commands.cosim import parse_parameter
     from nfal.hil.faults import FaultSettings
     from nfal.hil.ports import PtyPort, UrlPort
+    from nfal.orchestration.interrupts import STOP_SIGNALS
     from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
     from nfal.rig_emulator import Disconnection, Emulator
     from nfal.rig_model import open_rig
@@ -109,10 +110,9 @@ def run_emulator(args: argparse.Namespace) -> int:
         try:
             emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
                                 record=record)
-            # Ctrl-C and SIGTERM end the run after the current tick, so the report is complete (from the moment the
-            # port is announced: whoever reads it may signal at once)
-            previous = {number: signal.signal(number, lambda *_: emulator.stop())
-                        for number in (signal.SIGINT, signal.SIGTERM)}
+            # Ctrl-C, SIGTERM and SIGHUP (a closed terminal) end the run after the current tick, so the report is
+            # complete and the link removed (from the moment the port is announced: whoever reads it may signal at once)
+            previous = {number: signal.signal(number, lambda *_: emulator.stop()) for number in STOP_SIGNALS}
             try:
                 _say(str(port.path))
                 _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "

@@ -39,6 +39,8 @@ def register(commands) -> None:
                           "socket://host:port")
     identify.add_argument("--out", default="rig-calibration.json", metavar="FILE.json",
                           help="the calibration file (default rig-calibration.json); FILE-raw.csv and FILE.png beside it")
+    identify.add_argument("--overwrite", action="store_true", help="replace FILE.json, FILE-raw.csv and FILE.png of a "
+                          "previous identification (refused otherwise)")
     identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration; open nothing")
     identify.add_argument("--equilibria", type=number_list, default=np.geomspace(47e-6, 210e-6, 12), metavar="HEIGHTS",
                           help="equilibrium heights [m], A,B,C or START:STOP:COUNT (default 12 heights spaced "
@@ -86,20 +88,28 @@ def run_identify(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.identify import Experiments, LinkRig, SampleRecorder
     from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
+    from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 
     plan = _plan(args)
     for name in ("metres_per_volt", "max_voltage", "max_silence", "connect_timeout"):
         require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
+    require_plausible("--metres-per-volt", args.metres_per_volt, MAX_METRES_PER_VOLT, "m/V")
+    rig, out = rig_from_args(args), Path(args.out)  # every number checked before --dry-run says the plan is fine
+    lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
+    if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
+        raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
+    if out.suffix.lower() != ".json":
+        raise InvalidParameterError("--out", args.out, "a calibration file name ending in .json")
     if args.dry_run:
         _print_plan(plan)
         return 0
     if not args.port:
         raise InvalidParameterError("--port", args.port, "the rig's port URL (or --dry-run)")
-    rig, out = rig_from_args(args), Path(args.out)
-    lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
-    if not require_finite("--amplitude-time-constant", lag, "a time >= 0 s") >= 0:
-        raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
     raw = out.with_name(out.stem + "-raw.csv")
+    previous = [path.name for path in (out, raw, out.with_suffix(".png")) if path.exists()]
+    if previous and not args.overwrite:  # a previous identification's measurements are not ours to replace
+        raise InvalidParameterError("--out", args.out, f"a name of no previous identification ({', '.join(previous)} "
+                                    "exist); give another --out, or --overwrite to replace them")
     link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
     hello = link.hello
     try:

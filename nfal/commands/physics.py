@@ -77,13 +77,13 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
         # on use: `nfal --help` stays fast
         from nfal.models.perturbation import DEFAULT_NODES, perturbation_K
 
-        K = perturbation_K(shape, sigma, args.nodes or DEFAULT_NODES)
+        K = perturbation_K(shape, sigma, DEFAULT_NODES if args.nodes is None else args.nodes)
     else:
         # on use: `nfal --help` stays fast
         from nfal.models.reynolds import time_marching_K
 
         with progress_bar(sigma.size, "time-marching K(sigma)") as bar:
-            K = time_marching_K(shape, sigma, delta=args.delta, nodes=args.nodes or 101,
+            K = time_marching_K(shape, sigma, delta=args.delta, nodes=101 if args.nodes is None else args.nodes,
                                 steps_per_period=args.steps_per_period, progress=lambda done, total: bar.update(1))
     if args.out:
         TabulatedK(sigma, K, name=f"{args.method}, {shape.name}").save(args.out)

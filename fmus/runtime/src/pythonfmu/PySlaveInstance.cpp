@@ -672,7 +672,10 @@ namespace
 {
 
 std::mutex pyStateMutex{};
-std::shared_ptr<PyState> pyState{};
+// nfal: a shared_ptr that exit() never destroys. Upstream's was a static, destroyed by exit()'s handlers
+// before the library destructor below (finalizePythonInterpreter) released it again: a double release,
+// "corrupted double-linked list" and SIGABRT at the exit of a host, depending on the heap's layout.
+std::shared_ptr<PyState>& pyState = *new std::shared_ptr<PyState>();
 
 } // namespace
 

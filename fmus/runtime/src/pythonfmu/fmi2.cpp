@@ -7,8 +7,10 @@
 #include <exception>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <regex>
+#include <unordered_set>
 
 namespace
 {
@@ -43,21 +45,28 @@ private:
     const fmi2CallbackFunctions* f_;
 };
 
+// nfal: the instances alive, so that a second fmi2FreeInstance of one is harmless (upstream deleted it
+// again: "double free or corruption", and the host aborted).
+std::mutex liveMutex;
+std::unordered_set<void*> liveInstances;
+
 // A struct that holds all the data for one model instance.
 struct Fmi2Component
 {
 
     Fmi2Component(std::unique_ptr<pythonfmu::SlaveInstance> slave, std::unique_ptr<Fmi2Logger> logger)
         : lastSuccessfulTime{std::numeric_limits<double>::quiet_NaN()}
-        , slave(std::move(slave))
         , logger(std::move(logger))
+        , slave(std::move(slave))
     { }
 
     double lastSuccessfulTime{0};
     bool wantsToTerminate{false};
 
-    std::unique_ptr<pythonfmu::SlaveInstance> slave;
+    // nfal: the logger is declared first, so it is destroyed last: the slave's destructor delivers its
+    // pending log messages through it (upstream destroyed the logger first, and that call used freed memory)
     std::unique_ptr<Fmi2Logger> logger;
+    std::unique_ptr<pythonfmu::SlaveInstance> slave;
 };
 
 } // namespace
@@ -117,6 +126,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName,
                 nullptr});
 
         auto component = std::make_unique<Fmi2Component>(std::move(instance), std::move(logger));
+        const std::lock_guard<std::mutex> lock(liveMutex);
+        liveInstances.insert(component.get());
         return component.release();
     } catch (const std::exception& e) {
         logger->log(fmi2Error, e.what());  // nfal: Error, as the standard's other failed calls
@@ -127,10 +138,11 @@ fmi2Component fmi2Instantiate(fmi2String instanceName,
 
 void fmi2FreeInstance(fmi2Component c)
 {
-    if (c) {
-        const auto component = static_cast<Fmi2Component*>(c);
-        delete component;
+    {
+        const std::lock_guard<std::mutex> lock(liveMutex);
+        if (!c || liveInstances.erase(c) == 0) return; // nfal: freed already (or never ours): nothing to do
     }
+    delete static_cast<Fmi2Component*>(c);
 }
 
 

@@ -1,0 +1,120 @@
+"""Hostile and careless input (issue 18): at least one case of each class the census found, run as a user would.
+
+Each case is the real command line (or an FMU through fmpy) on a hostile input, taken from
+tests/hostile_cases.py, the list bench/hostile_census.py runs in full. A case fails on a Python traceback
+(or the CLI's "internal error"), a hang (its timeout), a crash (killed by a signal), a file that existed
+before it changed or gone, or an input accepted that should be refused (or a valid one refused). Cases
+refused before anything is loaded run in this process (fast); the others in their own, with a timeout.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+
+import pytest
+
+from hostile_cases import (CLEAR, CRASH, HANDLED, REFUSED, TRACEBACK, WRONG, Case, cases_by_id, classify, run_case,
+                           run_case_in_process, write)
+
+CASES = cases_by_id()
+
+#: Refused at the command line or while a file is read, before any FMU is loaded: run in this process.
+IN_PROCESS = {
+    "crashes and hangs": ["calibrate-sigma-huge-count", "design-heights-huge-count", "compare-hold-huge",
+                          "sweep-spec-dev-zero"],
+    "tracebacks": ["run-stop-time-nan", "run-start-time-inf", "run-plot-extension", "calibrate-shape-plate-1000",
+                   "sweep-binary", "sweep-scheduler-bogus", "design-calibration-deep-json"],
+    "silently wrong": ["identify-metres-per-volt-1e300", "identify-mass-grams", "identify-out-bad-extension",
+                       "rig-emulator-seed-negative", "rig-emulator-duration-negative", "calibrate-nodes-0",
+                       "calibrate-experimental-mpv-1e300", "calibrate-experimental-duplicate-column",
+                       "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m",
+                       "sweep-ssp-structure-absolute-outside"],
+    "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
+    "misleading messages": ["ssp-not-zip", "run-max-steps-0"],
+}
+
+#: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
+OWN_PROCESS = {
+    "data lost": ["run-out-previous-run-fails-at-start", "run-out-overwrite-keeps-other-files",
+                  "identify-previous-identification", "rig-emulator-link-existing-file", "rig-emulator-sighup",
+                  "run-sigterm", "run-out-full-disk"],
+    "silently wrong": ["run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
+                       "run-param-seed-2pow32", "ssv-misspelt-parameter", "ssd-stop-time-honoured",
+                       "ssd-source-absolute-in-archive", "fmu-SlowPlant-excitation-1m",
+                       "fmu-ResonanceTracker-drive-1e300", "fmu-ResonanceTracker-mpv-1e300",
+                       "fmu-SensorChain-true-height-1e300", "fmu-SlowPlant-excess-damping-nan"],
+    "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9",
+                          "fmu-SlowPlant-excitation-1e200", "fmu-ReynoldsPlant-radial-nodes-2pow31",
+                          "fmu-SlowPlant-free-twice", "ssp-self-nested"],
+    "tracebacks": ["ssp-encrypted-flag", "ssp-unknown-compression", "identify-rig-random-bytes"],
+}
+
+
+def _ids(groups: dict[str, list[str]]) -> list:
+    return [pytest.param(case_id, id=f"{kind}: {case_id}") for kind, ids in groups.items() for case_id in ids]
+
+
+@pytest.fixture(scope="module")
+def build(fig7_archives):
+    return fig7_archives["fig7_slow"].parent
+
+
+def _expected(case_id: str) -> str:
+    return CLEAR if CASES[case_id].expect == "error" else HANDLED
+
+
+def _skip_if_meaningless(case_id: str) -> None:
+    if CASES[case_id].needs_permissions and os.geteuid() == 0:
+        pytest.skip("a read-only folder does not stop root")
+
+
+@pytest.mark.parametrize("case_id", _ids(IN_PROCESS))
+def test_hostile_input_in_process(case_id, build, tmp_path):
+    _skip_if_meaningless(case_id)
+    outcome = run_case_in_process(CASES[case_id], tmp_path, build)
+    assert outcome.outcome == _expected(case_id), outcome.detail
+
+
+@pytest.mark.parametrize("case_id", _ids(OWN_PROCESS))
+def test_hostile_input_in_its_own_process(case_id, build, tmp_path):
+    _skip_if_meaningless(case_id)
+    outcome = run_case(CASES[case_id], tmp_path, build)
+    assert outcome.outcome == _expected(case_id), outcome.detail
+
+
+def test_every_listed_case_exists_and_each_class_has_one():
+    listed = [case_id for groups in (IN_PROCESS, OWN_PROCESS) for ids in groups.values() for case_id in ids]
+    assert not [case_id for case_id in listed if case_id not in CASES]
+    assert {"data lost", "silently wrong", "crashes and hangs", "tracebacks"} <= set(IN_PROCESS) | set(OWN_PROCESS)
+
+
+@pytest.mark.parametrize("returncode, stderr, expect, outcome", [
+    (2, "usage: nfal run\nnfal run: error: argument --step: '0': must be > 0\n", "error", CLEAR),
+    (2, "Traceback (most recent call last):\n  File x\nValueError: x\n", "error", TRACEBACK),
+    (1, "nfal run: internal error: KeyError: 'x' (rerun with --debug for the traceback, and please report it)\n",
+     "error", TRACEBACK),
+    (-9, "", "error", CRASH),
+    (0, "", "error", WRONG),
+    (1, "something went wrong\n", "error", WRONG),
+    (2, "nfal run: error: no\n", "ok", REFUSED),
+    (0, "", "ok", HANDLED),
+])
+def test_the_judge(tmp_path, returncode, stderr, expect, outcome):
+    """The classification itself: each kind of failure is seen as one (so the cases above can fail)."""
+    case = Case("judge", "judge", ["run"], expect=expect)
+    done = subprocess.CompletedProcess(["nfal", "run"], returncode, "", stderr)
+    assert classify(case, done, {}, {}, tmp_path)[0] == outcome
+
+
+@pytest.mark.parametrize("stdout, outcome", [("[ERROR] x: doStep failed: mass = -1 ...\n", CLEAR), ("", WRONG)])
+def test_the_judge_wants_an_fmus_reason(tmp_path, stdout, outcome):
+    case = Case("judge", "judge", fmu={"fmu": "SlowPlant"})
+    done = subprocess.CompletedProcess(["python"], 2, stdout, "fmu: error: doStep: fmi2DoStep failed\n")
+    assert classify(case, done, {}, {}, tmp_path)[0] == outcome
+
+
+def test_the_judge_sees_a_changed_file(tmp_path, build):
+    case = Case("loses", "judge", ["calibrate", "numerical", "--sigma", "10,30,100,300", "--out", "k.json"],
+                setup=write("k.json", "mine\n"), protect=("k.json",), expect="ok")
+    assert run_case_in_process(case, tmp_path, build).outcome == WRONG
