@@ -81,6 +81,7 @@ from nfal.models.excitation import parse_shape
 from nfal.models.plant import DEFAULT_REST_GAP
 from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
 from nfal.models.rig import RigParameters
+from nfal.models.table2 import STAIRCASE_LEVELS_M
 
 #: Relative change of a plant's drive_frequency input that rebuilds its model.
 FREQUENCY_TOLERANCE = 1e-9
@@ -313,11 +314,11 @@ class NfalSlave(Fmi2Slave):
         ``excitation_amplitude`` and ``drive_frequency``; outputs ``height``, ``velocity``, ``resting``;
         parameters ``initial_height``, ``initial_velocity``, ``rest_gap`` and the rig."""
         self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
-        self.add_input("drive_frequency", 28500.0, unit="Hz", description="drive frequency f; sigma scales with it (eq. 2)")
+        self.add_input("drive_frequency", RigParameters.frequency, unit="Hz", description="drive frequency f; sigma scales with it (eq. 2)")
         self.add_output("height", unit="m", description="clearance hbar (slow, averaged over an excitation period)")
         self.add_output("velocity", unit="m/s", description="d hbar / dt")
         self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
-        self.add_parameter("initial_height", 60e-6, unit="m", description="clearance at release")
+        self.add_parameter("initial_height", STAIRCASE_LEVELS_M[0], unit="m", description="clearance at release")
         self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
         self.add_parameter("rest_gap", DEFAULT_REST_GAP, unit="m", description="closest approach: the object lands and rests here")
         self.add_rig_parameters()

@@ -38,11 +38,11 @@ from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import (LIFT_OFF_TIME_S, MAX_EXCITATION_M, SATURATION_WARNING_S, ControllerState,
                                      DiscreteControlLaw)
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
-from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 from nfal.models.plant import SimplifiedPlant
+from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 from nfal.models.stability import realizable_schedule
 from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, SAMPLING_RATE_HZ,
-                                WORK_RANGE_M)
+                                STAIRCASE_LEVELS_M, WORK_RANGE_M)
 from nfal.models.transducer import METRES_PER_VOLT, Transducer
 
 DESIGNS = ("gain-scheduled", "fixed")
@@ -62,8 +62,8 @@ class Controller(NfalSlave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.add_input("reference", 60e-6, unit="m", description="reference clearance r")
-        self.add_input("measured_height", 60e-6, unit="m", description="measured clearance h")
+        self.add_input("reference", STAIRCASE_LEVELS_M[0], unit="m", description="reference clearance r")
+        self.add_input("measured_height", STAIRCASE_LEVELS_M[0], unit="m", description="measured clearance h")
         self.add_output("drive_voltage", unit="V", description="excitation_command / metres_per_volt",
                         depends_on=("reference", "measured_height"), getter=self._voltage)
         self.add_output("excitation_command", unit="m", description="demanded excitation amplitude |a| = u",

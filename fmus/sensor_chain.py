@@ -16,7 +16,8 @@ from nfal.errors import InvalidParameterError, require_finite
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import sensor_chain as sensor_model
 from nfal.models.plausibility import MAX_CLEARANCE_M, require_plausible
-from nfal.models.table2 import ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
+from nfal.models.table2 import (ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ,
+                                STAIRCASE_LEVELS_M)
 
 
 class SensorChain(NfalSlave):
@@ -28,7 +29,7 @@ class SensorChain(NfalSlave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.add_input("true_height", 60e-6, unit="m", description="true clearance h of the levitated object")
+        self.add_input("true_height", STAIRCASE_LEVELS_M[0], unit="m", description="true clearance h of the levitated object")
         self.add_output("measured_height", unit="m", description="sampled, filtered, quantised measurement (held)",
                         depends_on=("true_height",), getter=self._measured)
         self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="sampling rate")

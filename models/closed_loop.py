@@ -18,13 +18,13 @@ from nfal.errors import InvalidParameterError, require_positive
 from .control_law import DiscreteControlLaw
 from .fixed_step_plant import FixedStepPlant
 from .plant import PlantState, SimplifiedPlant
+from .table2 import STAIRCASE_LEVELS_M
 
 logger = logging.getLogger(__name__)
 
 INTEGRATORS = ("fixed_step", "adaptive")
 
 #: The reference of the comparison [m]: a staircase between 60 and 180 um, up and back down.
-STAIRCASE_LEVELS_M = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6, 60e-6)
 
 
 @dataclasses.dataclass(frozen=True)

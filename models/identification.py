@@ -29,6 +29,7 @@ from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
 from .rig import RigParameters
+from .table2 import WORK_RANGE_M
 from .transducer import QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ
 
 #: The transducer's amplitude time constant 2 Q / omega_r [s] (5.6 ms for Q = 500 at 28.5 kHz).
@@ -188,7 +189,7 @@ class IdentificationPlan:
     """
 
     equilibrium_heights_m: tuple = tuple(np.geomspace(47e-6, 210e-6, 12))
-    damping_heights_m: tuple = tuple(np.linspace(50e-6, 200e-6, 8))
+    damping_heights_m: tuple = tuple(np.linspace(*WORK_RANGE_M, 8))
     step_fraction: float = 0.03
     steps: int = 6
     settle_window_s: float = SETTLE_WINDOW_S

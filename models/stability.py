@@ -25,6 +25,7 @@ from .lpv import LPVCoefficients, lpv_coefficients
 from .pid_design import SAMPLING_RATE_HZ, DesignSpec, GainSchedule, design_at
 from .plant import DampingModel
 from .rig import RigParameters
+from .table2 import WORK_RANGE_M
 
 logger = logging.getLogger(__name__)
 
@@ -75,7 +76,7 @@ def stability_map(design_heights_m=None, operating_heights_m=None, rig: RigParam
         See the module docstring.
     """
     rig, calibration, spec = rig or RigParameters(), calibration or paper_calibration(), spec or DesignSpec()
-    default = np.linspace(50e-6, 200e-6, 31)
+    default = np.linspace(*WORK_RANGE_M, 31)
     design_h = np.asarray(default if design_heights_m is None else design_heights_m, dtype=float).ravel()
     operating_h = np.asarray(default if operating_heights_m is None else operating_heights_m, dtype=float).ravel()
     step = rig.omega / require_positive("sample_rate_hz", sample_rate_hz)

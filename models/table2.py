@@ -19,6 +19,8 @@ NOISE_PEAK_M = 2e-6
 NOISE_CUTOFF_HZ = 300.0
 #: The work range of Sec. 4 [m]: the default schedule's and maps' heights, and the accepted references.
 WORK_RANGE_M = (50e-6, 200e-6)
+#: The reference of Figs. 9-10 [m]: the staircase's levels (its first is where the loop starts).
+STAIRCASE_LEVELS_M = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6, 60e-6)
 #: The design height of the fixed (non-scheduled) controller of Figs. 9-10 [m].
 FIXED_DESIGN_HEIGHT_M = 120e-6
 #: The actuator limit |a|_max [m]: 1.6 x the 6.2 um the paper's rig needs to hold 200 um (eq. 16), above the

@@ -153,6 +153,10 @@ class LibcosimUnavailableError(OrchestrationError, RuntimeError):
     """OSP libcosim's Python bindings (``libcosimpy``) are not installed or cannot load."""
 
 
+class ResultsWriteError(OrchestrationError, OSError):
+    """The results cannot be written (a full disk, a file-size limit): the message names the file and the rows kept."""
+
+
 class FmuLoadError(OrchestrationError, RuntimeError):
     """An FMU cannot be extracted or its shared library loaded here (e.g. no binary for this platform)."""
 

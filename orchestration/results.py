@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError, ResultsWriteError
 
 logger = logging.getLogger(__name__)
 
@@ -67,18 +67,40 @@ class CsvWriter:
         self._last_flush = time.monotonic()
 
     def write(self, row: Sequence[float | int | bool]) -> None:
-        """Append one row (as many values as columns)."""
-        self._file.write(",".join(map(repr, row)) + "\n")
-        self.rows += 1
-        now = time.monotonic()
-        if now - self._last_flush >= self.flush_interval_s:
-            self._file.flush()
-            self._last_flush = now
+        """Append one row (as many values as columns); :class:`ResultsWriteError` if the disk refuses it."""
+        try:
+            self._file.write(",".join(map(repr, row)) + "\n")
+            self.rows += 1
+            now = time.monotonic()
+            if now - self._last_flush >= self.flush_interval_s:
+                self._file.flush()
+                self._last_flush = now
+        except OSError as exc:
+            raise self._refused(exc) from None
 
     def close(self) -> None:
-        if not self._file.closed:
+        """Flush and close; :class:`ResultsWriteError` if the last rows cannot be written (the file is closed)."""
+        if self._file.closed:
+            return
+        try:
             self._file.flush()
-            self._file.close()
+        except OSError as exc:
+            raise self._refused(exc) from None
+        finally:
+            try:
+                self._file.close()
+            except OSError:  # the buffer it could not flush: already reported
+                pass
+
+    def rows_on_disk(self) -> int:
+        """The complete rows in the file now (after a refused write, what was kept)."""
+        with open(self.path, "rb") as handle:
+            lines = sum(chunk.count(b"\n") for chunk in iter(lambda: handle.read(1 << 20), b""))
+        return max(0, lines - 1)
+
+    def _refused(self, exc: OSError) -> ResultsWriteError:
+        return ResultsWriteError(f"{self.path}: cannot write the results ({exc.strerror or exc}): "
+                                 f"{self.rows_on_disk()} rows kept")
 
     def __enter__(self) -> "CsvWriter":
         return self

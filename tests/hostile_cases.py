@@ -444,6 +444,12 @@ def summary_failed_with_reason(folder: Path, done: subprocess.CompletedProcess) 
         return "summary.json is not JSON"
     if summary.get("status") == "running":
         return "summary.json left at 'running'"
+    if summary.get("status") == "failed":
+        rows = (folder / "out" / "results.csv").read_bytes().count(b"\n") - 1
+        if summary.get("rows_written") != rows:
+            return f"summary.json says {summary.get('rows_written')} rows written, results.csv holds {rows}"
+        if "results.csv" not in str(summary.get("error")):
+            return f"the error does not name the file: {summary.get('error')!r}"
     return None
 
 

@@ -260,7 +260,7 @@ def test_compare_runs_each_controller_on_the_rig(fig7_archives, emulator, tmp_pa
     assert output["rig"] == rig.port and output["reference"]["lead_s"] == 1.0
     for key in ("gs", "120"):
         [step] = output["controllers"][key]["steps"]
-        assert step["overshoot_percent"] < 25 and step["settling_time_s"] is not None
+        assert step["overshoot_percent"] < 50 and step["settling_time_s"] is not None  # 120 um's design at 60 um: 27 %
         assert (runs / key / "results.csv").is_file()
 
 

@@ -13,8 +13,16 @@ import numpy as np
 from nfal.commands.common import (RIG_OPTIONS, add_output_options, add_rig_options, finite_float, number_list,
                                   print_json, print_step_table, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
-from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, MAX_EXCITATION_M,  # light: constants only
-                               NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ)
+from nfal.models.table2 import (  # light: constants only
+    CLOSED_LOOP_CUTOFF_HZ,
+    FILTER_CUTOFF_HZ,
+    MAX_EXCITATION_M,
+    NOISE_CUTOFF_HZ,
+    NOISE_PEAK_M,
+    SAMPLING_RATE_HZ,
+    STAIRCASE_LEVELS_M,
+    WORK_RANGE_M,
+)
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
 PLACEMENTS = ("continuous", "sampled")
@@ -30,8 +38,9 @@ def register(commands) -> None:
         "compute the Fig. 8 map: max |z| of the local discrete loop for every (design height, operating height). "
         "The paper's Fig. 8: --placement continuous (forward-Euler map). With --calibration, K(sigma) and the "
         "damping correction of an identified rig enter eq. (20). Gains in SI: kp [m/m], ki [1/s], kd [s].")
-    design.add_argument("--heights", type=number_list, default=number_list("50e-6:200e-6:31"),
-                        help="design and operating heights [m]: A,B,C or START:STOP:COUNT (default 50e-6:200e-6:31)")
+    design.add_argument("--heights", type=number_list, default=np.linspace(*WORK_RANGE_M, 31),
+                        help="design and operating heights [m]: A,B,C or START:STOP:COUNT (default "
+                        f"{WORK_RANGE_M[0]:g}:{WORK_RANGE_M[1]:g}:31)")
     design.add_argument("--discretisation", choices=tuple(DISCRETISATION_CHOICES),
                         help="map's discrete loop: forward-euler (the paper's Fig. 8) or zoh (exact plant, "
                         "forward-Euler controller: what the digital loop realises) (default: forward-euler for "
@@ -53,7 +62,7 @@ def register(commands) -> None:
     compare.add_argument("--seed", type=int, default=0, help="seed of the measurement noise (default 0)")
     compare.add_argument("--noise-peak", type=finite_float, default=NOISE_PEAK_M, help="peak noise magnitude [m] (default %(default)s; 0: none)")
     compare.add_argument("--noise-cutoff", type=finite_float, default=NOISE_CUTOFF_HZ, help="noise colouring cut-off [Hz] (default %(default)s)")
-    compare.add_argument("--levels", type=number_list, default=number_list("60e-6,100e-6,140e-6,180e-6,140e-6,100e-6,60e-6"),
+    compare.add_argument("--levels", type=number_list, default=list(STAIRCASE_LEVELS_M),
                          help="reference levels [m] (default 60,100,140,180,140,100,60 um)")
     compare.add_argument("--hold", type=finite_float, default=0.6, help="hold time of each level [s] (default 0.6)")
     compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M, help="actuator limit |a|max [m] (default %(default)s)")

@@ -14,6 +14,8 @@ from nfal import __version__
 from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
 from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_finite,
                          require_positive)
+from nfal.models.table2 import WORK_RANGE_M  # light: constants only
+from nfal.models.transducer import METRES_PER_VOLT  # light: the transducer's constants
 
 # The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
 
@@ -45,8 +47,8 @@ def register(commands) -> None:
     identify.add_argument("--equilibria", type=number_list, default=np.geomspace(47e-6, 210e-6, 12), metavar="HEIGHTS",
                           help="equilibrium heights [m], A,B,C or START:STOP:COUNT (default 12 heights spaced "
                           "geometrically over 47-210 um, a little beyond the 50-200 um work range)")
-    identify.add_argument("--damping-heights", type=number_list, default=number_list("50e-6:200e-6:8"), metavar="HEIGHTS",
-                          help="heights of the drive steps [m] (default 50e-6:200e-6:8)")
+    identify.add_argument("--damping-heights", type=number_list, default=np.linspace(*WORK_RANGE_M, 8), metavar="HEIGHTS",
+                          help=f"heights of the drive steps [m] (default {WORK_RANGE_M[0]:g}:{WORK_RANGE_M[1]:g}:8)")
     identify.add_argument("--steps", type=int, default=6, help="fitted steps per damping height, even (default 6)")
     identify.add_argument("--step-size", type=float, default=0.03, metavar="FRACTION",
                           help="drive step about the equilibrium drive, relative (default 0.03)")
@@ -54,8 +56,8 @@ def register(commands) -> None:
                           help="a hold not settled by then is a fault (default 5)")
     identify.add_argument("--max-voltage", type=float, default=100.0, metavar="V",
                           help="the drive never exceeds this (default 100; the rig's own limit applies too)")
-    identify.add_argument("--metres-per-volt", type=float, default=1e-7, metavar="M/V",
-                          help="|a| per volt at resonance, as the Controller's metres_per_volt (default 1e-7)")
+    identify.add_argument("--metres-per-volt", type=float, default=METRES_PER_VOLT, metavar="M/V",
+                          help="|a| per volt at resonance, as the Controller's metres_per_volt (default %(default)s)")
     identify.add_argument("--amplitude-time-constant", type=float, metavar="SECONDS",
                           help="the transducer's amplitude lag 2Q/omega_r in the step fits (default 5.58e-3: Q 500 at 28.5 kHz)")
     identify.add_argument("--connect-timeout", type=float, default=2.0, metavar="SECONDS", help="wait for the rig's "
