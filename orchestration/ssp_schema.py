@@ -24,13 +24,9 @@ from pathlib import Path, PurePosixPath
 
 from lxml import etree
 
-logger = logging.getLogger(__name__)
+from .ssp import DEFAULT_SSD, SSB_NS, SSC_NS, SSD_NS, SSM_NS, SSV_NS  # noqa: F401 - the SSP 1.0 names, re-exported
 
-SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
-SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
-SSV_NS = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
-SSM_NS = "http://ssp-standard.org/SSP1/SystemStructureParameterMapping"
-SSB_NS = "http://ssp-standard.org/SSP1/SystemStructureSignalDictionary"
+logger = logging.getLogger(__name__)
 
 #: Namespace -> (vendored schema file, the prefix libcosim matches literally).
 SCHEMAS = {
@@ -50,7 +46,6 @@ ROOTS = {
 }
 
 #: The SSD an SSP archive must hold at its root (SSP 1.0, sec. 8).
-DEFAULT_SSD = "SystemStructure.ssd"
 
 
 def schema_dir() -> Path:
