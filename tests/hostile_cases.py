@@ -444,12 +444,20 @@ def summary_failed_with_reason(folder: Path, done: subprocess.CompletedProcess) 
         return "summary.json is not JSON"
     if summary.get("status") == "running":
         return "summary.json left at 'running'"
-    if summary.get("status") == "failed":
-        rows = (folder / "out" / "results.csv").read_bytes().count(b"\n") - 1
-        if summary.get("rows_written") != rows:
-            return f"summary.json says {summary.get('rows_written')} rows written, results.csv holds {rows}"
-        if "results.csv" not in str(summary.get("error")):
-            return f"the error does not name the file: {summary.get('error')!r}"
+    return None
+
+
+def disk_full_reported(folder: Path, done: subprocess.CompletedProcess) -> str | None:
+    """A run the disk stopped: failed with a reason that names the file, and rows_written what is on disk."""
+    failed = summary_failed_with_reason(folder, done)
+    if failed is not None:
+        return failed
+    summary = json.loads((folder / "out" / "summary.json").read_text())
+    rows = (folder / "out" / "results.csv").read_bytes().count(b"\n") - 1
+    if summary.get("rows_written") != rows:
+        return f"summary.json says {summary.get('rows_written')} rows written, results.csv holds {rows}"
+    if "results.csv" not in str(summary.get("error")):
+        return f"the error does not name the file: {summary.get('error')!r}"
     return None
 
 
@@ -565,7 +573,7 @@ def cli_cases() -> list[Case]:
         Case("run-out-dev-null", "results", RUN[:-1] + ["/dev/null"]),
         Case("run-out-full-disk", "results", ["run", "{build}/fig7_slow.ssp", "--stop-time", "5", "--reference",
                                               "staircase:1e-4,1.4e-4:2", "--out", "out"], fsize_limit=1_000_000,
-             check=summary_failed_with_reason),
+             check=disk_full_reported),
         Case("run-sigint", "results", RUN[:-4] + ["--stop-time", "20", "--out", "out"], expect="ok",
              why="Ctrl-C: summary 'interrupted', every row kept, exit 130",
              during=signal_when_rows(signal.SIGINT), exit_code=128 + signal.SIGINT,
