@@ -88,11 +88,20 @@ def loop_run(table, name: str = "fmu loop", columns: LoopColumns = SIMULATED) ->
 
 
 def loop_metrics(table, reference: Staircase, columns: LoopColumns = SIMULATED) -> dict:
-    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI, and the
-    drive's long saturations (:func:`saturation_episodes`)."""
+    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI, the drive's
+    long saturations (:func:`saturation_episodes`), and the first level apart (:func:`first_level`)."""
     run = loop_run(table, columns=columns)
     return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)],
-            "saturation": saturation_episodes(table)}
+            "saturation": saturation_episodes(table), "first_level": first_level(run, reference)}
+
+
+def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
+    """The run before the first step and from it on: the highest height and the IAE of the first level (a
+    rig's lift-off from rest), and the IAE of the steps [m, m s]."""
+    before = run.time_s < float(reference.step_times_s[0])
+    error, dt = np.abs(run.reference_m - run.height_m), run.time_s[1] - run.time_s[0]
+    return {"peak_m": float(np.max(run.height_m[before])) if before.any() else None,
+            "iae_m_s": float(np.sum(error[before]) * dt), "steps_iae_m_s": float(np.sum(error[~before]) * dt)}
 
 
 

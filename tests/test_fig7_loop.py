@@ -116,3 +116,20 @@ def test_reference_staircase_rejects_a_bad_spec():
                                           ({}, None)])
 def test_matched_design(given, added):
     assert matched_design(given).get("Controller.calibration") == added
+
+
+def test_first_level_is_measured_apart_from_the_steps():
+    """A rig's lift-off before the first step: its peak and IAE, and the steps' IAE, which add up to the total."""
+    from nfal.fig7 import first_level
+    from nfal.models.closed_loop import ClosedLoopRun
+    from nfal.models.step_metrics import total_iae
+
+    reference = Staircase((60e-6, 100e-6), hold_s=0.5, lead_s=1.0)
+    time = np.arange(3000) * 5e-4
+    height = np.where(time < 0.5, 5e-6, np.where(time < 1.0, 62e-6, reference(time) - 1e-6))
+    run = ClosedLoopRun("synthetic", time, reference(time), height, height, np.zeros_like(time))
+    first = first_level(run, reference)
+    assert first["peak_m"] == pytest.approx(62e-6)
+    assert first["iae_m_s"] == pytest.approx(55e-6 * 0.5 + 2e-6 * 0.5, rel=1e-9)
+    assert first["steps_iae_m_s"] == pytest.approx(1e-6 * 0.5, rel=1e-9)
+    assert first["iae_m_s"] + first["steps_iae_m_s"] == pytest.approx(total_iae(run), rel=1e-12)

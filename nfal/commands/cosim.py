@@ -231,7 +231,10 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"note: {summary['note']}")
     metrics = summary.get("metrics")
     if metrics:
-        print(f"IAE {metrics['iae'] * 1e6:.3f} um s")
+        first = metrics.get("first_level") or {}
+        parts = (f" (first level {first['iae_m_s'] * 1e6:.3f}, its peak {first['peak_m'] * 1e6:.1f} um; steps "
+                 f"{first['steps_iae_m_s'] * 1e6:.3f})" if first.get("peak_m") is not None else "")
+        print(f"IAE {metrics['iae'] * 1e6:.3f} um s{parts}")
         print_step_table(metrics["steps"])
         for episode in metrics.get("saturation", []):
             print(f"warning: the drive stayed saturated for {episode['duration_s']:.3g} s from t = {episode['start_s']:.4g} s: "
