@@ -147,6 +147,12 @@ class DiscreteControlLaw:
         self.actuator_lag_s = float(actuator_lag_s)
         if not (math.isfinite(self.actuator_lag_s) and 0.0 <= self.actuator_lag_s < 1.0):
             raise InvalidParameterError("actuator_lag_s", actuator_lag_s, "a finite lag >= 0 and < 1 s")
+        # per-sample constants of the pair (decay over one period) and of the lead (backward Euler weights)
+        self._decay = {lifting: None if tc is None else math.exp(-self.period_s / tc)
+                       for lifting, tc in ((True, self.lift_off_time_s), (False, self.reference_filter_s))}
+        fast = self.actuator_lag_s / LEAD_RATIO
+        self._lead_weights = (fast / (fast + self.period_s), self.period_s / (fast + self.period_s),
+                              self.actuator_lag_s / (fast + self.period_s))
         self.filter_rad_s = gains.omega_lpf * gains.omega  # omega_L [rad/s]
         if self.period_s * self.filter_rad_s >= 2.0:
             raise InvalidParameterError("sample_rate_hz", sample_rate_hz,
@@ -185,14 +191,10 @@ class DiscreteControlLaw:
     def _shaped_reference(self, state: ControllerState, reference: float) -> tuple[float, tuple | None, bool]:
         """The reference this sample follows, the pair's next state and whether lift-off goes on."""
         lifting = state.lifting
-        if lifting:
-            time_constant = self.lift_off_time_s
-        elif self.reference_filter_s is not None:
-            time_constant = self.reference_filter_s
-        else:
+        decay = self._decay[lifting]
+        if decay is None:
             return reference, None, False
         first, second = state.reference_pair_m or (reference, reference)
-        decay = math.exp(-self.period_s / time_constant)
         first = reference + (first - reference) * decay
         second = first + (second - first) * decay
         if lifting and abs(reference - second) <= LIFT_OFF_END * reference:
@@ -204,9 +206,8 @@ class DiscreteControlLaw:
         if self.actuator_lag_s == 0.0:
             return command, None
         last_input, last_output = (command, command) if lead is None else lead
-        ts, tau = self.period_s, self.actuator_lag_s
-        fast = tau / LEAD_RATIO
-        output = (fast * last_output + ts * command + tau * (command - last_input)) / (fast + ts)
+        held, new, rate = self._lead_weights
+        output = held * last_output + new * command + rate * (command - last_input)
         return min(max(output, 0.0), self.max_excitation_m), (command, float(output))
 
     @staticmethod
