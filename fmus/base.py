@@ -89,6 +89,7 @@ FREQUENCY_TOLERANCE = 1e-9
 logger = logging.getLogger(__name__)
 
 __all__ = ["NfalSlave", "SampleClock", "FmuStateError", "SlaveCallError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
+           "rig_parameter_values",
            "DefaultExperiment", "SAMPLE_TOLERANCE"]
 
 #: SI base-unit exponents of every unit an nfal FMU declares (FMI 2.0 ``<BaseUnit>`` attributes).
@@ -121,6 +122,13 @@ RIG_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
     ("ambient_pressure", RigParameters.ambient_pressure, "Pa", "ambient pressure p_a"),
     ("gravity", RigParameters.gravity, "m/s2", "gravitational acceleration g"),
 )
+
+
+def rig_parameter_values(rig: RigParameters) -> dict[str, float]:
+    """The values of :data:`RIG_PARAMETERS` that describe ``rig`` (the inverse of :meth:`NfalSlave.build_rig`)."""
+    return {name: rig.frequency if name == "nominal_frequency" else getattr(rig, name) for name, *_ in RIG_PARAMETERS}
+
+
 #: ``calibration`` values besides a path to a calibration JSON written by ``nfal calibrate``.
 CALIBRATION_CHOICES = ("paper", "perturbation")
 #: Relative tolerance of "a whole number of sample periods from the start" (contract).

@@ -13,6 +13,7 @@ from fmpy.validation import validate_fmu
 from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 
 from nfal.errors import DataFormatError, InvalidParameterError
+from nfal.fmus.base import rig_parameter_values
 from nfal.fmus.controller import Controller
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
 from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
@@ -290,3 +291,11 @@ def test_perturbation_calibration_names_a_shape(calibration, shape):
     slave.calibration = calibration
     expected = perturbation_calibration(parse_shape(shape))
     assert slave.build_calibration()(96.0) == pytest.approx(float(expected(96.0)), rel=1e-12)
+
+
+def test_rig_parameter_values_are_what_build_rig_reads_back():
+    rig = RigParameters(mass=0.2, radius=0.04, frequency=30e3, viscosity=1.9e-5, ambient_pressure=9e4, gravity=9.8)
+    slave = Controller(instance_name="controller")
+    for name, value in rig_parameter_values(rig).items():
+        setattr(slave, name, value)
+    assert slave.build_rig() == rig.replace(reference_clearance=RigParameters().reference_clearance)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.commands.common import (RIG_OPTIONS, add_output_options, add_rig_options, finite_float, number_list,
+from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list,
                                   print_json, print_step_table, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
 from nfal.models.table2 import (  # light: constants only
@@ -284,10 +284,10 @@ def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
 
 
 def _rig_parameters(args: argparse.Namespace) -> dict:
-    """The rig options given (``--mass`` ...) as the Controller's parameters (its design model)."""
-    names = {"frequency": "nominal_frequency"}
-    return {f"Controller.{names.get(name, name)}": getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS
-            if name != "reference_clearance" and getattr(args, f"rig_{name}") is not None}
+    """The rig options (``--mass`` ...) as the Controller's parameters (its design model)."""
+    from nfal.fmus.base import rig_parameter_values  # on use: `nfal --help` stays fast (pythonfmu)
+
+    return {f"Controller.{name}": value for name, value in rig_parameter_values(rig_from_args(args)).items()}
 
 
 def _print_table(results: dict) -> None:
