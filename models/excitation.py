@@ -22,6 +22,12 @@ _DATA = resources.files(__package__) / "data"
 PAPER_SHAPE_FILE = "fig3_mode_shape_standin.csv"
 
 
+
+def largest_excursion(*samples: np.ndarray) -> float:
+    """max |eps_hat| over the given samples (nodes, faces): the gap 1 - delta eps_hat sin T closes first where
+    |eps_hat| is largest, whatever its sign."""
+    return float(max(np.max(np.abs(s)) for s in samples))
+
 class ExcitationShape(abc.ABC):
     """An axisymmetric excitation form with unit norm (eq. 7, weight 1)."""
 

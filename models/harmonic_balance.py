@@ -27,7 +27,7 @@ from scipy import linalg
 
 from nfal.errors import ConvergenceError, InvalidParameterError
 
-from .excitation import ExcitationShape
+from .excitation import ExcitationShape, largest_excursion
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
 from .reynolds import discrete_mean_correction
 
@@ -99,7 +99,7 @@ class HarmonicBalanceFilm:
         self._eps_nodes = shape(self.R)
         self._eps_faces = shape(self._faces)
         self._conductance = self._faces / self.R[1]
-        self.largest_eps = float(max(np.max(self._eps_nodes), np.max(self._eps_faces)))
+        self.largest_eps = largest_excursion(self._eps_nodes, self._eps_faces)
         self._assemble_pattern()
 
     def _assemble_pattern(self) -> None:
@@ -144,7 +144,7 @@ class HarmonicBalanceFilm:
         sigma = float(sigmas[0])
         delta = float(delta)
         if not (np.isfinite(delta) and 0.0 < delta and delta * self.largest_eps < 1.0):
-            raise InvalidParameterError("delta", delta, f"a number with 0 < delta < 1 / max eps_hat = {1.0 / self.largest_eps:.4g}")
+            raise InvalidParameterError("delta", delta, f"a number with 0 < delta < 1 / max |eps_hat| = {1.0 / self.largest_eps:.4g}")
         u = self.initial_guess(sigma, delta) if guess is None else np.array(guess, dtype=float)
         u[-1] = 0.0
         sine = np.sin(self.phases)

@@ -43,7 +43,7 @@ from scipy.linalg import eigvalsh_tridiagonal
 from nfal.errors import ConvergenceError, InvalidParameterError
 
 from . import numba_cache
-from .excitation import ExcitationShape
+from .excitation import ExcitationShape, largest_excursion
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
@@ -299,7 +299,7 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
     record = np.empty((steps, nodes))
     scale_force = 2.0 / (steps * delta**2)
 
-    slow_ratio = slowest_period_ratio(R, faces, volumes, sigma, delta * max(np.max(np.abs(eps_nodes)), np.max(np.abs(eps_faces))))
+    slow_ratio = slowest_period_ratio(R, faces, volumes, sigma, delta * largest_excursion(eps_nodes, eps_faces))
     factor = max(1.0, slow_ratio / (1.0 - slow_ratio))
     states = [np.concatenate((u_now, u_prev))]
     K_value, K_last, change, extrapolations = np.nan, np.nan, np.inf, 0
@@ -336,9 +336,10 @@ def _form_on_grid(shape: ExcitationShape, delta: float, R: np.ndarray, faces: np
     """eps_hat at the nodes and faces; refused if delta * eps_hat would close the gap."""
     eps_nodes = np.ascontiguousarray(shape(R), dtype=float)
     eps_faces = np.ascontiguousarray(shape(faces), dtype=float)
-    if delta * max(np.max(eps_nodes), np.max(eps_faces)) >= 1.0:
-        raise InvalidParameterError("delta", delta, f"small enough that the gap stays open: delta * max(eps_hat) < 1 "
-                                    f"(max eps_hat = {max(np.max(eps_nodes), np.max(eps_faces)):.4g})")
+    largest = largest_excursion(eps_nodes, eps_faces)
+    if delta * largest >= 1.0:
+        raise InvalidParameterError("delta", delta, f"small enough that the gap stays open: delta * max |eps_hat| < 1 "
+                                    f"(max |eps_hat| = {largest:.4g})")
     return eps_nodes, eps_faces
 
 

@@ -9,7 +9,7 @@ import pytest
 from nfal.errors import InvalidParameterError
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel
-from nfal.models.excitation import parse_shape
+from nfal.models.excitation import TabulatedShape, largest_excursion, parse_shape
 from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.harmonic_balance import HarmonicBalanceFilm, fourier_differentiation
 from nfal.models.perturbation import first_order_pressure, perturbation_K, radial_grid
@@ -71,6 +71,19 @@ def test_small_delta_is_the_perturbation_route(films, name):
         assert K == pytest.approx(float(perturbation_K(shape, sigma, nodes=NODES)[0]), abs=3e-3)
 
 
+def test_the_gap_limit_is_set_by_the_largest_excursion_of_either_sign():
+    """A form whose trough is deeper than its peak closes the gap at the trough: delta is bounded by 1 / max |eps|."""
+    radius = np.linspace(0.0, 1.0, 21)
+    shape = TabulatedShape(radius, 0.5 - 2.5 * radius**2)  # +0.5 at the axis, -2.0 at the rim (before normalising)
+    film = HarmonicBalanceFilm(shape, 11, 3)
+    excursion = largest_excursion(shape(film.R))
+    assert film.largest_eps == pytest.approx(excursion, rel=0.05) and excursion > 2 * np.max(shape(film.R))
+    with pytest.raises(InvalidParameterError, match="delta"):
+        film.solve(50.0, 1.05 / film.largest_eps)  # below 1 / max(eps_hat): it used to be accepted
+    with pytest.raises(InvalidParameterError, match="delta"):
+        periodic_film(shape, 50.0, 1.05 / film.largest_eps, nodes=11)
+
+
 def test_bad_delta_is_an_error(films):
     with pytest.raises(InvalidParameterError, match="delta"):
         films["paper"].solve(96.0, 0.5)  # delta max eps_hat > 1: the gap closes
@@ -114,11 +127,13 @@ def test_averaged_plant_follows_the_coupled_model(tables, name, amplitude, relea
     assert plant.oscillation(averaged.height[-1], amplitude) == pytest.approx(runs[1].oscillation[-1], rel=0.02)
 
 
-def test_cached_table_is_the_built_one_and_keyed_by_its_settings(tmp_path):
+def test_cached_table_is_the_built_one_and_keyed_by_its_settings(tmp_path, monkeypatch):
     settings = dict(nodes=11, harmonics=3, sigmas=6, richardson=False)
     built = cached_table(SHAPES["piston"], tmp_path, **settings)
     assert len(list((tmp_path / "film_tables").glob("*.npy"))) == 1
-    loaded = cached_table(SHAPES["piston"], tmp_path, **settings)
+    with monkeypatch.context() as patch:  # a second build with the same settings must not solve again
+        patch.setattr(FilmForceTable, "_solve_all", lambda self, film: pytest.fail("the cache was not read"))
+        loaded = cached_table(SHAPES["piston"], tmp_path, **settings)
     assert np.array_equal(loaded.values, built.values) and loaded.scalar(50.0, 0.2) == built.scalar(50.0, 0.2)
     cached_table(SHAPES["paper"], tmp_path, **settings)  # another shape, another entry
     cached_table(SHAPES["piston"], tmp_path, **{**settings, "harmonics": 4})
