@@ -216,7 +216,7 @@ def cached_table(shape: ExcitationShape, cache_dir: str | os.PathLike | None = N
     """:class:`FilmForceTable` (``settings`` its keyword arguments), its values kept in ``cache_dir``
     (default ``$NFAL_CACHE_DIR`` or ``~/.cache/nfal``, folder ``film_tables``) so that a second build with
     the same shape and settings skips the solves. A cache that cannot be read or written is bypassed."""
-    folder = Path(cache_dir or os.environ.get("NFAL_CACHE_DIR") or Path.home() / ".cache" / "nfal") / "film_tables"
+    folder = Path(cache_dir or numba_cache.cache_root()) / "film_tables"
     path = folder / f"{cache_key(shape, **settings)}.npy"
     try:
         return FilmForceTable(shape, **settings, values=np.load(path))
