@@ -583,6 +583,10 @@ class _Resolver:
                 source = source.source
             where = f"{source.path} -> {' -> '.join(via) + ' -> ' if via else ''}{node.path}"
             self._check_pair(source, node, where, transformation)
+            if transformation is not None and (node.kind != "input" or source.component is None):
+                raise UnsupportedFeatureError(f"{where}: a LinearTransformation is applied on connections from one "
+                                              "element's output to another's input only, not from a system input or "
+                                              "to a parameter; move it onto such a connection")
             target = Port(node.component, node.name, node.type, node.unit)
             if node.kind != "input":  # a parameter fed by a system connector: its value was set before
                 logger.debug("%s: a %s, set from %s before initialisation only", node.path, node.kind, source.path)
@@ -604,9 +608,13 @@ class _Resolver:
         for connector in self.structure.system.connectors:
             node = self.nodes.get(("", connector.name))
             if connector.kind == "output" and node is not None and node.source is not None:
-                source = node.source
+                source, transformation = node.source, node.transformation
                 while source.component is None and source.source is not None:
+                    transformation = _compose(source.transformation, transformation)
                     source = source.source
+                if transformation is not None:
+                    raise UnsupportedFeatureError(f"system output {connector.name}: a LinearTransformation on its "
+                                                  "connection is not applied to system outputs; remove it")
                 if source.component is not None:
                     outputs[connector.name] = Port(source.component, source.name, source.type, source.unit)
         return tuple(links), inputs, outputs

@@ -18,7 +18,7 @@ from reference_fmus.build import build_reference_fmus, compiler
 from toy_fmus.ssd import component, connection, ssd, system, write_folder
 
 from nfal.cli import main
-from nfal.orchestration import TypeMismatchError, read_ssp, resolve, run_structure
+from nfal.orchestration import TypeMismatchError, UnsupportedFeatureError, read_ssp, resolve, run_structure
 
 
 @pytest.fixture(scope="module")
@@ -143,3 +143,15 @@ def test_transformations_compose_through_system_connectors(reference, tmp_path):
     assert (link.transformation.factor, link.transformation.offset) == (1.0, 0.5)
     result = run_structure(folder, inputs={"A.Float64_continuous_input": 4.0}, out_dir=tmp_path / "run", plot=False)
     np.testing.assert_array_equal(result["sub.B.Float64_continuous_output"], 4.5)
+
+
+def test_a_transformation_from_a_system_input_is_refused_not_dropped(reference, tmp_path):
+    """The master drives a system input straight into its targets: a factor on that connection was ignored."""
+    outer = system("outer", (component("A", "Feedthrough"),),
+                   (connection("in", "A.Float64_continuous_input").replace("/>", f">{LINEAR}</ssd:Connection>"),),
+                   connectors=('<ssd:Connector name="in" kind="input"><ssc:Real/></ssd:Connector>',))
+    folder = write_folder(tmp_path / "ssp", ssd(outer, stop_time=0.3, step_size=0.1),
+                          {"Feedthrough": reference / "Feedthrough.fmu"})
+    with read_ssp(folder) as structure:
+        with pytest.raises(UnsupportedFeatureError, match="LinearTransformation"):
+            resolve(structure)
