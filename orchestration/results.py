@@ -58,7 +58,7 @@ class CsvWriter:
         self.path = Path(path)
         self.columns = tuple(columns)
         self.flush_interval_s = float(flush_interval_s)
-        self.rows = 0
+        self.rows = 0  #: rows written (after a refused write: the rows on disk)
         self._file = open(self.path, "w", encoding="utf-8", newline="")
         header = io.StringIO()
         csv.writer(header, lineterminator="\n").writerow([c.header for c in self.columns])
@@ -99,8 +99,9 @@ class CsvWriter:
         return max(0, lines - 1)
 
     def _refused(self, exc: OSError) -> ResultsWriteError:
-        return ResultsWriteError(f"{self.path}: cannot write the results ({exc.strerror or exc}): "
-                                 f"{self.rows_on_disk()} rows kept")
+        """The error for a refused write; from then on ``rows`` counts what reached the disk."""
+        self.rows = self.rows_on_disk()
+        return ResultsWriteError(f"{self.path}: cannot write the results ({exc.strerror or exc}): {self.rows} rows kept")
 
     def __enter__(self) -> "CsvWriter":
         return self

@@ -348,7 +348,7 @@ def _closing_summary(loop: _LoopOutcome, master: Master, writer: CsvWriter, star
     entries = {
         "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
         "error": None if error is None else str(error) or type(error).__name__,
-        "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows if error is None else writer.rows_on_disk(),
+        "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows,
         "wall_time_s": loop.wall_time_s,
         "initialization_wall_time_s": loop.init_time_s, "loop_wall_time_s": loop_time,
         "real_time_factor": (completed * step) / loop_time if loop_time > 0 else None,
