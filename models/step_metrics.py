@@ -89,6 +89,7 @@ def step_metrics(run: ClosedLoopRun, reference: Staircase, *, band: float = SETT
     return results
 
 
-def total_iae(run: ClosedLoopRun) -> float:
-    """Integral of |r - h| dt over the whole run [m s]."""
-    return float(np.sum(np.abs(run.reference_m - run.height_m)) * (run.time_s[1] - run.time_s[0]))
+def total_iae(run: ClosedLoopRun, where: np.ndarray | None = None) -> float:
+    """Integral of |r - h| dt over the whole run, or over the samples ``where`` selects [m s]."""
+    error = np.abs(run.reference_m - run.height_m)
+    return float(np.sum(error if where is None else error[where]) * (run.time_s[1] - run.time_s[0]))

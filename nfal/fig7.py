@@ -99,9 +99,8 @@ def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
     """The run before the first step and from it on: the highest height and the IAE of the first level (a
     rig's lift-off from rest), and the IAE of the steps [m, m s]."""
     before = run.time_s < float(reference.step_times_s[0])
-    error, dt = np.abs(run.reference_m - run.height_m), run.time_s[1] - run.time_s[0]
     return {"peak_m": float(np.max(run.height_m[before])) if before.any() else None,
-            "iae_m_s": float(np.sum(error[before]) * dt), "steps_iae_m_s": float(np.sum(error[~before]) * dt)}
+            "iae_m_s": total_iae(run, before), "steps_iae_m_s": total_iae(run, ~before)}
 
 
 
