@@ -35,14 +35,13 @@ from pythonfmu.enums import Fmi2Status
 
 from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import (LIFT_OFF_TIME_S, MAX_EXCITATION_M, SATURATION_WARNING_S, ControllerState,
-                                     DiscreteControlLaw)
+from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 from nfal.models.stability import realizable_schedule
-from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, SAMPLING_RATE_HZ,
-                                STAIRCASE_LEVELS_M, WORK_RANGE_M)
+from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, MAX_EXCITATION_M,
+                                SAMPLING_RATE_HZ, STAIRCASE_LEVELS_M, WORK_RANGE_M)
 from nfal.models.transducer import METRES_PER_VOLT, Transducer
 
 DESIGNS = ("gain-scheduled", "fixed")

@@ -44,7 +44,7 @@ from nfal.errors import InvalidParameterError, require_positive
 from .pid_design import FixedGains, GainSchedule
 from .plausibility import MAX_EXCITATION_M as PLAUSIBLE_EXCITATION_M
 from .plausibility import require_plausible
-from .table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ, WORK_RANGE_M  # noqa: F401 - MAX_EXCITATION_M re-exported
+from .table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ, WORK_RANGE_M
 
 #: A drive saturated at the limit this long [s] is reported: the reference is out of the film's reach.
 SATURATION_WARNING_S = 0.1

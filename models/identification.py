@@ -30,10 +30,10 @@ from .calibration import CalibrationFunction
 from .damping import DampingCorrection
 from .rig import RigParameters
 from .table2 import WORK_RANGE_M
-from .transducer import QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ
+from .transducer import Transducer
 
 #: The transducer's amplitude time constant 2 Q / omega_r [s] (5.6 ms for Q = 500 at 28.5 kHz).
-AMPLITUDE_TIME_CONSTANT_S = 2.0 * QUALITY_FACTOR / (2.0 * np.pi * RESONANCE_FREQUENCY_HZ)
+AMPLITUDE_TIME_CONSTANT_S = Transducer().time_constant_s()
 #: Default settling test: a 0.4 s window whose halves' means differ by less than 0.25 % of the height.
 SETTLE_WINDOW_S = 0.4
 SETTLE_DRIFT = 2.5e-3

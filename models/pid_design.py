@@ -37,7 +37,7 @@ from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel
 from .rig import RigParameters
 from .sampled_design import SampledLoop
-from .table2 import ANALOG_FILTER_CUTOFF_HZ, CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, SAMPLING_RATE_HZ, WORK_RANGE_M  # noqa: F401 - re-exported
+from .table2 import CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, WORK_RANGE_M
 
 logger = logging.getLogger(__name__)
 

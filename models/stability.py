@@ -22,10 +22,10 @@ from nfal.errors import InvalidParameterError, require_positive
 from .calibration import CalibrationFunction, paper_calibration
 from .local_loop import DISCRETISATIONS, continuous_loop_matrix, discrete_loop_matrix
 from .lpv import LPVCoefficients, lpv_coefficients
-from .pid_design import SAMPLING_RATE_HZ, DesignSpec, GainSchedule, design_at
+from .pid_design import DesignSpec, GainSchedule, design_at
 from .plant import DampingModel
 from .rig import RigParameters
-from .table2 import WORK_RANGE_M
+from .table2 import SAMPLING_RATE_HZ, WORK_RANGE_M
 
 logger = logging.getLogger(__name__)
 
