@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from nfal.errors import InvalidParameterError, SweepSpecError
-from nfal.fig7 import REFERENCE, SIMULATED, loop_metrics
+from nfal.fig7 import REFERENCE, SIMULATED, loop_metrics, matched_design, reference_staircase
 from nfal.models.calibration import perturbation_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.excitation import parse_shape
@@ -47,9 +47,10 @@ class Ramp:
         return self.initial + fraction * (self.final - self.initial)
 
 
-def _staircase(reference):
+def _staircase(reference, structure: str):
+    """The run's reference: the structure's default staircase (as ``nfal run`` takes it), none, or the spec's."""
     if reference == "staircase":
-        return Staircase()
+        return reference_staircase("staircase", Path(structure).stem)
     if reference == "none":
         return None
     return Staircase(tuple(reference["levels_m"]), **{k: reference[k] for k in ("hold_s", "lead_s") if k in reference})
@@ -88,7 +89,8 @@ def ssp_task(run: RunSpec, path: Path) -> dict:
                                    float(ramp["duration_s"])) if ramp is not None else float(value))
         else:
             parameters[name] = value
-    staircase = _staircase(settings["reference"])
+    parameters = matched_design(parameters)  # a swept Plant.shape: the Controller designed on that film, as nfal run
+    staircase = _staircase(settings["reference"], settings["structure"])
     if staircase is not None:
         inputs.setdefault(settings["reference_input"], staircase)
     stop_time = settings["stop_time"] or (staircase.duration_s if staircase is not None else None)

@@ -16,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nfal.errors import SweepError, SweepSpecError
+from nfal.models.closed_loop import Staircase
 from nfal.orchestration.sweep import ResultsTable, cached_structure, columns, read_table, run_sweep, run_task
 from nfal.orchestration.sweep_spec import expand
 from nfal.sweeps import KINDS, Ramp, load_spec, parse_spec
@@ -369,3 +370,12 @@ def test_an_extended_spec_skips_its_old_runs_and_a_changed_one_keeps_their_rows(
     assert (extended.summary["skipped"], extended.summary["new"], extended.summary["ok"]) == (1, 1, 2)
     assert (changed.summary["skipped"], changed.summary["other_rows"], changed.summary["ok"]) == (0, 2, 2)
     assert len(changed.rows()) == 4
+
+
+def test_a_sweep_takes_the_structures_default_staircase_as_nfal_run_does():
+    from nfal.fig7 import DEFAULT_STAIRCASES
+    from nfal.sweeps import _staircase
+
+    assert _staircase("staircase", "fig7_reynolds") == DEFAULT_STAIRCASES["fig7_reynolds"]  # within the film's reach
+    assert _staircase("staircase", "some/where/fig7_slow.ssp") == Staircase()
+    assert _staircase("none", "fig7_slow") is None
