@@ -7,7 +7,8 @@ that ``nfal run`` can simulate too, parameter for parameter. Two ways to run it,
 (``apply``, ``reading``, ``advance``, ``time``, ``true_height``, ``close``):
 
 * :class:`InProcessRig`: the nfal FMUs' own slave classes as Python objects, wired as the structure says
-  (no FMI calls: 87 against 146 us a tick here, docs/hil.md; a 2 kHz emulator beside a 2 kHz host needs it);
+  (no FMI calls: 77 against 110 us a tick for rig_slow, ``python bench/bench_rig_truth.py``; a 2 kHz emulator
+  beside a 2 kHz host needs the margin);
 * :class:`StructureRig`: the structure's FMUs through the co-simulation master (any FMUs, a user's too).
 
 :func:`open_rig` takes the first when every element is an nfal FMU, else the second.
