@@ -23,6 +23,7 @@ import numpy as np
 from loop_agreement import AS_PURE_LOOP, run
 
 from nfal.build import build_all
+from nfal.commands.cosim import parse_parameter
 from nfal.fig7 import loop_metrics
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.closed_loop import Staircase
@@ -46,8 +47,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--calibration", type=Path, help="calibration file (default: a perfect identification)")
     parser.add_argument("--no-lag", action="store_true", help="transducer and analog filter transparent")
+    parser.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
+                        help="set a parameter of the four Controllers with the lead (not the baseline), repeatable")
+    parser.add_argument("--levels", type=float, nargs="+", help="staircase levels [m] (default: Figs. 9-10's)")
+    parser.add_argument("--hold", type=float, default=0.6, help="hold of each level [s] (default 0.6)")
     args = parser.parse_args()
-    reference = Staircase()
+    reference = Staircase(tuple(args.levels), hold_s=args.hold) if args.levels else Staircase()
+    extra_parameters = dict(parse_parameter(text) for text in args.param)
     with tempfile.TemporaryDirectory() as tmp:
         calibration = args.calibration or perfect_identification(Path(tmp) / "identified.json")
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
@@ -56,7 +62,8 @@ def main() -> None:
         rows = [("continuous", "eq. (6)", "paper's", {"Controller.placement": "continuous", **paper_law})]
         for placement in ("continuous", "sampled"):
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
-                rows.append((placement, damping, "with lead", {"Controller.placement": placement, **extra}))
+                rows.append((placement, damping, "with lead",
+                             {"Controller.placement": placement, **extra, **extra_parameters}))
         print(f"{'placement':<11} {'damping':<11} {'law':<10} {'IAE [um s]':>10} {'ratio':>6}  overshoot % per step;"
               " 2 % settling [ms]")
         baseline = None
@@ -68,6 +75,7 @@ def main() -> None:
             settling = ", ".join(f"{(step['settling_time_s'] or float('nan')) * 1e3:.0f}" for step in metrics["steps"])
             print(f"{placement:<11} {damping:<11} {law:<10} {metrics['iae'] * 1e6:>10.3f} {metrics['iae'] / baseline:>6.2f}"
                   f"  {overshoots}; {settling}", flush=True)
+
 
 if __name__ == "__main__":
     main()
