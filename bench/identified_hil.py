@@ -26,8 +26,9 @@ PAPER_LAW = ["Controller.placement=continuous", "Controller.actuator_lag=0", "Co
 TRUTHS = ("default", "mass")
 
 
-def hil_run(case: dict, folder: Path, name: str, controller: list[str]) -> dict:
-    """One fig7_hil run against a fresh emulator of the case's truth (noise off): its summary.json."""
+def hil_run(case: dict, folder: Path, name: str, controller: list[str]) -> dict | str:
+    """One fig7_hil run against a fresh emulator of the case's truth (noise off): its summary.json, or why it
+    failed (a design that cannot be made for that rig, a lost link)."""
     link = folder / f"{name}.pty"
     emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--link", str(link), "--watchdog", "0.2",
                                  "--param", "SensorChain.noise_peak=0", *emulator_arguments(case)],
@@ -38,14 +39,16 @@ def hil_run(case: dict, folder: Path, name: str, controller: list[str]) -> dict:
         done = subprocess.run([sys.executable, "-m", "nfal", "run", "fig7_hil", "--out", str(folder / name), "--json",
                                *(item for p in parameters for item in ("--param", p))], capture_output=True, text=True)
         if done.returncode != 0:
-            raise RuntimeError(f"nfal run exited {done.returncode}: {done.stderr.strip().splitlines()[-1]}")
+            return f"nfal run exited {done.returncode}: {done.stderr.strip().splitlines()[-1]}"
         return json.loads(done.stdout)
     finally:
         emulator.terminate()
         emulator.wait(timeout=10)
 
 
-def row(label: str, summary: dict, baseline: float | None) -> str:
+def row(label: str, summary: dict | str, baseline: float | None) -> str:
+    if isinstance(summary, str):
+        return f"| {label} | {summary} | | | | | |"
     metrics, first = summary["metrics"], summary["metrics"]["first_level"]
     steps = first["steps_iae_m_s"]
     ratio = "" if baseline is None else f" ({steps / baseline:.2f})"
@@ -69,7 +72,7 @@ def main(names: list[str]) -> None:
         identify(case, folder, name)
         paper = hil_run(case, folder, f"{name}-paper", PAPER_LAW)
         identified = hil_run(case, folder, f"{name}-identified", [f"Controller.calibration={calibration}"])
-        baseline = paper["metrics"]["first_level"]["steps_iae_m_s"]
+        baseline = None if isinstance(paper, str) else paper["metrics"]["first_level"]["steps_iae_m_s"]
         print(row(f"{name}, paper's law", paper, None), flush=True)
         print(row(f"{name}, identified", identified, baseline), flush=True)
 
