@@ -75,7 +75,7 @@ from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
 from nfal import __version__
 from nfal.errors import FmuStateError, InvalidParameterError, SlaveCallError, require_positive
-from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_calibration, load_rig_calibration,
+from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
 from nfal.models.plant import DEFAULT_REST_GAP
@@ -376,25 +376,22 @@ class NfalSlave(Fmi2Slave):
         return RigParameters(frequency=frequency, **values)
 
     def build_calibration(self) -> CalibrationFunction:
-        """K(sigma) named by ``calibration``: 'paper' (eq. 17), 'perturbation' (eqs. 9-12 for the Fig. 3 stand-in
-        form), 'perturbation:SHAPE' (the same for an excitation form as ``parse_shape`` reads it: 'piston',
-        'plate:N', a CSV path), or a calibration JSON path."""
+        """K(sigma) of :meth:`build_rig_calibration` for this slave's rig."""
+        return self.build_rig_calibration(self.build_rig()).calibration
+
+    def build_rig_calibration(self, rig: RigParameters) -> RigCalibration:
+        """K(sigma) named by ``calibration`` and a calibration file's damping correction (if any): 'paper' (eq. 17),
+        'perturbation' (eqs. 9-12 for the Fig. 3 stand-in form), 'perturbation:SHAPE' (the same for an excitation
+        form as ``parse_shape`` reads it: 'piston', 'plate:N', a CSV path), or a calibration JSON path (a file
+        identified on another rig than ``rig`` is refused)."""
         spec = str(self.calibration).strip()
         if spec == "paper":
-            return paper_calibration()
+            return RigCalibration(paper_calibration())
         if spec == "perturbation" or spec.startswith("perturbation:"):
-            return perturbation_calibration(parse_shape(spec.partition(":")[2] or "paper"))
+            return RigCalibration(perturbation_calibration(parse_shape(spec.partition(":")[2] or "paper")))
         if not spec:
             raise InvalidParameterError("calibration", spec, f"one of {CALIBRATION_CHOICES}, 'perturbation:SHAPE' or a "
                                         "calibration JSON path")
-        return load_calibration(spec)
-
-    def build_rig_calibration(self, rig: RigParameters) -> RigCalibration:
-        """:meth:`build_calibration` with a calibration file's damping correction (if any); a file
-        identified on another rig than ``rig`` is refused."""
-        spec = str(self.calibration).strip()
-        if spec in CALIBRATION_CHOICES or spec.startswith("perturbation:") or not spec:
-            return RigCalibration(self.build_calibration())
         return load_rig_calibration(spec, rig)
 
     # --- the slave's part ----------------------------------------------------------------------------

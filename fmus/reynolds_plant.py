@@ -35,7 +35,7 @@ from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel, CoupledState
-from nfal.models.excitation import parse_shape
+from nfal.models.excitation import largest_excursion, parse_shape
 from nfal.models.film_force_table import FilmForceTable, cached_table
 from nfal.models.fixed_step_plant import NEAR_SURFACE, FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant
@@ -84,7 +84,7 @@ class ReynoldsPlant(NfalSlave):
             if str(getattr(self, name)) not in choices:
                 raise InvalidParameterError(name, getattr(self, name), f"one of {', '.join(choices)}")
         self._shape = parse_shape(str(self.shape))
-        self._largest_excursion = float(np.max(np.abs(self._shape(np.linspace(0.0, 1.0, 401)))))
+        self._largest_excursion = largest_excursion(self._shape(np.linspace(0.0, 1.0, 401)))
         if str(self.film_solver) == "harmonic_balance":
             self._setup_averaged(height, velocity)
             return

@@ -15,6 +15,7 @@ from test_fmu_base import FMI_ERROR, Instance, build_and_extract
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.fmus.base import rig_parameter_values
 from nfal.fmus.controller import Controller
+from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
 from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
@@ -154,6 +155,14 @@ def test_calibration_file_damping_enters_the_design(identified):
 def test_calibration_file_of_another_rig_is_refused(identified):
     with pytest.raises(DataFormatError, match=r"another rig \(mass 0.1347 there, 0.2 here"):
         initialised(calibration=identified[0], mass=0.2)
+
+
+def test_every_slave_reads_a_calibration_file_with_the_rig_check(identified):
+    """build_calibration (the ReynoldsPlant's lift-off model, any slave) goes through the same reader as the design."""
+    slave = ReynoldsPlant(instance_name="plant")
+    slave.calibration, slave.mass = identified[0], 0.2
+    with pytest.raises(DataFormatError, match="another rig"):
+        slave.build_calibration()
 
 
 @pytest.mark.parametrize("parameters, reason", [
