@@ -25,6 +25,7 @@ from loop_agreement import AS_PURE_LOOP, run
 from nfal.build import build_all
 from nfal.commands.cosim import parse_parameter
 from nfal.fig7 import loop_metrics
+from nfal.fig7_names import PAPERS_LAW
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.closed_loop import Staircase
 from nfal.models.damping import DampingCorrection
@@ -58,8 +59,7 @@ def main() -> None:
         calibration = args.calibration or perfect_identification(Path(tmp) / "identified.json")
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
         truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {})}
-        paper_law = {"Controller.actuator_lag": 0.0, "Controller.lift_off_time": 0.0}
-        rows = [("continuous", "eq. (6)", "paper's", {"Controller.placement": "continuous", **paper_law})]
+        rows = [("continuous", "eq. (6)", "paper's", PAPERS_LAW)]
         for placement in ("continuous", "sampled"):
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
                 rows.append((placement, damping, "with lead",

@@ -1,41 +1,49 @@
 """The identified design against the emulator, from rest, back to back with the paper's law (issue 14; docs/hil.md).
 
-    python bench/identified_hil.py                    # the default truth and a heavier load (bench/ folder)
-    python bench/identified_hil.py default mass       # some truths of bench/identify_truths.py
+    python bench/identified_hil.py                          # the default truth and a heavier load
+    python bench/identified_hil.py default tilted           # some truths of bench/identify_truths.py
+    python bench/identified_hil.py --noise --repeats 3      # sensor noise on: how quiet each law holds the levels
 
 For each truth: ``nfal identify`` against ``nfal rig-emulator`` with that truth (bench/identify_truths.py), then
 two ``nfal run fig7_hil`` runs, each against a fresh emulator (the object at rest on the surface, sensor noise off,
 a 0.2 s watchdog): the paper's law as issue 14 found it (continuous placement on eq. (6), no lead, no lift-off mode)
 and today's Controller on the identification. Printed per run: overshoot and 2 % settling per step, the highest
 height during the first level (the lift-off), the IAE of the steps (ratio to the paper's law) and of the first
-level (``metrics.first_level`` of summary.json).
+level (``metrics.first_level`` of summary.json). With ``--noise`` the emulator's sensor noise is on (its default
+2 um peak), each pair of runs is repeated and the noise RMS of every level (h - r over the last quarter of its
+step, ``noise_rms_m``) is printed, pooled over the repeats. Runs ride through host pauses up to 0.1 s
+(``proxy.max_missed_samples=200``, docs/hil.md).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from identify_truths import cases, emulator_arguments, identify
 
-PAPER_LAW = ["Controller.placement=continuous", "Controller.actuator_lag=0", "Controller.lift_off_time=0"]
+from nfal.fig7_names import PAPERS_LAW
+
+PAPER_LAW = [f"{name}={value}" for name, value in PAPERS_LAW.items()]
 #: The truths run by default: the emulator's default and a heavier load (0.18 kg) nobody designed for.
 TRUTHS = ("default", "mass")
 
 
-def hil_run(case: dict, folder: Path, name: str, controller: list[str]) -> dict | str:
-    """One fig7_hil run against a fresh emulator of the case's truth (noise off): its summary.json, or why it
-    failed (a design that cannot be made for that rig, a lost link)."""
+def hil_run(case: dict, folder: Path, name: str, controller: list[str], noise: bool = False) -> dict | str:
+    """One fig7_hil run against a fresh emulator of the case's truth (sensor noise off unless ``noise``): its
+    summary.json, or why it failed (a design that cannot be made for that rig, a lost link)."""
     link = folder / f"{name}.pty"
+    quiet = [] if noise else ["--param", "SensorChain.noise_peak=0"]
     emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--link", str(link), "--watchdog", "0.2",
-                                 "--param", "SensorChain.noise_peak=0", *emulator_arguments(case)],
-                                stdout=subprocess.PIPE, text=True)
+                                 *quiet, *emulator_arguments(case)], stdout=subprocess.PIPE, text=True)
     try:
         emulator.stdout.readline()  # the port: the emulator is up
-        parameters = [f"proxy.port={link}", f"Controller.mass={case['mass']}", *controller]
+        parameters = [f"proxy.port={link}", "proxy.max_missed_samples=200", f"Controller.mass={case['mass']}", *controller]
         done = subprocess.run([sys.executable, "-m", "nfal", "run", "fig7_hil", "--out", str(folder / name), "--json",
                                *(item for p in parameters for item in ("--param", p))], capture_output=True, text=True)
         if done.returncode != 0:
@@ -48,34 +56,58 @@ def hil_run(case: dict, folder: Path, name: str, controller: list[str]) -> dict 
 
 def row(label: str, summary: dict | str, baseline: float | None) -> str:
     if isinstance(summary, str):
-        return f"| {label} | {summary} | | | | | |"
+        return f"| {label} | {summary} | | | | | | |"
     metrics, first = summary["metrics"], summary["metrics"]["first_level"]
     steps = first["steps_iae_m_s"]
     ratio = "" if baseline is None else f" ({steps / baseline:.2f})"
     return (f"| {label} | " + ", ".join(f"{s['overshoot_percent']:.1f}" for s in metrics["steps"]) + " | "
             + ", ".join(f"{(s['settling_time_s'] or float('nan')) * 1e3:.0f}" for s in metrics["steps"])
             + f" | {first['peak_m'] * 1e6:.1f} | {steps * 1e6:.2f}{ratio} | {first['iae_m_s'] * 1e6:.2f} |"
-            + f" {summary['realtime']['overruns']} |")
+            + f" {summary['realtime']['overruns']} | " + ", ".join(f"{s['noise_rms_m'] * 1e9:.0f}" for s in metrics["steps"])
+            + " |")
 
 
-def main(names: list[str]) -> None:
+def pooled_noise(label: str, summaries: list) -> str:
+    """The noise RMS per level over the runs that finished, pooled (the root of the mean square)."""
+    runs = [[s["noise_rms_m"] for s in summary["metrics"]["steps"]] for summary in summaries if isinstance(summary, dict)]
+    if not runs:
+        return f"| {label}, pooled | no run finished | | | | | | |"
+    pooled = np.sqrt(np.mean(np.square(runs), axis=0))
+    return (f"| {label}, pooled over {len(runs)} | | | | | | | " + ", ".join(f"{value * 1e9:.0f}" for value in pooled)
+            + f" (all levels {np.sqrt(np.mean(np.square(runs))) * 1e9:.0f}) |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("truths", nargs="*", default=list(TRUTHS), help=f"cases of bench/identify_truths.py (default: {' '.join(TRUTHS)})")
+    parser.add_argument("--noise", action="store_true", help="the emulator's sensor noise on (default off)")
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each law per truth (default 1)")
+    args = parser.parse_args()
     folder = Path("runs") / time.strftime("identified-hil-%Y%m%d-%H%M%S")
     folder.mkdir(parents=True)
     print(f"calibration files and runs in {folder}", flush=True)
     table = cases(folder)
     print("| truth, Controller | overshoot % per step | 2 % settling [ms] | lift-off peak [um] "
-          "| IAE steps [um s] (ratio) | IAE first level [um s] | host overruns |")
-    print("|---|---|---|---|---|---|---|")
-    for name in names or TRUTHS:
+          "| IAE steps [um s] (ratio) | IAE first level [um s] | host overruns | noise RMS per step [nm] |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in args.truths:
         case = table[name]
         calibration = folder / f"{name}.json"
         identify(case, folder, name)
-        paper = hil_run(case, folder, f"{name}-paper", PAPER_LAW)
-        identified = hil_run(case, folder, f"{name}-identified", [f"Controller.calibration={calibration}"])
-        baseline = None if isinstance(paper, str) else paper["metrics"]["first_level"]["steps_iae_m_s"]
-        print(row(f"{name}, paper's law", paper, None), flush=True)
-        print(row(f"{name}, identified", identified, baseline), flush=True)
+        papers, identifieds = [], []
+        for repeat in range(args.repeats):  # back to back, so a slow phase of the machine hits both laws
+            paper = hil_run(case, folder, f"{name}-paper-{repeat}", PAPER_LAW, args.noise)
+            identified = hil_run(case, folder, f"{name}-identified-{repeat}", [f"Controller.calibration={calibration}"],
+                                 args.noise)
+            baseline = None if isinstance(paper, str) else paper["metrics"]["first_level"]["steps_iae_m_s"]
+            print(row(f"{name}, paper's law", paper, None), flush=True)
+            print(row(f"{name}, identified", identified, baseline), flush=True)
+            papers.append(paper)
+            identifieds.append(identified)
+        if args.noise:
+            print(pooled_noise(f"{name}, paper's law", papers))
+            print(pooled_noise(f"{name}, identified", identifieds), flush=True)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    main()

@@ -9,6 +9,7 @@ Prints: the FMU loop (transducer quasi-static, no analog filter) against the pur
 
 from __future__ import annotations
 
+import sys
 import tempfile
 
 import numpy as np
@@ -18,9 +19,10 @@ from nfal.fig7 import SIMULATED
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 
+sys.path.insert(0, "tests")
+from test_fig7_loop import AS_PURE_LOOP, pure_loop  # noqa: E402  (the reference loop and settings the tests use)
+
 HEIGHT = SIMULATED.height
-AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.analog_cutoff": 0.0,
-                "SensorChain.resolution": 0.0}
 
 
 def run(archive, folder, reference, **kwargs):
@@ -29,11 +31,6 @@ def run(archive, folder, reference, **kwargs):
 
 
 def main() -> None:
-    import sys
-
-    sys.path.insert(0, "tests")
-    from test_fig7_loop import pure_loop  # the reference loop the tests use
-
     reference = Staircase()
     with tempfile.TemporaryDirectory() as tmp:
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]

@@ -35,7 +35,8 @@ from pythonfmu.enums import Fmi2Status
 
 from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
+from nfal.models.control_law import (LIFT_OFF_TIME_S, REFERENCE_ZERO_RATIO, SATURATION_WARNING_S, ControllerState,
+                                     DiscreteControlLaw)
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
@@ -85,6 +86,8 @@ class Controller(NfalSlave):
                            "reference pair when the first sample finds the object below reference_min; 0: no lift-off mode")
         self.add_parameter("actuator_lag", Transducer().time_constant_s(), unit="s", description="the transducer's "
                            "amplitude lag 2 Q / omega_r that a lead in the law cancels; 0: no lead (the paper's law)")
+        self.add_parameter("reference_zero", REFERENCE_ZERO_RATIO, description="the reference enters through a filter that cancels "
+                           "the PI zero and puts its own at this many slow-pole time constants (1: monotone steps); 0: off")
         self.add_parameter("reference_min", WORK_RANGE_M[0], unit="m", description="smallest accepted reference")
         self.add_parameter("reference_max", WORK_RANGE_M[1], unit="m", description="largest accepted reference")
         self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) when the drive "
@@ -126,11 +129,12 @@ class Controller(NfalSlave):
         gains = self._gains[1]
         require_plausible("metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt),
                           MAX_METRES_PER_VOLT, "m/V")
-        lift_off, smoothing = (_optional_time(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
+        lift_off, smoothing = (_optional_positive(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
                                       reference_range_m=(low, high), reference_filter_s=smoothing, lift_off_time_s=lift_off,
-                                      actuator_lag_s=self.actuator_lag)
+                                      actuator_lag_s=self.actuator_lag,
+                                      reference_zero_ratio=_optional_positive("reference_zero", self.reference_zero))
         reference = self._checked_reference()
         equilibrium = float(SimplifiedPlant(rig, calibration).equilibrium_excitation(reference))
         self._state = self.law.initial_state(reference, equilibrium)
@@ -222,9 +226,9 @@ class Controller(NfalSlave):
             self._clock = SampleClock(self.law.period_s, self.start_time)
 
 
-def _optional_time(name: str, value: float) -> float | None:
-    """A time constant parameter [s]: None for 0 (off), else the value if finite and > 0."""
+def _optional_positive(name: str, value: float) -> float | None:
+    """A parameter that 0 turns off (a time constant, a ratio): None for 0, else the value if finite and > 0."""
     number = float(value)
     if not (math.isfinite(number) and number >= 0.0):
-        raise InvalidParameterError(name, value, "a finite time >= 0 s (0: off)")
+        raise InvalidParameterError(name, value, "a finite number >= 0 (0: off)")
     return number or None

@@ -332,6 +332,7 @@ class GainSchedule:
         table = np.array([[d.kp, d.ki, d.kd] for d in designs])
         self._spline = interpolate.CubicSpline(H, table, axis=0)
         self._slope = self._spline.derivative()
+        self._slow_times_s = np.array([1.0 / (d.slow_pole * d.lpv.omega) for d in designs])
         self.name = "gain-scheduled"
 
     @property
@@ -348,6 +349,11 @@ class GainSchedule:
     def gains_si(self, height_m) -> np.ndarray:
         """(k_p [m/m], k_i [1/s], k_d [s]) at clearance ``height_m`` [m]; shape (..., 3)."""
         return self.gains_nondimensional(height_m) * np.array([1.0, self.omega, 1.0 / self.omega])
+
+    def slow_time_s(self, height_m: float) -> float:
+        """1 / p1 [s], the time constant of the slow double pole, at clearance ``height_m`` [m] (interpolated
+        linearly, held outside the table)."""
+        return float(np.interp(height_m, self.heights_m, self._slow_times_s))
 
     def slope_nondimensional(self, height_m) -> np.ndarray:
         """d(k_p, k_i, k_d)/dHbar (zero outside the table, where the gains are held)."""
@@ -377,6 +383,10 @@ class FixedGains:
     def gains_si(self, height_m) -> np.ndarray:
         """(k_p [m/m], k_i [1/s], k_d [s]); shape (..., 3)."""
         return self.gains_nondimensional(height_m) * np.array([1.0, self.omega, 1.0 / self.omega])
+
+    def slow_time_s(self, height_m: float) -> float:
+        """1 / p1 [s] of the design, at every clearance."""
+        return 1.0 / (self.design.slow_pole * self.omega)
 
 
 def design_schedule(heights_m=None, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,

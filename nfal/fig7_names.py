@@ -18,6 +18,10 @@ DRIVE_VOLTAGE = "Controller.drive_voltage"
 SATURATED_TIME = "Controller.saturated_time"
 CONTROLLER_CALIBRATION = "Controller.calibration"
 PLANT_SHAPE = "Plant.shape"
+#: The Controller as the paper runs it, as parameters: the continuous placement of eqs. (23)-(24) and none of the
+#: law's additions (lift-off mode, transducer lead, reference zero; docs/controller.md, "Beyond the paper's law").
+PAPERS_LAW = {"Controller.placement": "continuous", "Controller.lift_off_time": 0.0, "Controller.actuator_lag": 0.0,
+              "Controller.reference_zero": 0.0}
 
 
 @dataclasses.dataclass(frozen=True)

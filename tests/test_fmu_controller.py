@@ -17,7 +17,7 @@ from nfal.fmus.base import rig_parameter_values
 from nfal.fmus.controller import Controller
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
-from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
+from nfal.models.control_law import LIFT_OFF_TIME_S, REFERENCE_ZERO_RATIO, DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
 from nfal.models.excitation import parse_shape
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
@@ -41,7 +41,8 @@ def make_law(design="gain-scheduled"):
     else:
         gains = design_schedule(None, RIG, calibration, spec)
     return DiscreteControlLaw(gains, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_range_m=(50e-6, 200e-6),
-                              lift_off_time_s=LIFT_OFF_TIME_S, actuator_lag_s=Transducer().time_constant_s())
+                              lift_off_time_s=LIFT_OFF_TIME_S, actuator_lag_s=Transducer().time_constant_s(),
+                              reference_zero_ratio=REFERENCE_ZERO_RATIO)
 
 
 def reference_commands(law, references, measured):
