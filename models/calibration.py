@@ -16,6 +16,7 @@ only K.
 from __future__ import annotations
 
 import abc
+import bisect
 import dataclasses
 import json
 import math
@@ -66,6 +67,10 @@ class CalibrationFunction(abc.ABC):
         sigma = np.asarray(sigma, dtype=float)
         return self._value(np.clip(sigma, *self.sigma_range))
 
+    def scalar(self, sigma: float) -> float:
+        """K at one squeeze number, as :meth:`__call__` (the plants' inner loops call this)."""
+        return float(self(sigma))
+
     def derivative(self, sigma):
         """dK/dsigma at ``sigma`` (zero outside ``sigma_range``)."""
         sigma = np.asarray(sigma, dtype=float)
@@ -97,6 +102,14 @@ class PolynomialK(CalibrationFunction):
             raise InvalidParameterError("coefficients", coefficients, "one or more finite numbers")
         self.coefficients = coefficients
         self._slope_coefficients = np.polynomial.polynomial.polyder(coefficients)
+        self._horner = [float(c) for c in coefficients[::-1]]
+
+    def scalar(self, sigma: float) -> float:
+        sigma = min(max(sigma, self.sigma_range[0]), self.sigma_range[1])
+        value = 0.0
+        for c in self._horner:
+            value = value * sigma + c
+        return value
 
     def _value(self, sigma):
         return np.polynomial.polynomial.polyval(sigma, self.coefficients)
@@ -122,6 +135,16 @@ class TabulatedK(CalibrationFunction):
         self.sigma, self.values = sigma, values
         self._spline = interpolate.CubicSpline(np.log(sigma), values)
         self._spline_slope = self._spline.derivative()
+        # the pieces as plain floats: scipy's call costs ~5 us, too much for a plant's inner loop
+        self._knots = np.log(sigma).tolist()
+        self._pieces = self._spline.c.T.tolist()  # per interval, highest power first
+
+    def scalar(self, sigma: float) -> float:
+        x = math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1]))
+        i = min(max(bisect.bisect_right(self._knots, x) - 1, 0), len(self._pieces) - 1)
+        dx = x - self._knots[i]
+        c3, c2, c1, c0 = self._pieces[i]
+        return ((c3 * dx + c2) * dx + c1) * dx + c0
 
     def _value(self, sigma):
         return self._spline(np.log(sigma))

@@ -28,7 +28,6 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError, require_positive
 
-from .calibration import PolynomialK
 from .plant import PlantState, SimplifiedPlant
 
 #: Largest (damping rate x sub-step) taken.
@@ -63,26 +62,15 @@ class FixedStepPlant:
         self._damping_per_mass = float(rig.squeeze_film_damping(1.0)) / rig.mass  # c(h)/m = this / h^3
         self._gravity = rig.gravity
         self._floor = FALLBACK_FACTOR * plant.rest_gap
-        calibration = plant.calibration
         self._free_flight = self._rk4
         table = getattr(plant, "table", None)  # an AveragedFilmPlant: K(sigma, delta) of the full film
         if table is not None:
             self._K = table.scalar
             if plant.excess_damping is None:  # the same RK4, compiled
                 self._free_flight = functools.partial(plant.free_flight, floor=self._floor)
-        elif isinstance(calibration, PolynomialK):
-            coefficients = [float(c) for c in calibration.coefficients[::-1]]
-            low, high = calibration.sigma_range
-
-            def K(sigma: float, delta: float) -> float:
-                sigma = min(max(sigma, low), high)
-                value = 0.0
-                for c in coefficients:  # Horner
-                    value = value * sigma + c
-                return value
-            self._K = K
         else:
-            self._K = lambda sigma, delta: float(calibration(sigma))
+            scalar = plant.calibration.scalar
+            self._K = lambda sigma, delta: scalar(sigma)
         excess = plant.excess_damping
         if excess is not None:  # chosen here, so that the plain path stays as fast as without the option
             self._factor = excess.factor_scalar

@@ -23,6 +23,15 @@ def test_derivative_is_exact(calibration):
     np.testing.assert_allclose(calibration.derivative(sigma), numeric, rtol=1e-6)
 
 
+@pytest.mark.parametrize("calibration", [paper_calibration(), perturbation_calibration(PistonShape(), (1, 1e4), 120)], ids=repr)
+def test_the_scalar_path_equals_the_array_path(calibration):
+    """The plants' inner loops call ``scalar`` (plain floats; scipy's spline call was 9x the slow plant's tick with a
+    tabulated K); it must be the same function, held outside the range, to rounding."""
+    sigma = np.concatenate([np.geomspace(0.1, 1e5, 3001), calibration.sigma_range])
+    fast = np.array([calibration.scalar(float(x)) for x in sigma])
+    np.testing.assert_allclose(fast, calibration(sigma), rtol=1e-13, atol=0.0)
+
+
 def test_values_are_held_outside_the_range():
     K = paper_calibration()
     assert K(1e4) == K(500.0) and K(1.0) == K(10.0)
