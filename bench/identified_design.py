@@ -5,12 +5,12 @@
 
 fig7_slow over the Fig. 9-10 staircase with the emulator's default truth as its plant (eq. 17 and the
 rig-like excess damping, ``ssp/rig_truth.ssv``), sensor noise off: first the baseline, the paper's law
-(no lead, no lift-off mode) with the continuous placement on eq. (6); then four Controllers with their
-defaults: the continuous and the sampled placement, each on eq. (6) and given the damping through a
+(``PAPERS_LAW``: the continuous placement on eq. (6), no lift-off mode, lead or reference zero); then four
+Controllers with their defaults ("today's"): the continuous and the sampled placement, each on eq. (6) and given the damping through a
 calibration file. IAE ratios are against the baseline of the same run.
 Without ``--calibration`` that file is a perfect identification: ``ExcessDamping.rig_like()`` tabulated at
-7 heights over 50-200 um. ``--no-lag`` makes the transducer and analog filter transparent (what is left
-of the overshoot is then the design's own).
+7 heights over 50-200 um. ``--no-lag`` makes the transducer and analog filter transparent and turns the lead
+off (what is left of the overshoot is then the design's own).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def main() -> None:
     parser.add_argument("--calibration", type=Path, help="calibration file (default: a perfect identification)")
     parser.add_argument("--no-lag", action="store_true", help="transducer and analog filter transparent")
     parser.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
-                        help="set a parameter of the four Controllers with the lead (not the baseline), repeatable")
+                        help="set a parameter of the four Controllers of today's law (not the baseline), repeatable")
     parser.add_argument("--levels", type=float, nargs="+", help="staircase levels [m] (default: Figs. 9-10's)")
     parser.add_argument("--hold", type=float, default=0.6, help="hold of each level [s] (default 0.6)")
     args = parser.parse_args()
@@ -62,7 +62,7 @@ def main() -> None:
         rows = [("continuous", "eq. (6)", "paper's", PAPERS_LAW)]
         for placement in ("continuous", "sampled"):
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
-                rows.append((placement, damping, "with lead",
+                rows.append((placement, damping, "today's",
                              {"Controller.placement": placement, **extra, **extra_parameters}))
         print(f"{'placement':<11} {'damping':<11} {'law':<10} {'IAE [um s]':>10} {'ratio':>6}  overshoot % per step;"
               " 2 % settling [ms]")

@@ -46,13 +46,18 @@ def cases(folder: Path) -> dict[str, dict]:
             "calibration": {"mass": 0.1347, "excess": rig_like, "calibration": tilted_calibration(folder / "tilted.json")}}
 
 
-def emulator_arguments(case: dict) -> list[str]:
+def truth_parameters(case: dict) -> list[str]:
+    """The case's truth as ELEMENT.VAR=VALUE settings of the emulator's rig structure (and of fig7_slow)."""
     height, exponent = case["excess"]
     params = [f"Plant.mass={case['mass']}", f"Plant.excess_damping_height={height}",
               f"Plant.excess_damping_exponent={exponent}"]
     if case["calibration"] is not None:
         params.append(f"Plant.calibration={case['calibration']}")
-    return [item for p in params for item in ("--param", p)]
+    return params
+
+
+def emulator_arguments(case: dict) -> list[str]:
+    return [item for p in truth_parameters(case) for item in ("--param", p)]
 
 
 def identify(case: dict, folder: Path, name: str) -> dict:

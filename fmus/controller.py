@@ -35,14 +35,13 @@ from pythonfmu.enums import Fmi2Status
 
 from nfal.errors import InvalidParameterError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
-from nfal.models.control_law import (LIFT_OFF_TIME_S, REFERENCE_ZERO_RATIO, SATURATION_WARNING_S, ControllerState,
-                                     DiscreteControlLaw)
+from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
 from nfal.models.stability import realizable_schedule
 from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, MAX_EXCITATION_M,
-                                SAMPLING_RATE_HZ, STAIRCASE_LEVELS_M, WORK_RANGE_M)
+                                REFERENCE_ZERO_RATIO, SAMPLING_RATE_HZ, STAIRCASE_LEVELS_M, WORK_RANGE_M)
 from nfal.models.transducer import METRES_PER_VOLT, Transducer
 
 DESIGNS = ("gain-scheduled", "fixed")
@@ -115,9 +114,10 @@ class Controller(NfalSlave):
         model = self.build_rig_calibration(rig)
         calibration = model.calibration
         sample_rate = require_positive("sample_rate", self.sample_rate)
+        reference_zero = _optional_positive("reference_zero", self.reference_zero)
         spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
                           require_positive("filter_cutoff", self.filter_cutoff),
-                          sample_rate if self.placement == "sampled" else None)
+                          sample_rate if self.placement == "sampled" else None, reference_zero)
         design_height = require_positive("design_height", self.design_height) if self.design == "fixed" else None
         low, high = require_positive("reference_min", self.reference_min), require_positive("reference_max", self.reference_max)
         if low >= high:
@@ -134,7 +134,7 @@ class Controller(NfalSlave):
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
                                       reference_range_m=(low, high), reference_filter_s=smoothing, lift_off_time_s=lift_off,
                                       actuator_lag_s=self.actuator_lag,
-                                      reference_zero_ratio=_optional_positive("reference_zero", self.reference_zero))
+                                      reference_zero_ratio=reference_zero)
         reference = self._checked_reference()
         equilibrium = float(SimplifiedPlant(rig, calibration).equilibrium_excitation(reference))
         self._state = self.law.initial_state(reference, equilibrium)

@@ -64,9 +64,6 @@ LIFT_OFF_TIME_S = 0.06
 LIFT_OFF_END = 1e-3
 #: High-frequency gain N of the actuator-lag lead (1 + tau s) / (1 + tau s / N).
 LEAD_RATIO = 4.0
-#: The reference's zero, in slow-pole time constants: 1.2 leaves the 100 -> 60 um step 2.6 % of overshoot at an
-#: IAE 0.56x the paper's law's (1.0: 0.7 % at 0.61x; 1.4: 4.7 % at 0.55x; bench/identified_design.py).
-REFERENCE_ZERO_RATIO = 1.2
 
 
 @dataclasses.dataclass(frozen=True)

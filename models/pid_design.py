@@ -57,16 +57,20 @@ class DesignSpec:
     sample_rate_hz : float or None
         None: place the poles of the continuous loop, eqs. (23)-(24) (the paper). A rate [Hz]: place
         those of the loop sampled at that rate, as the digital law runs it (:mod:`nfal.models.sampled_design`).
+    reference_zero : float or None
+        The law's reference zero rho (:mod:`nfal.models.control_law`): a sampled design then reaches its
+        cut-off with the reference passing through that filter, as the law runs it. None: without it.
     """
 
     closed_loop_cutoff_hz: float = CLOSED_LOOP_CUTOFF_HZ
     filter_cutoff_hz: float = FILTER_CUTOFF_HZ
     sample_rate_hz: float | None = None
+    reference_zero: float | None = None
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
-            if not (field.name == "sample_rate_hz" and value is None):  # None: the continuous design
+            if value is not None or field.name not in ("sample_rate_hz", "reference_zero"):  # None: not asked for
                 object.__setattr__(self, field.name, require_positive(field.name, value))
 
     def omega_lpf(self, rig: RigParameters) -> float:
@@ -233,7 +237,7 @@ def design_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> PID
         bandwidth, step = (lambda slow: closed_loop_bandwidth(lpv, slow, wl)), None
     else:
         step = rig.omega / spec.sample_rate_hz
-        loop = SampledLoop(lpv, wl, step)
+        loop = SampledLoop(lpv, wl, step, spec.reference_zero)
 
         def placed(slow):
             kp, ki, kd, fast = loop.gains(slow)

@@ -14,7 +14,10 @@ asks for (z - z1)^2 (z - z2)^2, the z-images z = exp(-p T_s) of the paper's doub
 For a slow pole z1 the first condition is 4 linear equations in the 5 unknowns (k_p, k_i, k_d, a, b):
 a line, x0 + a x1; the second is a quadratic along it. Of its real roots the one with the smaller |z2|
 (the faster pair) is taken. As in the continuous design one degree of freedom, z1, is left; the closed loop's -3 dB
-cut-off (now of the sampled transfer function r -> H at z = exp(j w T_s)) fixes it.
+cut-off (now of the sampled transfer function r -> H at z = exp(j w T_s)) fixes it. With the law's reference zero
+(:mod:`nfal.models.control_law`) the cut-off is that of r -> H through the reference filter, as the law runs it:
+the filter takes the PI zero's lift of the bandwidth away, and a design blind to it would be slower than asked
+for where that lift was large (1/p1 = 29 instead of 20 ms at 60 um on the rig-like damping).
 """
 
 from __future__ import annotations
@@ -41,10 +44,13 @@ class SampledLoop:
         Derivative filter cut-off (non-dimensional, time unit 1 / omega).
     step : float
         Sampling period omega T_s (non-dimensional).
+    reference_zero : float or None
+        The law's reference zero rho; None: the reference as given.
     """
 
-    def __init__(self, lpv: LPVCoefficients, omega_lpf: float, step: float) -> None:
+    def __init__(self, lpv: LPVCoefficients, omega_lpf: float, step: float, reference_zero: float | None = None) -> None:
         self.lpv, self.omega_lpf, self.step = lpv, float(omega_lpf), float(step)
+        self.reference_zero = reference_zero
         # A_d and its characteristic polynomial are affine in the gains: keep the offset and the slopes
         held = held_plant(lpv, self.step)
         self._matrix_offset = sampled_loop_matrix(held, (0.0, 0.0, 0.0), self.omega_lpf, self.step)
@@ -95,6 +101,17 @@ class SampledLoop:
         output = np.array([1.0, 0.0, 0.0, 0.0])  # H
         return np.poly(loop - np.outer(entry, output)) - denominator, denominator
 
+    def reference_filter(self, gains, slow_pole: float) -> tuple[np.ndarray, np.ndarray]:
+        """(numerator, denominator) of the law's reference filter F(z) for these gains and slow pole: with
+        d = 1 - T_s k_i / k_p (the PI zero) and b = min(1, rho k_i / (k_p p1)), the law's target is
+        b r + (1 - b) l with l_k = d l_{k-1} + (1 - d) r_k, so F = (b (z - d) + (1 - b)(1 - d) z) / (z - d)."""
+        kp, ki = (float(g) for g in gains[:2])
+        if self.reference_zero is None or kp <= 0.0 or ki <= 0.0:
+            return np.array([1.0]), np.array([1.0])
+        d = 1.0 - self.step * ki / kp
+        b = min(1.0, self.reference_zero * ki / (kp * slow_pole))
+        return np.array([b + (1.0 - b) * (1.0 - d), -b * d]), np.array([1.0, -d])
+
     def reference_gain(self, gains, frequency) -> np.ndarray:
         """|H / r| of the sampled loop at ``frequency`` (non-dimensional, up to pi / step)."""
         return _gain(*self.reference_response(gains), frequency, self.step)
@@ -104,7 +121,8 @@ class SampledLoop:
         gains = [float(g) for g in self.gains(slow_pole)[:3]]
         if not np.all(np.isfinite(gains)):
             raise ConvergenceError(f"no real sampled design for the slow pole {slow_pole:.4g}")
-        numerator, denominator = self.reference_response(gains)
+        numerator, denominator = (np.polymul(loop, law) for loop, law in zip(self.reference_response(gains),
+                                                                             self.reference_filter(gains, slow_pole)))
         excess = lambda w: _gain(numerator, denominator, w, self.step) - 1.0 / math.sqrt(2.0)  # noqa: E731
         grid = np.geomspace(1e-4 * slow_pole, math.pi / self.step, 600)  # to Nyquist; brackets the first crossing
         below = np.flatnonzero(excess(grid) < 0.0)

@@ -9,11 +9,12 @@ from nfal.errors import InvalidParameterError
 from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
-from nfal.models.control_law import REFERENCE_ZERO_RATIO, DiscreteControlLaw
+from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
+from nfal.models.table2 import REFERENCE_ZERO_RATIO
 from nfal.orchestration import run_structure
 
 ONE_STEP = Staircase((60e-6, 100e-6), hold_s=0.6, lead_s=0.1)
@@ -24,7 +25,7 @@ AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.anal
 
 def pure_loop(reference: Staircase, seed: int = 0):
     rig, calibration = RigParameters(), paper_calibration()
-    schedule = design_schedule(None, rig, calibration, DesignSpec(sample_rate_hz=2000.0))  # the Controller's default
+    schedule = design_schedule(None, rig, calibration, DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATIO))
     law = DiscreteControlLaw(schedule, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_zero_ratio=REFERENCE_ZERO_RATIO)
     noise = coloured_noise(reference.samples(2000.0), seed=seed)
     return simulate_closed_loop(law, SimplifiedPlant(rig, calibration), reference, noise)

@@ -17,25 +17,28 @@ from nfal.fmus.base import rig_parameter_values
 from nfal.fmus.controller import Controller
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration
-from nfal.models.control_law import LIFT_OFF_TIME_S, REFERENCE_ZERO_RATIO, DiscreteControlLaw
+from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
 from nfal.models.excitation import parse_shape
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
+from nfal.models.table2 import REFERENCE_ZERO_RATIO
 from nfal.models.transducer import Transducer
 
 RIG = RigParameters()
 PERIOD = 5e-4  # 2 kHz
 METRES_PER_VOLT = 0.1e-6
 RNG = np.random.default_rng(7)
+#: The Controller's default design: the sampled placement, with the law's reference zero.
+DEFAULT_SPEC = DesignSpec(10.0, 300.0, 2000.0, REFERENCE_ZERO_RATIO)
 # (reference, measured) per sample: a reference step and a measured height that wanders about it
 REFERENCES = np.repeat([60e-6, 100e-6, 80e-6], 20)
 MEASURED = REFERENCES + RNG.normal(0.0, 3e-6, REFERENCES.size) + np.linspace(-10e-6, 10e-6, REFERENCES.size)
 
 
 def make_law(design="gain-scheduled"):
-    calibration, spec = paper_calibration(), DesignSpec(10.0, 300.0, 2000.0)  # the sampled placement (default)
+    calibration, spec = paper_calibration(), DEFAULT_SPEC
     if design == "fixed":
         gains = fixed_design(120e-6, RIG, calibration, spec)
     else:
@@ -129,7 +132,7 @@ def test_realizable_only_false_keeps_the_full_schedule():
 @pytest.mark.parametrize("height", [50e-6, 77e-6, 140e-6, 200e-6])
 def test_sampled_placement_schedules_the_sampled_designs_without_holding(height):
     slave = initialised()
-    expected = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0))
+    expected = design_schedule(None, RIG, paper_calibration(), DEFAULT_SPEC)
     np.testing.assert_allclose(slave.law.gains.gains_si(height), expected.gains_si(height), rtol=1e-12)
     assert slave.law.name == "gain-scheduled from 50 um"
 
@@ -147,8 +150,8 @@ def identified(tmp_path):
 def test_calibration_file_damping_enters_the_design(identified):
     path, table = identified
     slave = initialised(calibration=path, placement="sampled")
-    expected = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0), damping=table)
-    plain = design_schedule(None, RIG, paper_calibration(), DesignSpec(10.0, 300.0, 2000.0))
+    expected = design_schedule(None, RIG, paper_calibration(), DEFAULT_SPEC, damping=table)
+    plain = design_schedule(None, RIG, paper_calibration(), DEFAULT_SPEC)
     np.testing.assert_allclose(slave.law.gains.gains_si(180e-6), expected.gains_si(180e-6), rtol=1e-12)
     assert not np.allclose(slave.law.gains.gains_si(180e-6), plain.gains_si(180e-6), rtol=1e-3)
 

@@ -19,6 +19,7 @@ from nfal.models.table2 import (  # light: constants only
     MAX_EXCITATION_M,
     NOISE_CUTOFF_HZ,
     NOISE_PEAK_M,
+    REFERENCE_ZERO_RATIO,
     SAMPLING_RATE_HZ,
     STAIRCASE_LEVELS_M,
     WORK_RANGE_M,
@@ -95,6 +96,10 @@ def _add_design_options(parser: argparse.ArgumentParser) -> None:
                         help="loop whose poles are placed: sampled (the loop the discrete law realises at --sample-rate: "
                         "ZOH plant, forward-Euler integrator and derivative filter; the Controller FMU's default) or "
                         "continuous (eqs. 23-24, the paper's Fig. 8) (default sampled)")
+    parser.add_argument("--reference-zero", type=finite_float, default=REFERENCE_ZERO_RATIO, metavar="RHO",
+                        help="the law's reference zero, in slow-pole time constants: the reference passes through a filter "
+                        "that cancels the PI zero (less overshoot), and the sampled placement reaches its cut-off through "
+                        "it; the Controller FMU's reference_zero (default %(default)s; 0: off, the paper's law)")
     parser.add_argument("--calibration", metavar="FILE.json",
                         help="calibration file: K(sigma) and, from nfal identify, the damping correction of eq. (6) "
                         "for the plant and the design (default: eq. (17), eq. (6) as it is)")
@@ -110,7 +115,7 @@ def _model(args: argparse.Namespace):
     rig = rig_from_args(args)
     model = load_rig_calibration(args.calibration, rig) if args.calibration else RigCalibration(paper_calibration())
     sample_rate = args.sample_rate if args.placement == "sampled" else None
-    return rig, model, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff, sample_rate)
+    return rig, model, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff, sample_rate, args.reference_zero or None)
 
 
 def run_design(args: argparse.Namespace) -> int:
@@ -247,7 +252,7 @@ def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dic
             else:
                 gains = fixed_design(float(key) * 1e-6, rig, model.calibration, spec, damping=model.damping)
             law = DiscreteControlLaw(gains, sample_rate_hz=args.sample_rate, max_excitation_m=args.max_excitation,
-                                     reference_range_m=work_range)
+                                     reference_range_m=work_range, reference_zero_ratio=spec.reference_zero)
             runs[key] = simulate_closed_loop(law, plant, reference, noise)
             bar.update()
     return runs
@@ -266,6 +271,7 @@ def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     common = {"proxy.port": args.port, "Controller.placement": args.placement,
               "Controller.closed_loop_cutoff": args.closed_loop_cutoff, "Controller.filter_cutoff": args.filter_cutoff,
               "Controller.max_excitation": args.max_excitation, "Controller.realizable_only": not args.full_schedule,
+              "Controller.reference_zero": args.reference_zero,
               "Controller.reference_min": min(reference.levels_m), "Controller.reference_max": max(reference.levels_m),
               **({"Controller.calibration": str(Path(args.calibration).resolve())} if args.calibration else {}),
               **_rig_parameters(args), **dict(parse_parameter(text) for text in args.param)}
