@@ -26,6 +26,6 @@ FIXED_DESIGN_HEIGHT_M = 120e-6
 #: The actuator limit |a|_max [m]: 1.6 x the 6.2 um the paper's rig needs to hold 200 um (eq. 16), above the
 #: 7 um of Table 1's curve (a); not given by the paper.
 MAX_EXCITATION_M = 10e-6
-#: The law's reference zero, in slow-pole time constants (models/control_law.py; not the paper's): 1.2 leaves
-#: the small-gap steps about 0.05 % of overshoot from the design itself (docs/controller.md, section 6c).
-REFERENCE_ZERO_RATIO = 1.2
+#: The law's reference zero, in slow-pole time constants (models/control_law.py; not the paper's): at 1 it cancels
+#: one of the slow double pole, so the linear loop's step response has no overshoot (docs/controller.md, 6c).
+REFERENCE_ZERO_RATIO = 1.0

@@ -81,7 +81,7 @@ def hold_ends(table, reference: Staircase, window_s: float = 0.02) -> np.ndarray
 @pytest.fixture(scope="module")
 def slow_short(fig7_archives, tmp_path_factory):
     """fig7_slow without the reference zero: the Reynolds loop's continuous placement leaves it no room (its PI
-    zero is already within 1.2 slow-pole time constants), so both loops run the law as the paper has it."""
+    zero is already faster than its slow pole), so both loops run the law as the paper has it."""
     return run_fig7(fig7_archives["fig7_slow"], tmp_path_factory.mktemp("slow"), SHORT_REYNOLDS,
                     parameters={"Controller.reference_zero": 0.0})
 

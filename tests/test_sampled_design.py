@@ -78,9 +78,10 @@ def test_map_is_below_one_at_every_pair(grid):
     assert grid.max_pole_modulus.max() < 1.0
 
 
-def test_margin_is_largest_on_the_diagonal():
+@pytest.mark.parametrize("spec", [SAMPLED, WITH_ZERO], ids=["blind to the reference zero", "with it"])
+def test_margin_is_largest_on_the_diagonal(spec):
     """For the paper's model (eq. 6); with the rig-like damping it is not (docs/controller.md)."""
-    moduli = stability_map(spec=SAMPLED, discretisation="zoh").max_pole_modulus
+    moduli = stability_map(spec=spec, discretisation="zoh").max_pole_modulus
     np.testing.assert_array_equal(np.argmin(moduli, axis=0), np.arange(moduli.shape[1]))
 
 
