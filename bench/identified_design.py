@@ -31,6 +31,7 @@ from nfal.models.closed_loop import Staircase
 from nfal.models.damping import DampingCorrection
 from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping
 from nfal.models.rig import RigParameters
+from nfal.models.table2 import NOISE_PEAK_M
 
 TRUTH = {"Plant.excess_damping_height": RIG_LIKE_EXCESS_HEIGHT, "Plant.excess_damping_exponent": RIG_LIKE_EXCESS_EXPONENT,
          "SensorChain.noise_peak": 0.0}
@@ -52,20 +53,23 @@ def main() -> None:
                         help="set a parameter of the four Controllers of today's law (not the baseline), repeatable")
     parser.add_argument("--levels", type=float, nargs="+", help="staircase levels [m] (default: Figs. 9-10's)")
     parser.add_argument("--hold", type=float, default=0.6, help="hold of each level [s] (default 0.6)")
+    parser.add_argument("--noise-seed", type=int, metavar="SEED",
+                        help="sensor noise on (Table 2's 2 um peak) with this seed, and the noise RMS of each level printed")
     args = parser.parse_args()
     reference = Staircase(tuple(args.levels), hold_s=args.hold) if args.levels else Staircase()
     extra_parameters = dict(parse_parameter(text) for text in args.param)
     with tempfile.TemporaryDirectory() as tmp:
         calibration = args.calibration or perfect_identification(Path(tmp) / "identified.json")
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
-        truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {})}
+        noise = {} if args.noise_seed is None else {"SensorChain.noise_peak": NOISE_PEAK_M, "SensorChain.seed": args.noise_seed}
+        truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {}), **noise}
         rows = [("continuous", "eq. (6)", "paper's", PAPERS_LAW)]
         for placement in ("continuous", "sampled"):
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
                 rows.append((placement, damping, "today's",
                              {"Controller.placement": placement, **extra, **extra_parameters}))
         print(f"{'placement':<11} {'damping':<11} {'law':<10} {'IAE [um s]':>10} {'ratio':>6}  overshoot % per step;"
-              " 2 % settling [ms]")
+              " 2 % settling [ms]" + ("" if args.noise_seed is None else "; noise RMS per level [nm] (true height)"))
         baseline = None
         for number, (placement, damping, law, parameters) in enumerate(rows):
             result = run(archive, f"{tmp}/{number}", reference, parameters={**truth, **parameters})
@@ -73,8 +77,10 @@ def main() -> None:
             baseline = baseline or metrics["iae"]
             overshoots = ", ".join(f"{step['overshoot_percent']:.1f}" for step in metrics["steps"])
             settling = ", ".join(f"{(step['settling_time_s'] or float('nan')) * 1e3:.0f}" for step in metrics["steps"])
+            noise_rms = "" if args.noise_seed is None else "; " + ", ".join(f"{step['noise_rms_m'] * 1e9:.0f}"
+                                                                           for step in metrics["steps"])
             print(f"{placement:<11} {damping:<11} {law:<10} {metrics['iae'] * 1e6:>10.3f} {metrics['iae'] / baseline:>6.2f}"
-                  f"  {overshoots}; {settling}", flush=True)
+                  f"  {overshoots}; {settling}{noise_rms}", flush=True)
 
 
 if __name__ == "__main__":
