@@ -20,7 +20,7 @@ from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 
 sys.path.insert(0, "tests")
-from test_fig7_loop import AS_PURE_LOOP, pure_loop  # noqa: E402  (the reference loop and settings the tests use)
+from test_fig7_loop import AS_PURE_LOOP, pure_loop  # the reference loop and settings the tests use
 
 HEIGHT = SIMULATED.height
 

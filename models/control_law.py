@@ -101,7 +101,7 @@ class ControllerState:
                 None if self.lead_m is None else list(self.lead_m), self.lifting, self.reference_lag_m]
 
     @classmethod
-    def from_list(cls, values: list) -> "ControllerState":
+    def from_list(cls, values: list) -> ControllerState:
         def pair(value):
             return None if value is None else (float(value[0]), float(value[1]))
 
