@@ -55,3 +55,16 @@ def test_compare_json_and_plot(capsys, tmp_path):
 def test_compare_rejects_bad_controllers(capsys, controllers):
     assert main(["compare", "--controllers", controllers, "--levels", "100e-6,120e-6", "--hold", "0.1"]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_design_reference_zero_changes_the_small_gaps_only(capsys):
+    """The default designs through the law's reference filter (faster at small gaps); 0 is the blind design."""
+    heights = ["--heights", "50e-6,100e-6,150e-6,200e-6", "--json"]
+    assert main(["design", *heights]) == 0
+    through = json.loads(capsys.readouterr().out)
+    assert main(["design", *heights, "--reference-zero", "0"]) == 0
+    blind = json.loads(capsys.readouterr().out)
+    assert through["slow_pole_hz"][0] > 1.5 * blind["slow_pole_hz"][0]  # measured 10.01 against 4.92 Hz
+    assert through["slow_pole_hz"][2:] == pytest.approx(blind["slow_pole_hz"][2:], rel=1e-9)
+    assert main(["design", *heights, "--reference-zero", "-1"]) == 2
+    assert "--reference-zero" in capsys.readouterr().err

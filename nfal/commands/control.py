@@ -115,6 +115,8 @@ def _model(args: argparse.Namespace):
     rig = rig_from_args(args)
     model = load_rig_calibration(args.calibration, rig) if args.calibration else RigCalibration(paper_calibration())
     sample_rate = args.sample_rate if args.placement == "sampled" else None
+    if args.reference_zero < 0.0:
+        raise InvalidParameterError("--reference-zero", args.reference_zero, "a finite number >= 0 (0: off)")
     return rig, model, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff, sample_rate, args.reference_zero or None)
 
 
