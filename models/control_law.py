@@ -20,12 +20,15 @@ incremental (velocity-form) PID whose accumulated output is clamped.
 Four additions the paper does not have, each off unless asked for (the Controller FMU asks for lift-off, the lead
 and the reference zero; docs/controller.md, "Beyond the paper's law"):
 
-* **Reference zero.** The design of eq. (23) leaves the PI zero at tau_PI = k_p / k_i, slower than the slow double
-  pole 1 / p1 at small gaps (1.6 / p1 at 60 um): a step then overshoots by (r - 1) e^(-r / (r - 1)), r = p1 tau_PI,
-  4 % at 60 um, whatever the poles. With ``reference_zero_ratio`` = rho the reference passes through
-  (1 + b tau_PI s) / (1 + tau_PI s), b = min(1, rho / (p1 tau_PI)) at the gains of this sample: the filter's pole
-  cancels the PI zero (exactly, in the forward-Euler law) and its zero takes the place at rho / p1. The loop's
-  poles, its noise and its disturbance rejection are unchanged; at an equilibrium the filter is the identity.
+* **Reference zero.** Pole placement leaves the PI zero at tau_PI = k_p / k_i where it falls, slower than the slow
+  double pole 1 / p1 at small gaps (1.6 / p1 at 60 um in the blind sampled design): a step then overshoots by
+  (r - 1) e^(-r / (r - 1)), r = p1 tau_PI, 4 % at 60 um, whatever the poles. With ``reference_zero_ratio`` = rho
+  the reference passes through (1 + b tau_PI s) / (1 + tau_PI s), b = min(1, rho / (p1 tau_PI)) at the gains of
+  this sample: the filter's pole cancels the PI zero (exactly, in the forward-Euler law) and its zero takes the
+  place at rho / p1 (rho = 1: it cancels one of the slow pair, and the linear loop's steps cannot overshoot).
+  For given gains the loop, its noise and its disturbance rejection are unchanged; at an equilibrium the filter
+  is the identity. (The sampled placement reaches its cut-off through the filter, :mod:`.sampled_design`, which
+  does change the gains.)
 * **Reference pair.** The law follows the reference through a critically damped pair of time constant
   ``reference_filter_s`` (a two-degree-of-freedom PID: the loop's poles are unchanged, the steps are
   smoothed): less overshoot for a larger IAE (10 ms, without the reference zero: overshoot 6.5 -> 3.0 %,
@@ -209,7 +212,8 @@ class DiscreteControlLaw:
     def _weighted_reference(self, lag: float | None, target: float, measured: float, kp: float, ki: float):
         """The reference through (1 + b tau_PI s) / (1 + tau_PI s): its pole cancels the PI zero at
         tau_PI = k_p / k_i (in the forward-Euler law, exactly), its zero lies at ``reference_zero_ratio``
-        times the slow pole's time constant (b <= 1: never faster than the PI zero). The filter's next state."""
+        times the slow pole's time constant (b <= 1: never slower than the PI zero it replaces). The filter's
+        next state."""
         if self.reference_zero_ratio is None or ki <= 0.0:
             return target, None
         pi_time = kp / ki

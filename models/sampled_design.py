@@ -17,7 +17,7 @@ a line, x0 + a x1; the second is a quadratic along it. Of its real roots the one
 cut-off (now of the sampled transfer function r -> H at z = exp(j w T_s)) fixes it. With the law's reference zero
 (:mod:`nfal.models.control_law`) the cut-off is that of r -> H through the reference filter, as the law runs it:
 the filter takes the PI zero's lift of the bandwidth away, and a design blind to it would be slower than asked
-for where that lift was large (1/p1 = 29 instead of 20 ms at 60 um on the rig-like damping).
+for where that lift was large (with rho = 1 on eq. 6, p1 is 10.0 instead of 4.9 Hz at 50 um, docs/controller.md 2b).
 """
 
 from __future__ import annotations
