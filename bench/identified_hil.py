@@ -1,7 +1,7 @@
 """The identified design against the emulator, from rest, back to back with the paper's law (issue 14; docs/hil.md).
 
     python bench/identified_hil.py                          # the default truth and a heavier load
-    python bench/identified_hil.py default tilted           # some truths of bench/identify_truths.py
+    python bench/identified_hil.py default damping-160-4 damping-115-8 calibration   # truths of bench/identify_truths.py
     python bench/identified_hil.py --noise --repeats 3      # sensor noise on: how quiet each law holds the levels
 
 For each truth: ``nfal identify`` against ``nfal rig-emulator`` with that truth (bench/identify_truths.py), then
@@ -9,11 +9,11 @@ two ``nfal run fig7_hil`` runs, each against a fresh emulator (the object at res
 a 0.2 s watchdog): the paper's law as issue 14 found it (``PAPERS_LAW``: continuous placement on eq. (6), none of
 the law's additions) and today's Controller on the identification. Where the paper's law has no design for the
 truth's load, it is designed for the nominal one, as a user who did not re-weigh the object would run it.
-Printed per run: overshoot and 2 % settling per step, the highest height during the first level (the lift-off), the IAE of the steps (ratio to the paper's law) and of the first
-level (``metrics.first_level`` of summary.json); then the identified loop simulated (fig7_slow with the truth
-as its plant, from rest). With ``--noise`` the emulator's sensor noise is on (its default
-2 um peak), each pair of runs is repeated and the noise RMS of every level (h - r over the last quarter of its
-step, ``noise_rms_m``) is printed, pooled over the repeats. Runs ride through host pauses up to 0.1 s
+Printed per run: overshoot and 2 % settling per step, the highest height during the first level (the lift-off),
+the IAE of the steps (ratio to the paper's law) and of the first level (``metrics.first_level`` of summary.json);
+then the identified loop simulated (fig7_slow with the truth as its plant, from rest). With ``--noise`` the
+emulator's sensor noise is on (its default 2 um peak), each pair of runs is repeated and the noise RMS of every
+level (measured h - r over the last quarter of its step, ``noise_rms_m``) is printed, pooled over the repeats. Runs ride through host pauses up to 0.1 s
 (``proxy.max_missed_samples=200``, docs/hil.md).
 """
 
