@@ -16,7 +16,6 @@ only K.
 from __future__ import annotations
 
 import abc
-import bisect
 import dataclasses
 import json
 import math
@@ -33,6 +32,7 @@ from .damping import DampingCorrection
 from .excitation import ExcitationShape
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
 from .rig import RigParameters
+from .scalar_spline import ScalarSpline
 
 #: Eq. (17): the paper's fit to its measured K, ascending powers of sigma.
 PAPER_COEFFICIENTS = (1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10)
@@ -135,16 +135,10 @@ class TabulatedK(CalibrationFunction):
         self.sigma, self.values = sigma, values
         self._spline = interpolate.CubicSpline(np.log(sigma), values)
         self._spline_slope = self._spline.derivative()
-        # the pieces as plain floats: scipy's call costs ~5 us, too much for a plant's inner loop
-        self._knots = np.log(sigma).tolist()
-        self._pieces = self._spline.c.T.tolist()  # per interval, highest power first
+        self._scalar_spline = ScalarSpline(self._spline)
 
     def scalar(self, sigma: float) -> float:
-        x = math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1]))
-        i = min(max(bisect.bisect_right(self._knots, x) - 1, 0), len(self._pieces) - 1)
-        dx = x - self._knots[i]
-        c3, c2, c1, c0 = self._pieces[i]
-        return ((c3 * dx + c2) * dx + c1) * dx + c0
+        return self._scalar_spline(math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1])))
 
     def _value(self, sigma):
         return self._spline(np.log(sigma))

@@ -200,8 +200,8 @@ class DiscreteControlLaw:
         previous = measured if state.previous_measurement_m is None else state.previous_measurement_m
         ts, wl = self.period_s, self.filter_rad_s
         rate = (1.0 - ts * wl) * state.derivative_m_per_s + wl * (measured - previous)
-        kp, ki, kd = self.gains.gains_si(measured)
-        target, reference_lag = self._weighted_reference(state.reference_lag_m, target, measured, kp, ki)
+        kp, ki, kd, slow_time = self.gains.law_terms(measured)
+        target, reference_lag = self._weighted_reference(state.reference_lag_m, target, measured, kp, ki, slow_time)
         error = target - measured
         unsaturated = kp * error + state.integrator_m - kd * rate
         command = min(max(unsaturated, 0.0), self.max_excitation_m)
@@ -209,7 +209,8 @@ class DiscreteControlLaw:
         output, lead = self._lead(state.lead_m, command)
         return output, ControllerState(float(integrator), float(rate), measured, pair, lead, lifting, reference_lag)
 
-    def _weighted_reference(self, lag: float | None, target: float, measured: float, kp: float, ki: float):
+    def _weighted_reference(self, lag: float | None, target: float, measured: float, kp: float, ki: float,
+                            slow_time: float):
         """The reference through (1 + b tau_PI s) / (1 + tau_PI s): its pole cancels the PI zero at
         tau_PI = k_p / k_i (in the forward-Euler law, exactly), its zero lies at ``reference_zero_ratio``
         times the slow pole's time constant (b <= 1: never slower than the PI zero it replaces). The filter's
@@ -217,7 +218,7 @@ class DiscreteControlLaw:
         if self.reference_zero_ratio is None or ki <= 0.0:
             return target, None
         pi_time = kp / ki
-        weight = min(1.0, self.reference_zero_ratio * self.gains.slow_time_s(measured) / pi_time)
+        weight = min(1.0, self.reference_zero_ratio * slow_time / pi_time)
         decay = max(0.0, 1.0 - self.period_s / pi_time)
         lag = decay * (measured if lag is None else lag) + (1.0 - decay) * target
         return weight * target + (1.0 - weight) * lag, float(lag)

@@ -10,7 +10,6 @@ plant or the LPV model of eq. (20) takes ``excess_damping``/``damping``: both ha
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import math
 
@@ -18,6 +17,8 @@ import numpy as np
 from scipy import interpolate
 
 from nfal.errors import DataFormatError
+
+from .scalar_spline import ScalarSpline
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -57,8 +58,7 @@ class DampingCorrection:
             object.__setattr__(self, name, value)
         spline = interpolate.PchipInterpolator(heights, np.log(factors))
         object.__setattr__(self, "_log_factor", spline)
-        # the same cubic pieces as Python floats, for factor_scalar
-        object.__setattr__(self, "_pieces", (heights.tolist(), [tuple(column) for column in spline.c.T.tolist()]))
+        object.__setattr__(self, "_scalar_log_factor", ScalarSpline(spline))  # for factor_scalar
 
     @property
     def height_range_m(self) -> tuple[float, float]:
@@ -77,12 +77,7 @@ class DampingCorrection:
     def factor_scalar(self, height: float) -> float:
         """:meth:`factor` at one clearance, in plain Python: plants call it per sub-step (0.5 us against
         7.7 us for :meth:`factor`)."""
-        knots, pieces = self._pieces
-        h = min(max(height, knots[0]), knots[-1])
-        i = min(bisect.bisect_right(knots, h) - 1, len(pieces) - 1)
-        c3, c2, c1, c0 = pieces[i]
-        dx = h - knots[i]
-        return math.exp(((c3 * dx + c2) * dx + c1) * dx + c0)
+        return math.exp(self._scalar_log_factor(height))
 
     def to_dict(self) -> dict:
         """The ``"damping"`` entry of a calibration file."""

@@ -37,6 +37,7 @@ from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel
 from .rig import RigParameters
 from .sampled_design import SampledLoop
+from .scalar_spline import ScalarSpline
 from .table2 import CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, WORK_RANGE_M
 
 logger = logging.getLogger(__name__)
@@ -336,7 +337,8 @@ class GainSchedule:
         table = np.array([[d.kp, d.ki, d.kd] for d in designs])
         self._spline = interpolate.CubicSpline(H, table, axis=0)
         self._slope = self._spline.derivative()
-        self._slow_times_s = np.array([1.0 / (d.slow_pole * d.lpv.omega) for d in designs])
+        self._scalar_gains = ScalarSpline(self._spline)  # for law_terms
+        self._slow_times_s = [1.0 / (d.slow_pole * d.lpv.omega) for d in designs]
         self.name = "gain-scheduled"
 
     @property
@@ -354,10 +356,14 @@ class GainSchedule:
         """(k_p [m/m], k_i [1/s], k_d [s]) at clearance ``height_m`` [m]; shape (..., 3)."""
         return self.gains_nondimensional(height_m) * np.array([1.0, self.omega, 1.0 / self.omega])
 
-    def slow_time_s(self, height_m: float) -> float:
-        """1 / p1 [s], the time constant of the slow double pole, at clearance ``height_m`` [m] (interpolated
-        linearly, held outside the table)."""
-        return float(np.interp(height_m, self.heights_m, self._slow_times_s))
+    def law_terms(self, height_m: float) -> tuple[float, float, float, float]:
+        """What the discrete law needs at one clearance [m], in plain floats (it runs every 0.5 ms): :meth:`gains_si`
+        and 1 / p1 [s], the slow double pole's time constant (interpolated linearly); held outside the table."""
+        i, dx = self._scalar_gains.piece(height_m / self.reference_clearance)
+        kp, ki, kd = self._scalar_gains.values_in(i, dx)
+        knots, slow = self._scalar_gains.knots, self._slow_times_s
+        slow_time = slow[i] + (slow[i + 1] - slow[i]) * dx / (knots[i + 1] - knots[i])
+        return kp, ki * self.omega, kd / self.omega, slow_time
 
     def slope_nondimensional(self, height_m) -> np.ndarray:
         """d(k_p, k_i, k_d)/dHbar (zero outside the table, where the gains are held)."""
@@ -374,6 +380,7 @@ class FixedGains:
         self.reference_clearance = design.lpv.reference_clearance
         self.omega_lpf = design.omega_lpf
         self._gains = np.array([design.kp, design.ki, design.kd])
+        self._law_terms = (*(float(g) for g in self.gains_si(design.height_m)), 1.0 / (design.slow_pole * self.omega))
         self.name = f"linear at {design.height_m * 1e6:.0f} um"
 
     @property
@@ -388,9 +395,9 @@ class FixedGains:
         """(k_p [m/m], k_i [1/s], k_d [s]); shape (..., 3)."""
         return self.gains_nondimensional(height_m) * np.array([1.0, self.omega, 1.0 / self.omega])
 
-    def slow_time_s(self, height_m: float) -> float:
-        """1 / p1 [s] of the design, at every clearance."""
-        return 1.0 / (self.design.slow_pole * self.omega)
+    def law_terms(self, height_m: float) -> tuple[float, float, float, float]:
+        """:meth:`gains_si` and 1 / p1 [s] of the design, as plain floats, at every clearance."""
+        return self._law_terms
 
 
 def design_schedule(heights_m=None, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,

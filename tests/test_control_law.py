@@ -216,7 +216,7 @@ def test_the_reference_filter_cancels_the_pi_zero_exactly():
     gains = fixed_design(60e-6, spec=DesignSpec(sample_rate_hz=2000.0))
     law = DiscreteControlLaw(gains, reference_zero_ratio=1.2)
     kp, ki, _ = gains.gains_si(60e-6)
-    weight = 1.2 * gains.slow_time_s(60e-6) * ki / kp
+    weight = 1.2 * gains.law_terms(60e-6)[3] * ki / kp
     assert 0.5 < weight < 0.9  # a real weight: the design's PI zero is slower than its slow pole
     state, step = law.initial_state(60e-6, 2e-6), 1e-6
     for k in range(40):
@@ -264,3 +264,15 @@ def test_the_state_survives_a_round_trip_as_a_list():
 def test_bad_additions_raise(kwargs):
     with pytest.raises(InvalidParameterError):
         DiscreteControlLaw(SCHEDULE, **kwargs)
+
+
+@pytest.mark.parametrize("gains", [SCHEDULE, fixed_design(120e-6)], ids=["scheduled", "fixed"])
+def test_the_laws_scalar_terms_are_the_schedules(gains):
+    """law_terms (plain floats, the law's 0.5 ms path) equals gains_si and 1/p1 interpolated linearly, held outside."""
+    heights = np.concatenate([np.linspace(40e-6, 210e-6, 347), [50e-6, 200e-6]])
+    terms = np.array([gains.law_terms(float(h)) for h in heights])
+    np.testing.assert_allclose(terms[:, :3], gains.gains_si(heights), rtol=1e-12, atol=1e-18)
+    designs = getattr(gains, "designs", None) or (gains.design,)
+    slow = [1.0 / (d.slow_pole * d.lpv.omega) for d in designs]
+    design_heights = [d.height_m for d in designs]
+    np.testing.assert_allclose(terms[:, 3], np.interp(heights, design_heights, slow), rtol=1e-12)
