@@ -28,12 +28,10 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
-from nfal.errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, optional_positive, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
@@ -114,7 +112,7 @@ class Controller(NfalSlave):
         model = self.build_rig_calibration(rig)
         calibration = model.calibration
         sample_rate = require_positive("sample_rate", self.sample_rate)
-        reference_zero = _optional_positive("reference_zero", self.reference_zero)
+        reference_zero = optional_positive("reference_zero", self.reference_zero)
         spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
                           require_positive("filter_cutoff", self.filter_cutoff),
                           sample_rate if self.placement == "sampled" else None, reference_zero)
@@ -129,7 +127,7 @@ class Controller(NfalSlave):
         gains = self._gains[1]
         require_plausible("metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt),
                           MAX_METRES_PER_VOLT, "m/V")
-        lift_off, smoothing = (_optional_positive(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
+        lift_off, smoothing = (optional_positive(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
                                       reference_range_m=(low, high), reference_filter_s=smoothing, lift_off_time_s=lift_off,
@@ -224,11 +222,3 @@ class Controller(NfalSlave):
         self._cache = None
         if self.law is not None:
             self._clock = SampleClock(self.law.period_s, self.start_time)
-
-
-def _optional_positive(name: str, value: float) -> float | None:
-    """A parameter that 0 turns off (a time constant, a ratio): None for 0, else the value if finite and > 0."""
-    number = float(value)
-    if not (math.isfinite(number) and number >= 0.0):
-        raise InvalidParameterError(name, value, "a finite number >= 0 (0: off)")
-    return number or None

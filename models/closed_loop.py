@@ -24,8 +24,6 @@ logger = logging.getLogger(__name__)
 
 INTEGRATORS = ("fixed_step", "adaptive")
 
-#: The reference of the comparison [m]: a staircase between 60 and 180 um, up and back down.
-
 
 @dataclasses.dataclass(frozen=True)
 class Staircase:

@@ -99,21 +99,17 @@ class ControllerState:
 
     def as_list(self) -> list:
         """The state as JSON-able numbers (an FMU state); :meth:`from_list` reads it back."""
-        return [self.integrator_m, self.derivative_m_per_s, self.previous_measurement_m,
-                None if self.reference_pair_m is None else list(self.reference_pair_m),
-                None if self.lead_m is None else list(self.lead_m), self.lifting, self.reference_lag_m]
+        return [list(value) if isinstance(value, tuple) else value for value in dataclasses.astuple(self)]
 
     @classmethod
     def from_list(cls, values: list) -> ControllerState:
-        def pair(value):
-            return None if value is None else (float(value[0]), float(value[1]))
+        """Read :meth:`as_list` back; a shorter list (a state saved by an earlier version) leaves the rest default."""
+        def read(value):
+            if isinstance(value, (list, tuple)):
+                return tuple(float(v) for v in value)
+            return value if value is None or isinstance(value, bool) else float(value)
 
-        def number(value):
-            return None if value is None else float(value)
-
-        values = list(values) + [None] * (7 - len(values))
-        return cls(float(values[0]), float(values[1]), number(values[2]), pair(values[3]), pair(values[4]),
-                   bool(values[5]), number(values[6]))
+        return cls(**{field.name: read(value) for field, value in zip(dataclasses.fields(cls), values)})
 
 
 class DiscreteControlLaw:

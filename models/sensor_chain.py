@@ -33,8 +33,6 @@ from nfal.errors import InvalidParameterError, require_positive
 from .measurement_noise import ColouredNoise
 from .table2 import ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
 
-#: Table 2: cut-off of the analog low-pass [Hz] and the sampling rate [Hz].
-
 #: Relative difference of two step sizes below which the filter's transition matrix is reused.
 STEP_TOLERANCE = 1e-9
 

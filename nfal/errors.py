@@ -199,6 +199,20 @@ def require_positive(name: str, value: float) -> float:
     return number
 
 
+def optional_positive(name: str, value: float | None) -> float | None:
+    """A setting that 0 (or None) turns off: None then, else ``value`` as float if it is finite and > 0; anything
+    else raises :class:`InvalidParameterError`."""
+    if value is None:
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, value, "a finite number >= 0 (0: off)") from None
+    if not (0.0 <= number < float("inf")):
+        raise InvalidParameterError(name, value, "a finite number >= 0 (0: off)")
+    return number or None
+
+
 def require_finite(name: str, value: float, allowed: str = "a finite number") -> float:
     """Return ``value`` as float if it is finite, else raise :class:`InvalidParameterError` saying ``allowed``."""
     try:

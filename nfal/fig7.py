@@ -64,8 +64,6 @@ def matched_design(parameters: dict) -> dict:
     return parameters
 
 
-
-
 def loop_columns(element_names) -> LoopColumns:
     """HARDWARE when the structure has the ``proxy`` element, else SIMULATED."""
     return HARDWARE if PROXY in set(element_names) else SIMULATED
@@ -101,8 +99,6 @@ def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
     before = run.time_s < float(reference.step_times_s[0])
     return {"peak_m": float(np.max(run.height_m[before])) if before.any() else None,
             "iae_m_s": total_iae(run, before), "steps_iae_m_s": total_iae(run, ~before)}
-
-
 
 
 def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S) -> list[dict]:

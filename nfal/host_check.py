@@ -26,6 +26,7 @@ from fmpy import read_model_description
 
 from nfal.errors import HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
+from nfal.fmus.export_runtime import RUNTIMES
 from nfal.orchestration.libcosim import preload_environment
 
 #: The C hosts' sources, per FMI version.
@@ -85,8 +86,7 @@ def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[
                                    f"{C_HOST_SOURCES[version].stem}, not {host.name}")
     outputs = {str(v.valueReference): v.name for v in description.modelVariables
                if v.causality == "output" and v.type in ("Real", "Float64")}
-    platform = "linux64" if version == 2 else "x86_64-linux"
-    binary = folder / "binaries" / platform / f"{description.coSimulation.modelIdentifier}.so"
+    binary = folder / "binaries" / RUNTIMES[version].platform / f"{description.coSimulation.modelIdentifier}.so"
     # FMI 2.0 passes the resources as a file URI, FMI 3.0 as a path ending in a separator
     resources = (folder / "resources").as_uri() if version == 2 else f"{folder / 'resources'}{os.sep}"
     settings = [f"{references[name]}={value}" for name, value in strings.items()]

@@ -257,6 +257,9 @@ def test_the_state_survives_a_round_trip_as_a_list():
     assert state.reference_lag_m is not None
     assert ControllerState.from_list(state.as_list()) == state
     assert ControllerState.from_list([1e-6, 0.0, None]) == ControllerState(1e-6)  # a state saved by nfal 0.1
+    read = ControllerState.from_list([0, 0, 60, [60, 61], None, True, 60])  # JSON may hold integers
+    assert read == ControllerState(0.0, 0.0, 60.0, (60.0, 61.0), None, True, 60.0)
+    assert isinstance(read.integrator_m, float) and isinstance(read.reference_pair_m[0], float) and read.lifting is True
 
 
 @pytest.mark.parametrize("kwargs", [{"lift_off_time_s": 0.0}, {"reference_filter_s": -1.0}, {"actuator_lag_s": float("nan")},

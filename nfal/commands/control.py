@@ -12,7 +12,7 @@ import numpy as np
 
 from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list,
                                   print_json, print_step_table, progress_bar, rig_from_args)
-from nfal.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError, optional_positive
 from nfal.models.table2 import (  # light: constants only
     CLOSED_LOOP_CUTOFF_HZ,
     FILTER_CUTOFF_HZ,
@@ -115,9 +115,8 @@ def _model(args: argparse.Namespace):
     rig = rig_from_args(args)
     model = load_rig_calibration(args.calibration, rig) if args.calibration else RigCalibration(paper_calibration())
     sample_rate = args.sample_rate if args.placement == "sampled" else None
-    if args.reference_zero < 0.0:
-        raise InvalidParameterError("--reference-zero", args.reference_zero, "a finite number >= 0 (0: off)")
-    return rig, model, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff, sample_rate, args.reference_zero or None)
+    reference_zero = optional_positive("--reference-zero", args.reference_zero)
+    return rig, model, DesignSpec(args.closed_loop_cutoff, args.filter_cutoff, sample_rate, reference_zero)
 
 
 def run_design(args: argparse.Namespace) -> int:
