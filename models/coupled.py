@@ -35,8 +35,8 @@ from nfal.errors import ConvergenceError, GapClosedError, InvalidParameterError,
 
 from . import numba_cache
 from .excitation import ExcitationShape
-from .perturbation import first_order_pressure, radial_grid
-from .reynolds import check_grid, discrete_mean_correction
+from .perturbation import radial_grid
+from .reynolds import check_grid, perturbation_film
 from .rig import RigParameters
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
@@ -576,11 +576,8 @@ class CoupledModel:
         nodes, dt = self.nodes, 2.0 * np.pi / self.steps_per_period
         u_now, u_prev = np.zeros(nodes), np.zeros(nodes)
         if A0 > 0.0:
-            sigma, delta = self.film_number / Z0**2, A0 / Z0
-            _, amplitude = first_order_pressure(self.shape, sigma, nodes)
-            mean = discrete_mean_correction(self.shape, amplitude, self.R, self._faces)
-            u_now = delta * amplitude.real + delta**2 * mean
-            u_prev = delta * np.real(amplitude * np.exp(-1j * dt)) + delta**2 * mean
+            u_now, u_prev = perturbation_film(self.shape, self.film_number / Z0**2, A0 / Z0, self.R, self._faces,
+                                              (0.0, -dt)).T
         return np.concatenate((u_now, u_prev, [Z0, Z0 - W0 * dt, W0, W0]))
 
 

@@ -28,8 +28,8 @@ from scipy import linalg
 from nfal.errors import ConvergenceError, InvalidParameterError
 
 from .excitation import ExcitationShape, largest_excursion
-from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
-from .reynolds import discrete_mean_correction
+from .perturbation import as_squeeze_numbers, radial_grid
+from .reynolds import perturbation_film
 
 #: Default harmonics h (M = 2 h + 1 collocation phases): K within ~1e-7 of the M -> infinity limit up to
 #: delta = 0.3 (tests/test_harmonic_balance.py).
@@ -120,9 +120,7 @@ class HarmonicBalanceFilm:
 
     def initial_guess(self, sigma: float, delta: float) -> np.ndarray:
         """Perturbation solution delta Re(Pi e^{iT}) + delta^2 Pi_5 at the phases, (nodes, M)."""
-        _, amplitude = first_order_pressure(self.shape, sigma, self.nodes)
-        mean = discrete_mean_correction(self.shape, amplitude, self.R, self._faces)
-        return delta * np.real(amplitude[:, None] * np.exp(1j * self.phases)[None, :]) + delta**2 * mean[:, None]
+        return perturbation_film(self.shape, sigma, delta, self.R, self._faces, self.phases)
 
     def solve(self, sigma: float, delta: float, guess: np.ndarray | None = None, motion: complex = 0.0) -> HarmonicFilm:
         """The periodic film at squeeze number ``sigma`` (eq. 2) and excitation norm ``delta`` (eq. 7).

@@ -292,14 +292,14 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
     sigma = float(sigmas[0])
     delta, nodes, steps, tol, max_periods = _check_settings(delta, nodes, steps_per_period, tolerance, max_periods)
     R, faces, volumes = radial_grid(nodes)
-    eps_nodes, eps_faces = _form_on_grid(shape, delta, R, faces)
+    eps_nodes, eps_faces, largest = _form_on_grid(shape, delta, R, faces)
     conductance = faces / R[1]
     dt = 2.0 * np.pi / steps
-    u_now, u_prev = _perturbation_start(shape, sigma, delta, R, faces, dt)
+    u_now, u_prev = np.ascontiguousarray(perturbation_film(shape, sigma, delta, R, faces, (0.0, -dt)).T)
     record = np.empty((steps, nodes))
     scale_force = 2.0 / (steps * delta**2)
 
-    slow_ratio = slowest_period_ratio(R, faces, volumes, sigma, delta * largest_excursion(eps_nodes, eps_faces))
+    slow_ratio = slowest_period_ratio(R, faces, volumes, sigma, delta * largest)
     factor = max(1.0, slow_ratio / (1.0 - slow_ratio))
     states = [np.concatenate((u_now, u_prev))]
     K_value, K_last, change, extrapolations = np.nan, np.nan, np.inf, 0
@@ -332,25 +332,25 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
                            f"last K = {K_value:.8g}, estimated remaining change {change:.3g}")
 
 
-def _form_on_grid(shape: ExcitationShape, delta: float, R: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """eps_hat at the nodes and faces; refused if delta * eps_hat would close the gap."""
+def _form_on_grid(shape: ExcitationShape, delta: float, R: np.ndarray,
+                  faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """eps_hat at the nodes and faces, and its largest excursion; refused if delta * eps_hat would close the gap."""
     eps_nodes = np.ascontiguousarray(shape(R), dtype=float)
     eps_faces = np.ascontiguousarray(shape(faces), dtype=float)
     largest = largest_excursion(eps_nodes, eps_faces)
     if delta * largest >= 1.0:
         raise InvalidParameterError("delta", delta, f"small enough that the gap stays open: delta * max |eps_hat| < 1 "
                                     f"(max |eps_hat| = {largest:.4g})")
-    return eps_nodes, eps_faces
+    return eps_nodes, eps_faces, largest
 
 
-def _perturbation_start(shape: ExcitationShape, sigma: float, delta: float, R: np.ndarray, faces: np.ndarray,
-                        dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The march's initial state: the perturbation solution P - 1 = delta Re(Pi e^{iT}) + delta^2 Pi_5 at
-    T = 0 and T = -dT."""
+def perturbation_film(shape: ExcitationShape, sigma: float, delta: float, R: np.ndarray, faces: np.ndarray,
+                      phases) -> np.ndarray:
+    """The perturbation solution P - 1 = delta Re(Pi e^{iT}) + delta^2 Pi_5 at the phases T, (nodes, phases): the
+    start of a march (T = 0 and -dT, here and in the coupled model) and of harmonic balance (its phases)."""
     _, amplitude = first_order_pressure(shape, sigma, R.size)
     mean = discrete_mean_correction(shape, amplitude, R, faces)
-    return (delta * amplitude.real + delta**2 * mean,
-            delta * np.real(amplitude * np.exp(-1j * dt)) + delta**2 * mean)
+    return delta * np.real(amplitude[:, None] * np.exp(1j * np.asarray(phases))[None, :]) + delta**2 * mean[:, None]
 
 
 def _check_march(status: int, sigma: float, delta: float) -> None:
