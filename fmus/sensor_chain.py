@@ -12,10 +12,9 @@ the ``true_height`` set before initialisation ends.
 
 from __future__ import annotations
 
-from nfal.errors import InvalidParameterError, require_finite
+from nfal.errors import InvalidParameterError
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import sensor_chain as sensor_model
-from nfal.models.plausibility import MAX_CLEARANCE_M, require_plausible
 from nfal.models.table2 import (ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ,
                                 STAIRCASE_LEVELS_M)
 
@@ -55,12 +54,7 @@ class SensorChain(NfalSlave):
     def setup(self) -> None:
         self._chain = self._clock = self._state = None
         self._build()
-        self._state = self._chain.initial_state(self._true_height())
-
-    def _true_height(self) -> float:
-        """The ``true_height`` input [m], checked: a sensor of a levitation gap does not report 1e300 m."""
-        height = require_finite("true_height", self.true_height, "a finite clearance [m]")
-        return require_plausible("true_height", height, MAX_CLEARANCE_M, "m")
+        self._state = self._chain.initial_state(self.true_height)
 
     def _measured(self) -> float:
         if self._state is None:  # before initialisation ends
@@ -69,7 +63,7 @@ class SensorChain(NfalSlave):
 
     def step(self, current_time: float, step_size: float) -> None:
         self._clock.check_step(step_size)
-        self._state = self._chain.advance(self._state, self._true_height(), step_size,
+        self._state = self._chain.advance(self._state, self.true_height, step_size,
                                           at_sample=self._clock.is_sample(current_time))
 
     def get_internal_state(self) -> dict:

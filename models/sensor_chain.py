@@ -28,9 +28,10 @@ import math
 import numpy as np
 from scipy import linalg
 
-from nfal.errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_finite, require_positive
 
 from .measurement_noise import ColouredNoise
+from .plausibility import MAX_CLEARANCE_M, require_plausible
 from .table2 import ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
 
 #: Relative difference of two step sizes below which the filter's transition matrix is reused.
@@ -137,7 +138,9 @@ class SensorChain:
         """The measurement [m] at a communication point (no commit): sampled now if ``at_sample``, else held."""
         if not isinstance(state, SensorState):
             raise InvalidParameterError("state", type(state).__name__, "a SensorState")
-        height = self._height(true_height_m)
+        return self._output(state, self._height(true_height_m), at_sample)
+
+    def _output(self, state: SensorState, height: float, at_sample: bool) -> float:
         if not at_sample:
             return state.measured_m
         if self.filtered:
@@ -146,13 +149,16 @@ class SensorChain:
 
     def advance(self, state: SensorState, true_height_m: float, dt_s: float, *, at_sample: bool) -> SensorState:
         """Commit the sample (drawing the next noise value) if ``at_sample``, then run the filter over ``dt_s``."""
-        measured = self.output(state, true_height_m, at_sample=at_sample)
+        if not isinstance(state, SensorState):
+            raise InvalidParameterError("state", type(state).__name__, "a SensorState")
+        height = self._height(true_height_m)
+        measured = self._output(state, height, at_sample)
         dt = require_positive("dt_s", dt_s)
         noise = self.noise.next_sample() if at_sample else state.noise_m
         filt = state.filter_m
         if self.filtered:
             phi, gamma = self._transition(dt)
-            filt = tuple(float(v) for v in phi @ np.asarray(filt) + gamma * (self._height(true_height_m) + noise))
+            filt = tuple(float(v) for v in phi @ np.asarray(filt) + gamma * (height + noise))
         return SensorState(filt, noise, measured)
 
     def get_state(self, state: SensorState) -> dict:
@@ -173,10 +179,6 @@ class SensorChain:
 
     @staticmethod
     def _height(value) -> float:
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            raise InvalidParameterError("true_height_m", value, "a finite clearance [m]") from None
-        if not math.isfinite(number):
-            raise InvalidParameterError("true_height_m", value, "a finite clearance [m]")
-        return number
+        """The true height, checked: a sensor of a levitation gap does not report 1e300 m."""
+        return require_plausible("true_height", require_finite("true_height", value, "a finite clearance [m]"),
+                                 MAX_CLEARANCE_M, "m")

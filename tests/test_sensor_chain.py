@@ -110,3 +110,12 @@ def test_bad_inputs_raise():
         chain.advance(state, 60e-6, 0.0, at_sample=True)
     with pytest.raises(InvalidParameterError):
         chain.set_state({"sensor": {}})
+
+
+@pytest.mark.parametrize("height", [float("nan"), 1e300, "abc"])
+def test_an_impossible_true_height_is_refused_by_the_model_itself(height):
+    chain = SensorChain()
+    state = chain.initial_state(100e-6)
+    for call in (lambda: chain.output(state, height, at_sample=True), lambda: chain.advance(state, height, 5e-4, at_sample=True)):
+        with pytest.raises(InvalidParameterError, match="true_height"):
+            call()
