@@ -181,10 +181,11 @@ class Controller(NfalSlave):
 
     def step(self, current_time: float, step_size: float) -> None:
         self._clock.check_step(step_size)
-        self._checked_reference()
         if self._clock.is_sample(current_time):
-            self._held, self._state = self._sample()
+            self._held, self._state = self._sample()  # checks the reference (or did, for these inputs)
             self._watch_saturation(current_time)
+        else:
+            self._checked_reference()
 
     def _watch_saturation(self, now: float) -> None:
         """Track how long the drive has been at max_excitation (dips shorter than SATURATION_GAP_S, noise
