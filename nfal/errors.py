@@ -222,3 +222,13 @@ def require_finite(name: str, value: float, allowed: str = "a finite number") ->
     if not math.isfinite(number):
         raise InvalidParameterError(name, value, allowed)
     return number
+
+
+def require_duration(name: str, value: float, longest_s: float) -> float:
+    """A timeout or wait [s]: ``value`` as float if it is > 0 and at most ``longest_s`` (a wait of a day is a typo, and
+    a process that waits for it looks hung), else raise :class:`InvalidParameterError`."""
+    allowed = f"a time > 0 s and at most {longest_s:g} s"
+    number = require_finite(name, value, allowed)
+    if not 0.0 < number <= longest_s:
+        raise InvalidParameterError(name, value, allowed)
+    return number

@@ -6,13 +6,12 @@ the wall time it actually started minus its release time (its jitter). :meth:`Re
 records when the step finished; a step that finishes after the release time of the next one is an
 overrun. A late step is not skipped and the schedule is not shifted: later steps keep their release
 times, so the run catches up when it can. :meth:`RealTimePacer.report` gives the counts and the
-max / mean / p50 / p95 / p99 jitter for ``summary.json`` (over the last ``history`` steps if given:
-a process that runs for hours keeps a bounded record; the overrun count is always the total).
+max / mean / p50 / p95 / p99 jitter for ``summary.json``, over every step, in bounded memory
+(:class:`~nfal.realtime.LatencyStats`: a process that runs for hours keeps nothing per step).
 """
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import ctypes
 import os
@@ -20,9 +19,8 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 
-import numpy as np
-
 from nfal.errors import InvalidParameterError, RealtimePriorityError, require_positive
+from nfal.realtime import LatencyStats
 
 #: Overruns listed one by one in the report (all are counted).
 FIRST_OVERRUNS = 10
@@ -124,8 +122,6 @@ class RealTimePacer:
         2-core machine the CPU a second real-time process needs (docs/benchmarks.md, "Hardware in the loop").
     clock, sleep : callables
         Injected for tests; default ``time.perf_counter`` and ``time.sleep``.
-    history : int, optional
-        Keep the jitter and duration of the last this many steps only (default: every step).
     resync_after_s : float, optional
         A step released later than this is taken as the new origin: later releases shift by its lateness
         instead of following in a burst to catch up (counted as resyncs, and the time given up is summed).
@@ -135,17 +131,15 @@ class RealTimePacer:
 
     def __init__(self, step_size: float, *, speed: float = 1.0, spin_s: float = 1e-4,
                  clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep,
-                 history: int | None = None, resync_after_s: float | None = None) -> None:
+                 resync_after_s: float | None = None) -> None:
         self.period = require_positive("step_size", step_size) / require_positive("speed", speed)
         if not 0.0 <= spin_s < 1.0:
             raise InvalidParameterError("spin_s", spin_s, "in [0, 1) s")
         self.spin_s, self.clock, self.sleep = float(spin_s), clock, sleep
         self.start_time: float | None = None
-        if history is not None and history < 1:
-            raise InvalidParameterError("history", history, "a whole number >= 1, or None")
-        self.released = 0  # steps released, all of them (the statistics cover the last ``history``)
-        self.lateness: collections.deque[float] = collections.deque(maxlen=history)
-        self.durations: collections.deque[float] = collections.deque(maxlen=history)
+        self.released = 0  # steps released
+        self.lateness = LatencyStats()
+        self.durations = LatencyStats()
         self.overruns: list[tuple[int, float]] = []  # the first ones (at most FIRST_OVERRUNS)
         self.overrun_count = 0
         self.overrun_max = 0.0
@@ -178,7 +172,7 @@ class RealTimePacer:
         self._started_at = now
         lateness = now - deadline
         self.released += 1
-        self.lateness.append(lateness)
+        self.lateness.add(lateness)
         if self.resync_after_s is not None and lateness > self.resync_after_s:
             self.start_time += lateness
             self.resyncs += 1
@@ -194,7 +188,7 @@ class RealTimePacer:
     def done(self, k: int) -> bool:
         """Record that step ``k`` finished; True if it overran (finished after step k + 1's release)."""
         now = self.clock()
-        self.durations.append(now - self._started_at)
+        self.durations.add(now - self._started_at)
         excess = now - self.release_time(k + 1)
         if excess > 0:
             self.overrun_count += 1
@@ -206,20 +200,18 @@ class RealTimePacer:
 
     def report(self) -> dict:
         """Counts and statistics of the steps so far [s] (see the module docstring)."""
-        lateness = np.asarray(self.lateness, dtype=float)
-        durations = np.asarray(self.durations, dtype=float)
+        lateness = self.lateness
         stats = {
             "period_s": self.period,
             "steps": self.released,
-            "steps_in_statistics": int(lateness.size),
             "overruns": self.overrun_count,
             "overrun_max_s": self.overrun_max,
             "first_overruns": [{"step": k, "excess_s": e} for k, e in self.overruns],
-            "jitter_max_s": float(lateness.max()) if lateness.size else 0.0,
-            "jitter_mean_s": float(lateness.mean()) if lateness.size else 0.0,
-            **{f"jitter_p{q}_s": float(np.percentile(lateness, q)) if lateness.size else 0.0 for q in (50, 95, 99)},
-            "step_duration_max_s": float(durations.max()) if durations.size else 0.0,
-            "step_duration_mean_s": float(durations.mean()) if durations.size else 0.0,
+            "jitter_max_s": lateness.maximum,
+            "jitter_mean_s": lateness.total / lateness.count if lateness.count else 0.0,
+            **{f"jitter_p{q}_s": lateness.percentile(q) for q in (50, 95, 99)},
+            "step_duration_max_s": self.durations.maximum,
+            "step_duration_mean_s": self.durations.total / self.durations.count if self.durations.count else 0.0,
         }
         if self.resync_after_s is not None:
             stats.update(resyncs=self.resyncs, time_given_up_s=self.time_given_up)

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = {"nfal.models": "models", "nfal.fmus": "fmus", "nfal.orchestration": "orchestration", "nfal.hil": "hil",
            "nfal": "nfal"}
 #: The package root's foundation: the package itself and modules every layer may import.
-FOUNDATION = ("nfal", "nfal.errors", "nfal.csvdata")
+FOUNDATION = ("nfal", "nfal.errors", "nfal.csvdata", "nfal.realtime")
 #: Layer -> the layers it may import besides itself and the foundation. "applications" is every other
 #: module of nfal/ (the Fig. 7 loop, sweep kinds, the rig emulator, ...); "cli" is nfal.cli and nfal.commands.
 ALLOWED = {

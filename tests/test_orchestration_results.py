@@ -98,23 +98,37 @@ def test_pacer_releases_on_the_grid_and_counts_overruns():
     report = pacer.report()
     assert report["overruns"] == 1 and report["first_overruns"][0]["step"] == 1
     assert report["overrun_max_s"] == pytest.approx(0.005)
-    assert pacer.lateness == pytest.approx([0.0, 0.0, 0.005, 0.0])  # late once, then back on the grid
+    assert pacer.lateness.count == 4  # late once (step 2, by 5 ms), then back on the grid:
     assert report["jitter_max_s"] == pytest.approx(0.005) and report["jitter_mean_s"] == pytest.approx(0.00125)
+    assert report["jitter_p50_s"] < 1e-6
     pacer.sleep_until(len(durations))
     assert clock.now == pytest.approx(100.04)
 
 
-def test_pacer_counts_every_step_and_keeps_statistics_of_the_last_history_steps():
+def test_pacer_keeps_nothing_per_step():
+    """A paced loop of hours keeps bounded statistics: its memory does not grow with the steps."""
+    import tracemalloc
+
     clock = FakeClock()
-    pacer = RealTimePacer(0.01, spin_s=0.0, clock=clock, sleep=clock.sleep, history=3)
+    pacer = RealTimePacer(0.01, spin_s=0.0, clock=clock, sleep=clock.sleep)
     pacer.start()
-    for k, duration in enumerate([0.015, 0.001, 0.001, 0.001, 0.001]):  # the first step overruns
-        pacer.wait(k)
-        clock.now += duration
-        pacer.done(k)
+
+    def steps(first, count):
+        for k in range(first, first + count):
+            pacer.wait(k)
+            clock.now += 0.001 + 1e-4 * (k % 7)
+            pacer.done(k)
+
+    steps(0, 1000)
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    steps(1000, 20000)
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
     report = pacer.report()
-    assert (report["steps"], report["steps_in_statistics"], report["overruns"]) == (5, 3, 1)
-    assert report["jitter_max_s"] < 1e-9  # the late step (5 ms) is out of the history
+    assert report["steps"] == 21000 and report["overruns"] == 0
+    assert grown < 10_000  # bytes, for 20 000 steps (a float per step would be 480 000)
+    assert report["step_duration_max_s"] == pytest.approx(0.0016)
 
 
 def test_pacer_on_the_real_clock():

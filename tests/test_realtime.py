@@ -1,0 +1,87 @@
+"""The real-time discipline (nfal.realtime): bounded latency statistics, the collector in slack, memory locking."""
+
+from __future__ import annotations
+
+import gc
+import weakref
+
+import numpy as np
+import pytest
+
+from nfal.realtime import BINS_PER_DECADE, YOUNG_THRESHOLD, GapStats, LatencyStats, realtime_section
+
+#: A percentile from the histogram is within half a bin of the exact one (plus the spacing of the sample).
+BIN_TOLERANCE = 10 ** (1 / BINS_PER_DECADE) - 1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_latency_percentiles_match_numpy_within_a_bin(seed):
+    values = np.random.default_rng(seed).lognormal(np.log(5e-4), 0.8, 20_000)
+    stats = LatencyStats()
+    for value in values:
+        stats.add(float(value))
+    report = stats.report()
+    assert report["count"] == values.size and report["max_s"] == values.max()
+    assert report["mean_s"] == pytest.approx(values.mean(), rel=1e-12)
+    for q in (50, 99):
+        assert report[f"p{q}_s"] == pytest.approx(np.percentile(values, q), rel=BIN_TOLERANCE)
+
+
+def test_latency_stats_hold_zero_and_huge_values_and_report_empty():
+    assert LatencyStats().report() == {"count": 0, "mean_s": 0.0, "p50_s": 0.0, "p99_s": 0.0, "max_s": 0.0}
+    stats = LatencyStats()
+    for value in (0.0, 0.0, 1e6):
+        stats.add(value)
+    assert stats.percentile(50) < 1e-6 and stats.maximum == 1e6 and stats.percentile(100) == 1e6
+
+
+def test_gap_stats_count_the_gaps_between_marks():
+    gaps = GapStats()
+    for t in (1.0, 1.0005, 1.001, 1.021):
+        gaps.mark(t)
+    assert gaps.count == 3 and gaps.maximum == pytest.approx(0.02)
+
+
+class Node:
+    def __init__(self):
+        self.me = self  # a reference cycle: only the cyclic collector frees it
+
+
+def test_section_turns_the_automatic_collector_off_and_restores_it():
+    assert gc.isenabled()
+    with realtime_section(lock=False) as collector:
+        assert not gc.isenabled() and gc.get_freeze_count() > 0
+        garbage = weakref.ref(Node())
+        for _ in range(3 * YOUNG_THRESHOLD):  # enough allocations for CPython's own collector to have run
+            Node()
+        assert garbage() is not None  # nothing collected it behind the loop's back
+        collector.safe_point()
+        assert garbage() is None  # the safe point did
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+    assert collector.report()["gc_pauses"]["count"] >= 1
+
+
+def test_safe_point_does_nothing_while_the_young_generation_is_small():
+    with realtime_section(lock=False) as collector:
+        gc.collect(0)
+        collector.safe_point()
+    assert collector.pauses.count == 0
+
+
+def test_an_inner_section_is_the_outer_one():
+    with realtime_section(lock=False) as outer:
+        with realtime_section(lock=False) as inner:
+            assert inner is not outer and "inside another" in inner.memory_lock_note
+            garbage = weakref.ref(Node())
+            for _ in range(YOUNG_THRESHOLD):
+                Node()
+            inner.safe_point()
+            assert garbage() is None  # the process's collector, whichever section's safe point
+        assert not gc.isenabled()  # the inner one's end is not the section's
+    assert gc.isenabled()
+
+
+def test_memory_is_locked_or_the_report_says_why():
+    with realtime_section() as collector:
+        report = collector.report()
+    assert report["memory_locked"] or "memory not locked" in report["memory_lock_note"]
