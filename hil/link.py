@@ -26,14 +26,17 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import dataclasses
+import errno
 import logging
+import select
 import threading
 import time
 from collections.abc import Callable
 
 import serial
 
-from nfal.errors import LinkError, require_positive
+from nfal.errors import LinkError, require_duration, require_positive
+from nfal.realtime import GapStats
 
 from .protocol import (DELIMITER, PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder,
                        Hello, HelloAck, Measurement, RigHeartbeat, Stop)
@@ -58,6 +61,8 @@ RESTART_SILENCE_S = 0.3
 READ_ERRORS = (serial.SerialException, OSError, TypeError, AttributeError)
 #: Pause between two polls while an owner that polls waits for the rig [s] (not a busy spin).
 WAIT_PAUSE_S = 2e-4
+#: The longest the link waits for anything: a connection, a HELLO_ACK, a reconnection attempt [s].
+LONGEST_WAIT_S = 60.0
 
 
 def write_timeout(url: str) -> float | None:
@@ -67,10 +72,18 @@ def write_timeout(url: str) -> float | None:
 
 
 def open_port(url: str, baudrate: int, read_timeout_s: float) -> serial.SerialBase:
-    """``serial.serial_for_url`` with writes that never wait; raises LinkError naming the URL."""
+    """``serial.serial_for_url`` with writes that never wait, and a device (or pty) locked for this process alone
+    (pyserial's ``exclusive``: an flock, as serial terminals take it), so that a second host cannot take over a rig in
+    use; raises LinkError naming the URL."""
     try:
-        return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout_s, write_timeout=write_timeout(url))
-    except (serial.SerialException, OSError, ValueError) as exc:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout_s, write_timeout=write_timeout(url),
+                                     exclusive=True)
+    except serial.SerialException as exc:
+        if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise LinkError(f"{url} is in use by another program (another nfal identify or nfal run, or a serial "
+                            "terminal): one host per rig; stop the other one first") from None
+        raise LinkError(f"cannot open {url}: {exc}") from None
+    except (OSError, ValueError) as exc:
         raise LinkError(f"cannot open {url}: {exc}") from None
 
 
@@ -113,7 +126,7 @@ class RigLink:
     baudrate : int
         Line rate (ignored by ptys and sockets).
     connect_timeout_s : float
-        How long :meth:`open` (and each reconnection) waits for the rig's HELLO_ACK [s].
+        How long :meth:`open` (and each reconnection) waits for the rig's HELLO_ACK [s] (at most LONGEST_WAIT_S).
     reconnect : bool
         Reopen the port after a failure.
     reconnect_interval_s : float
@@ -135,9 +148,9 @@ class RigLink:
             raise LinkError("no port given: set the URL of the rig's serial port (a device path, a pty, socket://...)")
         self.url = url.strip()
         self.baudrate = int(require_positive("baudrate", baudrate))
-        self.connect_timeout_s = require_positive("connect_timeout_s", connect_timeout_s)
+        self.connect_timeout_s = require_duration("connect_timeout_s", connect_timeout_s, LONGEST_WAIT_S)
         self.reconnect = bool(reconnect)
-        self.reconnect_interval_s = require_positive("reconnect_interval_s", reconnect_interval_s)
+        self.reconnect_interval_s = require_duration("reconnect_interval_s", reconnect_interval_s, LONGEST_WAIT_S)
         self.reader_thread = bool(reader_thread)
         self.clock = clock
         self.on_sample = on_sample
@@ -147,6 +160,7 @@ class RigLink:
         self.rig: HelloAck | None = None
         self.rig_status = 0
         self.rig_frames_dropped = 0
+        self.drive_gaps = GapStats()  # host time between DRIVE frames leaving: the margin to the rig's watchdog
         self.last_error = ""
         self._encoder = FrameEncoder()
         self._port: serial.SerialBase | None = None
@@ -161,6 +175,7 @@ class RigLink:
         self._hello_again_at = 0.0  # when to repeat it if no HELLO_ACK has come
         self._heard_at = 0.0        # when the decoder last accepted a frame
         self._hellos_said = 0       # HELLOs of this session (more than one: the rig may restart its count twice)
+        self._drove = False         # a DRIVE has gone out in this session (the rig's watchdog is armed)
         self._reconnect_at = 0.0
         self._lost_reason = ""
         self._opening: concurrent.futures.Future | None = None  # a port being opened for a polling owner
@@ -214,18 +229,54 @@ class RigLink:
                 return False
             time.sleep(WAIT_PAUSE_S if not self.reader_thread else READ_TIMEOUT_S / 10)
 
+    def wait_readable(self, timeout_s: float) -> None:
+        """Return when the port has bytes to read or after ``timeout_s`` (select on its descriptor: one wake-up per
+        arrival, where sleeping in short pauses wakes many times for nothing); ports without a descriptor
+        (``loop://``) sleep WAIT_PAUSE_S."""
+        port = self._port
+        try:
+            descriptor = port.fileno() if port is not None else None
+        except (AttributeError, *READ_ERRORS):
+            descriptor = None
+        if descriptor is None:
+            time.sleep(min(timeout_s, WAIT_PAUSE_S))
+            return
+        try:
+            select.select([descriptor], [], [], max(0.0, timeout_s))
+        except (OSError, ValueError):  # closed under us: the next poll notices
+            pass
+
     def latest(self) -> Sample | None:
         """The newest measurement (None before the first)."""
         with self._lock:
             return self._latest
 
     def send_drive(self, voltage: float) -> bool:
-        """Write DRIVE(voltage) without waiting; False if the port is down or did not take the whole frame."""
+        """Write DRIVE(voltage) without waiting; False if the port is down or did not take the whole frame.
+
+        The session's first DRIVE arms the rig's watchdog, so an owner that polls first takes in the stream's backlog
+        (every measurement since HELLO_ACK, undecoded while it set up: up to ~25 us a frame): the second DRIVE then
+        follows the first as promptly as any other."""
+        if not self._drove and not self.reader_thread:
+            self._drain()
         if self._send(Drive(float(voltage))):
+            self._drove = True
             self.counters.drives_sent += 1
+            self.drive_gaps.mark(self.clock())
             return True
         self.counters.drives_not_sent += 1
         return False
+
+    def _drain(self) -> None:
+        """Poll until the port has nothing waiting (at most a few DRAIN_LIMIT reads: a rig streams on meanwhile)."""
+        for _ in range(8):
+            self.poll()
+            port = self._port
+            try:
+                if port is None or not port.in_waiting:
+                    return
+            except READ_ERRORS:
+                return  # the next poll notices the failure
 
     def close(self, *, stop: bool = True) -> None:
         """Send STOP (if ``stop`` and connected), stop the reader and close the port."""
@@ -251,7 +302,7 @@ class RigLink:
         """Every counter (link and decoder), the rig's dropped-frame count and the last error, for reports."""
         return {**dataclasses.asdict(self.counters), **self.decoder.counters.as_dict(),
                 "rig_frames_dropped": self.rig_frames_dropped, "connected": self.connected,
-                "last_error": self.last_error}
+                "last_error": self.last_error, "drive_gaps": self.drive_gaps.report()}
 
     def __enter__(self) -> "RigLink":
         self.open()
@@ -284,7 +335,7 @@ class RigLink:
         """A new session on the port: forget the acknowledgement and the rig's count, and say HELLO."""
         self._acknowledged.clear()
         self.decoder.reset_sequence()
-        self._hello_at, self._hellos_said = self.clock(), 0
+        self._hello_at, self._hellos_said, self._drove = self.clock(), 0, False
         return self._say_hello()
 
     def _say_hello(self) -> bool:

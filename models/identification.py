@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import integrate, optimize, stats
 
-from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError, require_positive
+from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError, require_duration, require_positive
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
@@ -37,6 +37,8 @@ AMPLITUDE_TIME_CONSTANT_S = Transducer().time_constant_s()
 #: Default settling test: a 0.4 s window whose halves' means differ by less than 0.25 % of the height.
 SETTLE_WINDOW_S = 0.4
 SETTLE_DRIFT = 2.5e-3
+#: The longest hold or move a plan may allow [s] (a longer one is a typo, and a run that waits for it looks hung).
+LONGEST_HOLD_S = 600.0
 
 
 def settled(times: np.ndarray, heights: np.ndarray, window_s: float = SETTLE_WINDOW_S,
@@ -214,8 +216,10 @@ class IdentificationPlan:
             raise InvalidParameterError("step_fraction", self.step_fraction, "in (0, 0.2]")
         if not (isinstance(self.steps, int) and self.steps >= 2 and self.steps % 2 == 0):
             raise InvalidParameterError("steps", self.steps, "an even whole number >= 2")
-        for name in ("settle_window_s", "settle_drift", "max_hold_s", "move_timeout_s", "move_tolerance"):
+        for name in ("settle_window_s", "settle_drift", "move_tolerance"):
             require_positive(name, getattr(self, name))
+        for name in ("max_hold_s", "move_timeout_s"):
+            require_duration(name, getattr(self, name), LONGEST_HOLD_S)
         if self.max_hold_s <= self.settle_window_s:
             raise InvalidParameterError("max_hold_s", self.max_hold_s, f"> the settling window {self.settle_window_s:g} s")
 

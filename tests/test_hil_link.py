@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import pytest
 
-from nfal.errors import LinkError
+from nfal.errors import InvalidParameterError, LinkError
 from nfal.hil import link as link_module
 from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.firmware import Firmware, RigReading, RigTiming
@@ -200,7 +200,7 @@ def test_health_has_every_counter(rig, links):
     assert wait_for(link, lambda: link.counters.heartbeats >= 2)
     health = link.health()
     names = {f.name for f in dataclasses.fields(LinkCounters)} | {f.name for f in dataclasses.fields(DecoderCounters)}
-    assert set(health) == names | {"dropped", "rig_frames_dropped", "connected", "last_error"}
+    assert set(health) == names | {"dropped", "rig_frames_dropped", "connected", "last_error", "drive_gaps"}
     assert health["connected"] is True and health["last_error"] == "" and health["heartbeats"] >= 2
     assert health["frames_ok"] >= health["measurements"] + health["heartbeats"] and health["dropped"] == 0
     link.close()
@@ -212,6 +212,36 @@ def test_a_second_open_is_refused(rig, links):
     link.open()
     with pytest.raises(LinkError, match="already open"):
         link.open()
+
+
+def test_a_second_host_on_the_same_port_is_refused_and_the_first_keeps_its_session(rig, links):
+    fake = rig()
+    first = links(fake.url)
+    first.open()
+    second = RigLink(fake.url, connect_timeout_s=0.5, reader_thread=False)
+    with pytest.raises(LinkError, match="in use by another program.*one host per rig"):
+        second.open()
+    assert first.send_drive(3.0) and wait_for(first, lambda: fake.state() == (True, 3.0, 1))
+    first.close()
+    second.open()  # free again once the first host has closed it
+    second.close()
+
+
+def test_the_gaps_between_drive_commands_are_measured(rig, links):
+    link = links(rig().url)
+    link.open()
+    for _ in range(5):
+        link.send_drive(1.0)
+        time.sleep(0.002)
+    gaps = link.health()["drive_gaps"]
+    assert gaps["count"] == 4 and 0.002 <= gaps["p50_s"] <= gaps["max_s"]
+
+
+@pytest.mark.parametrize("name, value", [("connect_timeout_s", 1e9), ("reconnect_interval_s", 3600.0),
+                                         ("connect_timeout_s", 0.0)])
+def test_every_wait_of_the_link_is_bounded(name, value):
+    with pytest.raises(InvalidParameterError, match=f"{name}.*at most 60 s"):
+        RigLink("loop://", **{name: value})
 
 
 # --- failures to connect -----------------------------------------------------------------------------
