@@ -17,13 +17,18 @@ every exchange, so the rig's watchdog trips only if the host or the link stalls;
 stops on a landing after lift-off; every fault raises :class:`ExperimentError` with its reason, and
 :meth:`Experiments.ramp_down` lowers the drive (over ``RAMP_DOWN_S``, the object landing softly) before the
 link says STOP. Every sample goes to the :class:`SampleRecorder`'s CSV as it arrives.
+
+Real time (docs/hil.md, "Real time that holds"): the experiments run inside a
+:func:`~nfal.realtime.realtime_section` (the collector frozen after set-up and run only right after a DRIVE left);
+the recorder keeps its samples in preallocated arrays, not as a Python object each, and the checks look at
+fixed windows of them (searchsorted), so nothing inside the loop grows with the run. A stop signal
+(:func:`~nfal.orchestration.interrupts.deferred_interrupts`) is honoured at the next exchange.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import time
 from typing import Callable, Protocol, TextIO
 
 import numpy as np
@@ -31,6 +36,7 @@ import numpy as np
 from nfal.errors import ExperimentError, InvalidParameterError
 from nfal.hil.link import RigLink, Sample
 from nfal.hil.protocol import StatusFlags
+from nfal.realtime import LatencyStats
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
@@ -46,6 +52,8 @@ from nfal.models.stability import realizable_schedule
 TOUCHDOWN_M = 15e-6
 #: Longest silence of the rig before the link counts as lost [s] (a loaded host can pause the emulator ~0.1 s).
 MAX_SILENCE_S = 0.5
+#: Longest wait for the port between two checks of the link [s].
+SILENCE_CHECK_S = 0.01
 #: The drive's ramp to 0 V after the experiments or a fault [s].
 RAMP_DOWN_S = 0.3
 #: A move has arrived when the mean height over this time is within tolerance [s]; its drive is the mean command over it.
@@ -58,6 +66,8 @@ LIMITED_S = 0.5
 RETARGET = 0.03
 #: Samples before a step kept with it (they pin its starting height) [s].
 PRE_STEP_S = 0.05
+#: Holds at one equilibrium at most: the first, and up to two at a corrected drive (:meth:`Experiments.equilibria`).
+HOLD_ATTEMPTS = 3
 #: The CSV's columns.
 CSV_HEADER = ("rig_time_s", "height_m", "drive_frequency_hz", "applied_voltage_v", "commanded_voltage_v", "resting",
               "experiment")
@@ -76,16 +86,30 @@ class RigSample:
 
 
 class RigIO(Protocol):
-    """Send the drive for the next period, get the samples measured since the last call (at least one)."""
+    """Send the drive for the next period, get the samples measured since the last call (at least one); call
+    ``safe_point`` right after the drive left; ``timing`` reports the loop's margin (:meth:`LinkRig.timing`)."""
+
+    safe_point: Callable[[], None]
 
     def exchange(self, voltage: float) -> list[RigSample]: ...
 
+    def timing(self) -> dict: ...
+
+    def close(self) -> None: ...
+
 
 class LinkRig:
-    """:class:`RigIO` over a :class:`RigLink` (opened here; closed with STOP by :meth:`close`)."""
+    """:class:`RigIO` over a :class:`RigLink` (opened here; closed with STOP by :meth:`close`).
+
+    ``safe_point`` (default: nothing) is called right after each DRIVE left, where the loop has the most slack before
+    the next sample (a real-time section's collector); :attr:`lateness` holds the age of the newest sample when the
+    DRIVE answering it left, and the link's ``drive_gaps`` the gaps between DRIVE commands."""
 
     def __init__(self, url: str, *, connect_timeout_s: float = 2.0, max_silence_s: float = MAX_SILENCE_S) -> None:
         self._new: list[RigSample] = []
+        self._newest_arrival: float | None = None
+        self.lateness = LatencyStats()
+        self.safe_point: Callable[[], None] = lambda: None
         self.link = RigLink(url, connect_timeout_s=connect_timeout_s, reconnect=False, reader_thread=False,
                             on_sample=self._take)
         self.hello = self.link.open()
@@ -93,46 +117,69 @@ class LinkRig:
 
     def _take(self, sample: Sample) -> None:
         m = sample.measurement
+        self._newest_arrival = sample.arrival_s
         self._new.append(RigSample(m.timestamp_us * 1e-6, m.height, m.drive_frequency, m.drive_voltage,
                                    bool(m.status & StatusFlags.RESTING), bool(m.status & StatusFlags.WATCHDOG_TRIPPED)))
 
     def exchange(self, voltage: float) -> list[RigSample]:
-        self.link.send_drive(voltage)
-        deadline = time.perf_counter() + self.max_silence_s
+        link = self.link
+        if self._newest_arrival is not None:
+            self.lateness.add(link.clock() - self._newest_arrival)
+        link.send_drive(voltage)
+        self.safe_point()
+        deadline = link.clock() + self.max_silence_s
         while True:
-            self.link.poll()
+            link.poll()
             if self._new:
                 new, self._new = self._new, []
                 return new
-            if time.perf_counter() > deadline or not self.link.connected:
-                reason = self.link.last_error or "the rig fell silent"
-                raise ExperimentError(f"link lost: no measurement from {self.link.url} for "
+            now = link.clock()
+            if now > deadline or not link.connected:
+                reason = link.last_error or "the rig fell silent"
+                raise ExperimentError(f"link lost: no measurement from {link.url} for "
                                       f"{self.max_silence_s * 1e3:.0f} ms ({reason})")
-            time.sleep(2e-4)
+            link.wait_readable(min(deadline - now, SILENCE_CHECK_S))
+
+    def timing(self) -> dict:
+        """The margin to the rig's watchdog: gaps between DRIVE commands leaving the host, and the age of the newest
+        sample when the DRIVE answering it left [s] (count, mean, p50, p99, max)."""
+        return {"drive_gaps": self.link.drive_gaps.report(), "sample_to_drive": self.lateness.report()}
 
     def close(self) -> None:
         self.link.close()
 
 
-class SampleRecorder:
-    """Every sample in memory (for the fits: times and heights in growing arrays, so a view costs nothing) and
-    streamed to ``stream`` as CSV (flushed every 0.1 s of rig time)."""
+#: The recorder's columns, in :attr:`SampleRecorder.columns`' rows.
+TIME, HEIGHT, FREQUENCY, APPLIED, COMMANDED = range(5)
 
-    def __init__(self, stream: TextIO | None = None) -> None:
-        self.samples: list[RigSample] = []
-        self._times, self._heights = np.empty(1 << 14), np.empty(1 << 14)
+
+class SampleRecorder:
+    """Every sample in preallocated columns (rig time, height, drive frequency, applied and commanded voltage: no
+    Python object per sample, so the collector has nothing to walk) and streamed to ``stream`` as CSV (flushed
+    every 0.1 s of rig time). ``capacity``: samples held before the columns grow (a copy: give the run's bound,
+    :func:`recorder_capacity`)."""
+
+    def __init__(self, stream: TextIO | None = None, capacity: int = 1 << 14) -> None:
+        self.count = 0
+        self.columns = np.empty((5, max(int(capacity), 16)))
         self._writer = None if stream is None else csv.writer(stream)
         self._stream, self._flushed_at = stream, -np.inf
         if self._writer is not None:
             self._writer.writerow(CSV_HEADER)
 
     def add(self, samples: list[RigSample], commanded: float, label: str) -> None:
-        n, count = len(self.samples), len(samples)
-        if n + count > self._times.size:
-            self._times, self._heights = (np.resize(a, 2 * (n + count)) for a in (self._times, self._heights))
-        self._times[n:n + count] = [s.time_s for s in samples]
-        self._heights[n:n + count] = [s.height_m for s in samples]
-        self.samples.extend(samples)
+        n, count = self.count, len(samples)
+        if n + count > self.columns.shape[1]:
+            grown = np.empty((5, 2 * (n + count)))
+            grown[:, :n] = self.columns[:, :n]
+            self.columns = grown
+        rows = self.columns[:, n:n + count]
+        rows[TIME] = [s.time_s for s in samples]
+        rows[HEIGHT] = [s.height_m for s in samples]
+        rows[FREQUENCY] = [s.drive_frequency_hz for s in samples]
+        rows[APPLIED] = [s.applied_voltage_v for s in samples]
+        rows[COMMANDED] = commanded
+        self.count = n + count
         if self._writer is None:
             return
         self._writer.writerows((repr(s.time_s), repr(s.height_m), repr(s.drive_frequency_hz), repr(s.applied_voltage_v),
@@ -141,14 +188,30 @@ class SampleRecorder:
             self._stream.flush()
             self._flushed_at = samples[-1].time_s
 
+    def column(self, index: int, start: int = 0) -> np.ndarray:
+        """One column (TIME, HEIGHT, FREQUENCY, APPLIED or COMMANDED) from sample ``start`` on (a view: do not keep it
+        across :meth:`add`)."""
+        return self.columns[index, start:self.count]
+
     def arrays(self, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """(times [s], heights [m]) of the samples from ``start`` on (views: do not keep them across ``add``)."""
-        n = len(self.samples)
-        return self._times[start:n], self._heights[start:n]
+        return self.column(TIME, start), self.column(HEIGHT, start)
+
+    def last(self, index: int) -> float:
+        """The newest sample's value in a column."""
+        return float(self.columns[index, self.count - 1])
 
     @property
     def duration_s(self) -> float:
-        return self.samples[-1].time_s - self.samples[0].time_s if self.samples else 0.0
+        return self.last(TIME) - float(self.columns[TIME, 0]) if self.count else 0.0
+
+
+def recorder_capacity(plan: IdentificationPlan, sample_period_s: float) -> int:
+    """Samples a run of ``plan`` can take at most (every move and hold to its limit, every equilibrium held
+    HOLD_ATTEMPTS times), with 5 % to spare: the recorder never grows inside the loop."""
+    _, longest = plan.duration_s()
+    longest += (HOLD_ATTEMPTS - 1) * len(plan.equilibrium_heights_m) * plan.max_hold_s
+    return int(1.05 * longest / sample_period_s) + 4096
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,6 +233,15 @@ class DriveStep:
     voltage_after: float
 
 
+def move_law(plan: IdentificationPlan, *, metres_per_volt: float, max_voltage: float,
+             schedule=None) -> DiscreteControlLaw:
+    """The law of the moves: the Controller FMU's (the paper's gain schedule realisable at 2 kHz, ``schedule`` if
+    given: design it before the port opens, it takes 0.3 s), its limit at ``max_voltage``."""
+    heights = plan.equilibrium_heights_m + plan.damping_heights_m
+    return DiscreteControlLaw(schedule or realizable_schedule(design_schedule()),
+                              max_excitation_m=max_voltage * metres_per_volt, reference_range_m=(min(heights), max(heights)))
+
+
 class Experiments:
     """Runs a plan's experiments on ``rig`` (see the module docstring).
 
@@ -183,20 +255,28 @@ class Experiments:
     max_voltage : float
         The drive never exceeds this [V].
     law : DiscreteControlLaw, optional
-        The law of the moves (default: the Controller FMU's, the paper's gain schedule realisable at 2 kHz, with
-        its limit at ``max_voltage``).
+        The law of the moves (default :func:`move_law`).
     on_hold : callable, optional
         Called after each hold (for a progress bar).
+    stop_request : StopRequest, optional
+        Checked at each guarded exchange (:func:`~nfal.orchestration.interrupts.deferred_interrupts`): a stop signal
+        raises there, between two exchanges, so the caller ramps the drive down from a consistent state.
     """
 
     def __init__(self, rig: RigIO, plan: IdentificationPlan, recorder: SampleRecorder, *, metres_per_volt: float,
-                 max_voltage: float, law: DiscreteControlLaw | None = None, on_hold: Callable[[], None] | None = None) -> None:
+                 max_voltage: float, law: DiscreteControlLaw | None = None, on_hold: Callable[[], None] | None = None,
+                 stop_request=None) -> None:
         self.rig, self.plan, self.recorder = rig, plan, recorder
         self.metres_per_volt, self.max_voltage = metres_per_volt, max_voltage
-        heights = plan.equilibrium_heights_m + plan.damping_heights_m
-        self.law = law or DiscreteControlLaw(realizable_schedule(design_schedule()), max_excitation_m=max_voltage * metres_per_volt,
-                                             reference_range_m=(min(heights), max(heights)))
+        self.law = law or move_law(plan, metres_per_volt=metres_per_volt, max_voltage=max_voltage)
         self.on_hold = on_hold or (lambda: None)
+        self.stop_request = stop_request
+        # before the first DRIVE arms the rig's watchdog: the design model's excitations at the plan's heights (the first
+        # root-finding call took 56 ms, 2.8 watchdog periods) and a first step of the law
+        self._design = SimplifiedPlant(RigParameters(), paper_calibration())
+        self._guesses = {h: self._guess(h) for h in plan.equilibrium_heights_m + plan.damping_heights_m}
+        height = plan.equilibrium_heights_m[0]
+        self.law.step(self.law.initial_state(height, self._guesses[height]), height, height)
         self.voltage = 0.0
         self.lifted = False
 
@@ -210,7 +290,7 @@ class Experiments:
         for i, target in enumerate(self.plan.equilibrium_heights_m):
             label = f"equilibrium {i + 1} ({target * 1e6:.0f} um)"
             voltage = self.move_to(target, label)
-            for attempt in range(3):
+            for attempt in range(HOLD_ATTEMPTS):
                 times, heights = self.hold(voltage, label if attempt == 0 else f"{label} again")
                 window = heights[times >= times[-1] - self.plan.settle_window_s]
                 points.append(Equilibrium(voltage, float(window.mean()), float(window.std())))
@@ -239,8 +319,7 @@ class Experiments:
         return result
 
     def _step_since(self, first: int, before: float, after: float) -> DriveStep:
-        samples = self.recorder.samples[first:]
-        applied = np.array([s.applied_voltage_v for s in samples])
+        applied = self.recorder.column(APPLIED, first)
         at = int(np.argmax(np.abs(applied - after) < 1e-3 * max(after, 1.0)))
         times, heights = self.recorder.arrays(first)
         return DriveStep(times - times[at], heights.copy(), before, after)
@@ -249,21 +328,20 @@ class Experiments:
     def move_to(self, height: float, label: str) -> float:
         """Close the loop on ``height`` [m] until arrived; returns the mean drive over the arrival [V]."""
         law = self.law
-        state = law.initial_state(self._last_height(), self.voltage * self.metres_per_volt or self._guess(height))
-        first, start = len(self.recorder.samples), self._now()
-        commands, check_at = [], -np.inf
+        state = law.initial_state(self._last_height(), self.voltage * self.metres_per_volt
+                                   or self._guesses.get(height) or self._guess(height))
+        start, check_at = self._now(), -np.inf
         while True:
             samples = self._exchange(self.voltage, f"{label} move")
             for sample in samples:
                 command, state = law.step(state, height, min(max(sample.height_m, 0.0), 1e-3))
             self.voltage = min(command / self.metres_per_volt, self.max_voltage)
             now, current = samples[-1].time_s, samples[-1].height_m
-            commands.append((now, self.voltage))
             if now >= check_at:
                 check_at = now + CHECK_EVERY_S
-                if now - start >= ARRIVAL_S and self._arrived(first, commands, height):
-                    return float(np.mean([v for t, v in commands if t >= now - ARRIVAL_S]))
-                if now - start >= LIMITED_S and self._held_at_limit(first, commands, height):
+                if now - start >= ARRIVAL_S and self._arrived(height):
+                    return float(self._window(COMMANDED, now - ARRIVAL_S, now).mean())
+                if now - start >= LIMITED_S and self._held_at_limit(height):
                     raise ExperimentError(f"{label}: the drive limit {self.max_voltage:g} V cannot lift the load to "
                                           f"{height * 1e6:.1f} um: at the limit for {LIMITED_S:g} s, the object is at "
                                           f"{current * 1e6:.1f} um (a load heavier than the rig can carry, or "
@@ -272,31 +350,34 @@ class Experiments:
                 raise ExperimentError(f"{label}: the closed-loop move did not reach {height * 1e6:.1f} um within "
                                       f"{self.plan.move_timeout_s:g} s (at {current * 1e6:.1f} um, drive {self.voltage:.3g} V)")
 
-    def _held_at_limit(self, first: int, commands: list[tuple[float, float]], height: float) -> bool:
+    def _window(self, column: int, low: float, high: float) -> np.ndarray:
+        """A column's samples with rig time in [low, high) (a view; found by bisection: the cost does not grow with the run)."""
+        times = self.recorder.column(TIME)
+        first, last = np.searchsorted(times, (low, high))
+        return self.recorder.column(column)[first:last]
+
+    def _held_at_limit(self, height: float) -> bool:
         """Over the last LIMITED_S the drive is at the limit at least a fifth of the time (the rest is the law's answer to
         the sensor's noise) and the mean height is short of ``height`` by more than the tolerance."""
-        times, heights = self.recorder.arrays(first)
-        now = times[-1]
-        drives = np.array([v for t, v in commands if t >= now - LIMITED_S])
-        short = heights[times >= now - LIMITED_S].mean() < height * (1 - self.plan.move_tolerance)
-        return short and np.mean(drives >= 0.999 * self.max_voltage) >= 0.2
+        now = self.recorder.last(TIME)
+        window = (now - LIMITED_S, np.inf)
+        short = self._window(HEIGHT, *window).mean() < height * (1 - self.plan.move_tolerance)
+        return short and np.mean(self._window(COMMANDED, *window) >= 0.999 * self.max_voltage) >= 0.2
 
-    def _arrived(self, first: int, commands: list[tuple[float, float]], height: float) -> bool:
+    def _arrived(self, height: float) -> bool:
         """Both halves of the last ARRIVAL_S: mean height within tolerance of ``height``, mean drives within 1 %."""
-        times, heights = self.recorder.arrays(first)
-        now = times[-1]
-        halves = [(now - ARRIVAL_S, now - ARRIVAL_S / 2), (now - ARRIVAL_S / 2, now + 1.0)]
+        now = self.recorder.last(TIME)
+        halves = [(now - ARRIVAL_S, now - ARRIVAL_S / 2), (now - ARRIVAL_S / 2, np.inf)]
         for low, high in halves:
-            inside = (times >= low) & (times < high)
-            if abs(heights[inside].mean() - height) > self.plan.move_tolerance * height:
+            if abs(self._window(HEIGHT, low, high).mean() - height) > self.plan.move_tolerance * height:
                 return False
-        drives = [np.mean([v for t, v in commands if low <= t < high]) for low, high in halves]
+        drives = [self._window(COMMANDED, low, high).mean() for low, high in halves]
         return abs(drives[1] - drives[0]) <= 0.01 * drives[1]
 
     def hold(self, voltage: float, label: str) -> tuple[np.ndarray, np.ndarray]:
         """Hold ``voltage`` [V] open loop until the height has settled; returns the hold's (times, heights)."""
         self.voltage = min(float(voltage), self.max_voltage)
-        first, start, check_at = len(self.recorder.samples), self._now(), -np.inf
+        first, start, check_at = self.recorder.count, self._now(), -np.inf
         while True:
             samples = self._exchange(self.voltage, label)
             if samples[-1].time_s < check_at:
@@ -316,7 +397,7 @@ class Experiments:
     def ramp_down(self) -> bool:
         """Lower the drive to 0 V over RAMP_DOWN_S (the object lands softly). False if the link failed meanwhile:
         then the rig's watchdog ramps the drive down."""
-        start = self.recorder.samples[-1].time_s if self.recorder.samples else 0.0
+        start = self.recorder.last(TIME) if self.recorder.count else 0.0
         level = self.voltage
         try:
             while self.voltage > 0:
@@ -333,6 +414,8 @@ class Experiments:
         self.recorder.add(samples, voltage, label)
         if not guard:
             return samples
+        if self.stop_request is not None:
+            self.stop_request.check()
         for sample in samples:
             if sample.watchdog_tripped:
                 raise ExperimentError(f"{label}: the rig's watchdog tripped at rig time {sample.time_s:.3f} s (no DRIVE "
@@ -345,15 +428,15 @@ class Experiments:
         return samples
 
     def _now(self) -> float:
-        return self.recorder.samples[-1].time_s if self.recorder.samples else self._exchange(self.voltage, "start")[-1].time_s
+        return self.recorder.last(TIME) if self.recorder.count else self._exchange(self.voltage, "start")[-1].time_s
 
     def _last_height(self) -> float:
         self._now()
-        return min(max(self.recorder.samples[-1].height_m, 0.0), 1e-3)
+        return min(max(self.recorder.last(HEIGHT), 0.0), 1e-3)
 
     def _guess(self, height: float) -> float:
         """|a| [m] the design model needs at ``height`` (the integrator's start from rest)."""
-        excitation = float(SimplifiedPlant(RigParameters(), paper_calibration()).equilibrium_excitation(height))
+        excitation = float(self._design.equilibrium_excitation(height))
         if not np.isfinite(excitation):
             raise InvalidParameterError("height", height, "one the design model can hold")
         return min(excitation, self.max_voltage * self.metres_per_volt)

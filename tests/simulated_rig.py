@@ -12,6 +12,7 @@ from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
 from nfal.models.measurement_noise import ColouredNoise
 from nfal.models.plant import PlantState, SimplifiedPlant
+from nfal.realtime import LatencyStats
 
 PERIOD_S = 5e-4
 
@@ -50,3 +51,10 @@ class SimulatedRig:
 
     def close(self) -> None:
         """Nothing to close (the link's counterpart)."""
+
+    def safe_point(self) -> None:
+        """Nothing runs in real time here."""
+
+    def timing(self) -> dict:
+        """No link: nothing was measured (the link's counterpart, LinkRig.timing)."""
+        return {"drive_gaps": LatencyStats().report(), "sample_to_drive": LatencyStats().report()}

@@ -12,7 +12,7 @@ from simulated_rig import SimulatedRig
 from nfal.cli import main
 from nfal.commands.identify import _run
 from nfal.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
-from nfal.identify import Experiments, SampleRecorder, analyse
+from nfal.identify import APPLIED, TIME, Experiments, SampleRecorder, analyse
 from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration, rig_calibration_from_dict
 from nfal.models.damping import DampingCorrection
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,
@@ -145,8 +145,8 @@ def test_the_identified_damping_is_the_truths_within_15_percent(identified_other
 def test_every_sample_is_streamed_to_the_csv_and_the_drive_ends_at_zero(identified_other_truth):
     _, result, recorder, stream = identified_other_truth
     lines = stream.getvalue().splitlines()
-    assert lines[0].startswith("rig_time_s,height_m") and len(lines) == len(recorder.samples) + 1
-    assert recorder.samples[-1].applied_voltage_v == 0.0
+    assert lines[0].startswith("rig_time_s,height_m") and len(lines) == recorder.count + 1
+    assert recorder.last(APPLIED) == 0.0
     document = result.document({"port": "test"})
     assert set(document["damping"]) == {"heights_m", "factors", "factors_low", "factors_high"}
     assert document["kind"] == "polynomial" and document["provenance"] == {"port": "test"}
@@ -180,12 +180,12 @@ def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, ma
     experiments = Experiments(rig, plan, recorder, metres_per_volt=1e-7, max_voltage=options.get("max_voltage", 100.0))
     with pytest.raises(ExperimentError, match=match):
         experiments.equilibria()
-    kept = len(recorder.samples)
+    kept = recorder.count
     assert kept > 1000
     link_alive = "silent_after_s" not in options
     assert experiments.ramp_down() is link_alive
     if link_alive:
-        assert recorder.samples[-1].applied_voltage_v == 0.0 and len(recorder.samples) > kept
+        assert recorder.last(APPLIED) == 0.0 and recorder.count > kept
 
 
 def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path, capsys):
@@ -194,8 +194,8 @@ def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path, cap
     experiments = Experiments(rig, SHORT_PLAN, recorder, metres_per_volt=1e-7, max_voltage=100.0)
     with pytest.raises(KeyboardInterrupt):
         _run(experiments, rig, tmp_path / "raw.csv")
-    assert "interrupted; the drive ramped down; every sample so far is in" in capsys.readouterr().err
-    assert recorder.samples[-1].applied_voltage_v == 0.0 and recorder.samples[-1].time_s > 1.0
+    assert "interrupted; the drive ramped down; STOP sent; every sample so far is in" in capsys.readouterr().err
+    assert recorder.last(APPLIED) == 0.0 and recorder.last(TIME) > 1.0
 
 
 # --- the command line --------------------------------------------------------------------------------------------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import sys
@@ -12,10 +13,14 @@ import numpy as np
 
 from nfal import __version__
 from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
-from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_finite,
-                         require_positive)
+from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_duration,
+                         require_finite, require_positive)
+from nfal.hil.link import LONGEST_WAIT_S  # light: the link's module imports pyserial only
 from nfal.models.table2 import WORK_RANGE_M  # light: constants only
 from nfal.models.transducer import METRES_PER_VOLT  # light: the transducer's constants
+
+#: The longest --max-silence [s]: the rig's watchdog ramps the drive down after 20 ms without DRIVE anyway.
+LONGEST_SILENCE_S = 10.0
 
 # The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
 
@@ -61,9 +66,9 @@ def register(commands) -> None:
     identify.add_argument("--amplitude-time-constant", type=float, metavar="SECONDS",
                           help="the transducer's amplitude lag 2Q/omega_r in the step fits (default 5.58e-3: Q 500 at 28.5 kHz)")
     identify.add_argument("--connect-timeout", type=float, default=2.0, metavar="SECONDS", help="wait for the rig's "
-                          "HELLO_ACK (default 2)")
+                          f"HELLO_ACK (default 2, at most {LONGEST_WAIT_S:g})")
     identify.add_argument("--max-silence", type=float, default=0.5, metavar="SECONDS", help="no measurement for this "
-                          "long is a lost link (default 0.5)")
+                          f"long is a lost link (default 0.5, at most {LONGEST_SILENCE_S:g})")
     identify.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_rig_options(identify)
     identify.set_defaults(handler=run_identify)
@@ -88,13 +93,19 @@ def _print_plan(plan) -> None:
 
 def run_identify(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.identify import Experiments, LinkRig, SampleRecorder
+    from nfal.identify import Experiments, LinkRig, SampleRecorder, move_law, recorder_capacity
     from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
+    from nfal.models.pid_design import design_schedule
     from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
+    from nfal.models.stability import realizable_schedule
+    from nfal.orchestration.interrupts import deferred_interrupts
+    from nfal.realtime import BackgroundWriter, realtime_section
 
     plan = _plan(args)
-    for name in ("metres_per_volt", "max_voltage", "max_silence", "connect_timeout"):
+    for name in ("metres_per_volt", "max_voltage"):
         require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
+    require_duration("--connect-timeout", args.connect_timeout, LONGEST_WAIT_S)
+    require_duration("--max-silence", args.max_silence, LONGEST_SILENCE_S)
     require_plausible("--metres-per-volt", args.metres_per_volt, MAX_METRES_PER_VOLT, "m/V")
     rig, out = rig_from_args(args), Path(args.out)  # every number checked before --dry-run says the plan is fine
     lag = AMPLITUDE_TIME_CONSTANT_S if args.amplitude_time_constant is None else args.amplitude_time_constant
@@ -112,46 +123,69 @@ def run_identify(args: argparse.Namespace) -> int:
     if previous and not args.overwrite:  # a previous identification's measurements are not ours to replace
         raise InvalidParameterError("--out", args.out, f"a name of no previous identification ({', '.join(previous)} "
                                     "exist); give another --out, or --overwrite to replace them")
-    link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
-    hello = link.hello
+    schedule = realizable_schedule(design_schedule())  # before the port opens: the rig streams from HELLO_ACK on
     try:
         stream = open(raw, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed below, after the experiments
     except OSError as exc:
-        link.close()
         raise InvalidParameterError("--out", args.out, f"a writable place for {raw.name}: {exc}") from None
-    with stream, progress_bar(plan.holds(), "identify") as bar:
-        recorder = SampleRecorder(stream)
-        experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt,
-                                  max_voltage=min(args.max_voltage, hello.max_drive_voltage), on_hold=lambda: bar.update(1))
-        equilibria, steps = _run(experiments, link, raw)
+    # the real-time section (nfal.realtime) starts before the port opens: its set-up (a full collection, 0.05-0.2 s)
+    # must not leave a backlog of the rig's stream; SIGINT, SIGTERM and SIGHUP are taken at the next exchange
+    # the samples reach the disk through a thread (nfal.realtime.BackgroundWriter): the loop never waits for it
+    with (contextlib.closing(BackgroundWriter(stream)) as writer, deferred_interrupts() as stop_request,
+          realtime_section() as collector):
+        try:
+            link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
+        except BaseException:
+            writer.close()
+            raw.unlink(missing_ok=True)  # nothing measured: no empty file left behind
+            raise
+        link.safe_point = collector.safe_point
+        hello, max_voltage = link.hello, min(args.max_voltage, link.hello.max_drive_voltage)
+        recorder = SampleRecorder(writer, recorder_capacity(plan, hello.sample_period_us * 1e-6))
+        with progress_bar(plan.holds(), "identify") as bar:
+            experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
+                                      law=move_law(plan, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
+                                                   schedule=schedule), on_hold=lambda: bar.update(1),
+                                      stop_request=stop_request)
+            equilibria, steps = _run(experiments, link, raw)
+        timing = {**link.timing(), **collector.report(), "rig_watchdog_s": hello.watchdog_timeout_us * 1e-6}
     result = _analyse(equilibria, steps, rig, args, lag, raw)
-    provenance = _provenance(args, hello, recorder, raw, lag)
+    provenance = _provenance(args, hello, recorder, raw, lag, timing)
     out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
     # on use: `nfal --help` stays fast
     from nfal.figures.identify import plot_identification
 
     plot_identification(out.with_suffix(".png"), result, rig, lag)
-    _report(result, recorder, out, raw, args.json)
+    _report(result, recorder, out, raw, timing, args.json)
     return 0
 
 
 def _run(experiments, link, raw: Path):
-    """The experiments; on any fault or Ctrl-C the drive ramps down and the message says where the data are."""
+    """The experiments; on any fault or stop signal the drive ramps down, STOP goes out and the message says where the
+    data are and what margin the loop kept to the rig's watchdog."""
     try:
         equilibria = experiments.equilibria()
         steps = experiments.damping_steps()
     except (ExperimentError, KeyboardInterrupt) as exc:
         ramped = experiments.ramp_down()
         link.close()
-        stopped = "the drive ramped down" if ramped else "no link to ramp the drive down: the rig's watchdog does"
-        kept = f"every sample so far is in {raw} ({len(experiments.recorder.samples)} samples)"
+        stopped = "the drive ramped down; STOP sent" if ramped else "no link to ramp the drive down: the rig's watchdog does"
+        kept = f"every sample so far is in {raw} ({experiments.recorder.count} samples)"
+        margin = _margin(link.timing())
         if isinstance(exc, KeyboardInterrupt):
-            print(f"nfal identify: interrupted; {stopped}; {kept}", file=sys.stderr)
+            print(f"nfal identify: {str(exc) or 'interrupted'}; {stopped}; {kept}; {margin}", file=sys.stderr)
             raise
-        raise ExperimentError(f"{exc}; {stopped}; {kept}") from None
+        raise ExperimentError(f"{exc}; {stopped}; {kept}; {margin}") from None
     experiments.ramp_down()
     link.close()
     return equilibria, steps
+
+
+def _margin(timing: dict) -> str:
+    """One line: the gaps between DRIVE commands against the rig's watchdog."""
+    gaps = timing["drive_gaps"]
+    return (f"gaps between DRIVE commands: p50 {gaps['p50_s'] * 1e3:.2f} ms, p99 {gaps['p99_s'] * 1e3:.2f} ms, "
+            f"max {gaps['max_s'] * 1e3:.2f} ms")
 
 
 def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
@@ -164,8 +198,10 @@ def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
         raise ExperimentError(f"the measurements cannot be fitted: {exc}; the data are in {raw}") from None
 
 
-def _provenance(args, hello, recorder, raw: Path, lag: float) -> dict:
-    frequencies = [s.drive_frequency_hz for s in recorder.samples]
+def _provenance(args, hello, recorder, raw: Path, lag: float, timing: dict) -> dict:
+    from nfal.identify import FREQUENCY  # on use, as above
+
+    frequencies = recorder.column(FREQUENCY)
     return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
             "firmware_version": f"nfal rig protocol {hello.protocol_version} (the protocol reports no firmware version)",
             "raw_data": raw.name, "nfal_version": __version__, "rig_time_s": recorder.duration_s,
@@ -174,20 +210,21 @@ def _provenance(args, hello, recorder, raw: Path, lag: float) -> dict:
             "metres_per_volt": args.metres_per_volt, "amplitude_time_constant_s": lag,
             "drive_frequency_hz_median": float(np.median(frequencies)),
             "rig": {"mass_kg": rig_from_args(args).mass, "radius_m": rig_from_args(args).radius},
-            "step_fraction": args.step_size, "steps_per_height": args.steps}
+            "step_fraction": args.step_size, "steps_per_height": args.steps, "realtime": timing}
 
 
-def _report(result, recorder, out: Path, raw: Path, as_json: bool) -> None:
+def _report(result, recorder, out: Path, raw: Path, timing: dict, as_json: bool) -> None:
     table = result.damping
     summary = {"calibration": str(out), "raw_data": str(raw), "figure": str(out.with_suffix(".png")),
-               "rig_time_s": recorder.duration_s, "samples": len(recorder.samples),
-               "K": result.calibration.report(), "damping": table.to_dict()}
+               "rig_time_s": recorder.duration_s, "samples": recorder.count,
+               "K": result.calibration.report(), "damping": table.to_dict(), "realtime": timing}
     if as_json:
         print_json(summary)
         return
     report = summary["K"]
-    print(f"identified in {recorder.duration_s:.1f} s of rig time ({len(recorder.samples)} samples): {out}, {raw}, "
+    print(f"identified in {recorder.duration_s:.1f} s of rig time ({recorder.count} samples): {out}, {raw}, "
           f"{out.with_suffix('.png')}")
+    print(f"real time: {_margin(timing)} (the rig's watchdog: {timing['rig_watchdog_s'] * 1e3:g} ms)")
     print(f"K(sigma) from {len(result.equilibria)} equilibria (eq. 16), quartic as eq. (17): coefficients "
           f"{', '.join(f'{c:.6g}' for c in report['coefficients'])}; residual rms {report['residual_rms']:.3g}")
     print("damping over eq. (6), mean and 95 % interval:")
