@@ -10,7 +10,7 @@ everything the slave imports from nfal, under the same import names as in the in
         slavemodule.txt         "nfal_<script>" (pythonfmu's loader reads it)
         pythonfmu/              pythonfmu's Python side (added by pythonfmu)
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
-        nfal/errors.py, csvdata.py  the foundation modules every layer may import
+        nfal/errors.py, csvdata.py, realtime.py  the foundation modules every layer may import
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
         nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
@@ -81,7 +81,7 @@ HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "pro
 
 FMUS_DIR = Path(__file__).resolve().parent
 #: The package root's foundation modules (importable by every layer, docs/architecture.md): every FMU carries them.
-FOUNDATION_MODULES = tuple(Path(nfal.__file__).resolve().parent / name for name in ("errors.py", "csvdata.py"))
+FOUNDATION_MODULES = tuple(Path(nfal.__file__).resolve().parent / name for name in ("errors.py", "csvdata.py", "realtime.py"))
 
 
 def _models_dir() -> Path:

@@ -19,6 +19,11 @@ work in hardware. A thin adapter over :class:`nfal.hil.link.RigLink`:
   host stalled), ramps the drive down and ignores DRIVE until a new session, so the loop is open and the
   run can no longer mean anything. (A reconnection's HELLO clears the trip, so a link that comes back
   within ``max_missed_samples`` resumes.)
+* From the end of initialisation to ``terminate`` the process runs under the real-time discipline
+  (:func:`nfal.realtime.realtime_section`: the garbage collector frozen and run right after each DRIVE, in any master,
+  libcosim's and the C hosts' too).
+* ``drive_gap_*``: the host time between DRIVE commands leaving (:attr:`RigLink.drive_gaps`): the margin to the
+  rig's watchdog, as ``nfal run`` reports it.
 * ``terminate`` sends STOP (the rig ramps the drive down) and closes the port; a failing step closes it
   too, and the rig's watchdog ramps the drive down by itself.
 
@@ -27,16 +32,21 @@ The rig cannot be rewound: the FMU cannot restore an FMU state (built with canGe
 
 from __future__ import annotations
 
+import contextlib
+
 from nfal.errors import FmuStateError, InvalidParameterError, LinkError, require_positive
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.hil.link import RigLink
 from nfal.hil.protocol import StatusFlags
 from nfal.models.table2 import SAMPLING_RATE_HZ
+from nfal.realtime import realtime_section
 
 _LOCKED, _RESTING, _TRIPPED, _OUT_OF_RANGE = (int(flag) for flag in (
     StatusFlags.PLL_LOCKED, StatusFlags.RESTING, StatusFlags.WATCHDOG_TRIPPED, StatusFlags.SENSOR_OUT_OF_RANGE))
 #: Relative mismatch allowed between ``sample_rate`` and the rig's announced sample period.
 RATE_TOLERANCE = 0.01
+#: Steps between updates of the drive-gap percentiles (a histogram scan; the maximum is updated every step).
+GAP_PERCENTILES_EVERY = 100
 
 
 class HardwareProxy(NfalSlave):
@@ -70,6 +80,12 @@ class HardwareProxy(NfalSlave):
         self.add_output("frames_lost", kind=int, description="frames missing from the rig's sequence")
         self.add_output("rig_faults", kind=int, description="FAULT reports received from the rig")
         self.add_output("reconnects", kind=int, description="sessions re-established after a lost link")
+        self.add_output("drive_gap_max", unit="s", description="longest host time between two DRIVE commands so far "
+                        "(the margin to the rig's watchdog)")
+        self.add_output("drive_gap_p50", unit="s", description="median host time between two DRIVE commands "
+                        f"(updated every {GAP_PERCENTILES_EVERY} steps)")
+        self.add_output("drive_gap_p99", unit="s", description="99th percentile of the host time between two DRIVE "
+                        f"commands (updated every {GAP_PERCENTILES_EVERY} steps)")
         self.add_parameter("port", "", description="the rig's serial port: a device path, a pty, socket://host:port, "
                            "or any pyserial URL")
         self.add_parameter("baud_rate", 2_000_000, description="line rate [baud] (ignored by ptys and sockets)")
@@ -81,6 +97,9 @@ class HardwareProxy(NfalSlave):
         self._link: RigLink | None = None
         self._settings: tuple | None = None
         self._seen = 0
+        self._steps = 0
+        self._realtime = contextlib.ExitStack()
+        self._collector = None
 
     # --- the session ------------------------------------------------------------------------------
     def setup(self) -> None:
@@ -107,6 +126,8 @@ class HardwareProxy(NfalSlave):
             link.close()
             raise
         self._link, self._settings = link, settings
+        # the real-time discipline (nfal.realtime) from here to the end of the session, whatever master steps the proxy
+        self._collector = self._realtime.enter_context(realtime_section())
         self._publish(link.latest(), fresh=True)
         self.samples_missed = 0
 
@@ -128,6 +149,11 @@ class HardwareProxy(NfalSlave):
         counters = link.decoder.counters
         self.frames_dropped, self.frames_lost = counters.dropped, counters.lost
         self.rig_faults, self.reconnects = link.counters.faults, link.counters.reconnects
+        gaps = link.drive_gaps
+        self.drive_gap_max = gaps.maximum
+        if self._steps % GAP_PERCENTILES_EVERY == 0:
+            self.drive_gap_p50, self.drive_gap_p99 = gaps.percentile(50), gaps.percentile(99)
+        self._steps += 1
         self._seen = sample.count
 
     def step(self, current_time: float, step_size: float) -> None:
@@ -136,6 +162,7 @@ class HardwareProxy(NfalSlave):
         if not voltage >= 0.0:
             raise InvalidParameterError("drive_voltage", voltage, "a voltage >= 0 V")
         link.send_drive(voltage)
+        self._collector.safe_point()  # right after the DRIVE left: the most slack before the next one
         link.poll()  # what has arrived, without waiting
         sample = link.latest()
         self._publish(sample, fresh=sample.count != self._seen)
@@ -164,11 +191,15 @@ class HardwareProxy(NfalSlave):
         if link is not None:
             link.close(stop=stop)
             self.link_ok = False
+        self._realtime.close()
 
     def __del__(self) -> None:
         link = getattr(self, "_link", None)
         if link is not None:
             link.close(stop=False)
+        realtime = getattr(self, "_realtime", None)
+        if realtime is not None:
+            realtime.close()  # the collector back as it was, also for an instance freed without terminate
 
     # --- FMU state: hardware cannot be rewound --------------------------------------------------------
     def get_internal_state(self) -> dict:

@@ -127,4 +127,6 @@ def link_summary(table) -> dict:
     summary.update(samples_missed_max=int(np.max(table[f"{PROXY}.samples_missed"])),
                    measurement_age_max_s=float(np.max(age)), measurement_age_mean_s=float(np.mean(age)),
                    stale_steps=int(np.count_nonzero(~np.asarray(table[f"{PROXY}.fresh"], dtype=bool))))
-    return summary
+    gaps = {f"drive_gap_{q}_s": float(np.asarray(table[f"{PROXY}.drive_gap_{q}"])[-1]) for q in ("p50", "p99", "max")
+            if f"{PROXY}.drive_gap_{q}" in table}
+    return {**summary, **gaps}

@@ -28,6 +28,7 @@ from nfal.errors import InvalidParameterError, LinkError
 from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.firmware import Firmware, RigTiming
 from nfal.orchestration.pacing import RealTimePacer
+from nfal.realtime import realtime_section
 
 logger = logging.getLogger(__name__)
 
@@ -167,20 +168,22 @@ class Emulator:
         period = self.timing.sample_period_s
         # sleep only (no busy wait): the rig needs no microsecond release, and the host beside it needs the CPU;
         # after a stall the rig's clock goes on from now (a burst of ticks would run its physics too fast)
-        pacer = RealTimePacer(period, spin_s=0.0, history=int(60 / period), resync_after_s=RESYNC_AFTER_S)
+        pacer = RealTimePacer(period, spin_s=0.0, resync_after_s=RESYNC_AFTER_S)
         ticks = None if duration_s is None else max(1, round(duration_s / period))
-        pacer.start()
         k = 0
-        while not self._stop and (ticks is None or k < ticks):
-            pacer.wait(k)
-            self.tick(k)
-            pacer.done(k)
-            k += 1
+        with realtime_section() as collector:  # the collector runs between ticks only (nfal.realtime)
+            pacer.start()
+            while not self._stop and (ticks is None or k < ticks):
+                pacer.wait(k)
+                self.tick(k)
+                pacer.done(k)
+                collector.safe_point()
+                k += 1
         if self._record is not None:
             self._record.flush()
         report = self.report
         report.ticks, report.final_voltage = k, self.firmware.applied
-        report.pacing = pacer.report()
+        report.pacing = {**pacer.report(), **collector.report()}
         report.faults = dataclasses.asdict(self.inject.counts)
         report.decoder = self.firmware.decoder.counters.as_dict()
         report.bytes_dropped = self.port.bytes_dropped

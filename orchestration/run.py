@@ -21,6 +21,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from nfal.errors import InvalidParameterError, ResultsExistError, SimulationError, require_finite, require_positive
+from nfal.realtime import SlackCollector, realtime_section
 
 from .interrupts import deferred_interrupts
 from .master import ALGORITHMS, HorizonEnd, Master
@@ -208,7 +209,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         summary = _opening_summary(path, system, master, algorithm, start, step, steps, started_at, inputs,
                                    parameters, rt_priority)
         summary_path = write_summary(out / SUMMARY_JSON, summary)
-        writer = CsvWriter(out / RESULTS_CSV, master.columns, flush_interval_s=flush_interval_s)
+        writer = CsvWriter(out / RESULTS_CSV, master.columns, flush_interval_s=flush_interval_s,
+                           background=bool(speed))  # a paced step never waits for the disk
         pacer = RealTimePacer(step, speed=speed) if speed else None
         show = progress if progress is not None else sys.stderr.isatty()
         with tqdm(total=steps, disable=not show, file=sys.stderr, unit="step", desc=system.name, leave=False,
@@ -287,6 +289,7 @@ class _LoopOutcome:
     loop_time_s: float = 0.0
     wall_time_s: float = 0.0
     timing: dict = dataclasses.field(default_factory=dict)
+    collector: SlackCollector | None = None  #: the real-time section's (paced runs)
 
 
 def _run_loop(master: Master, writer: CsvWriter, start: float, step: float, steps: int,
@@ -301,11 +304,13 @@ def _run_loop(master: Master, writer: CsvWriter, start: float, step: float, step
             master.instantiate()
             master.initialize(start, start + steps * step)
             writer.write(master.row)
-            outcome.init_time_s = time.perf_counter() - wall_start
-            loop_start = time.perf_counter()
             row = master.row
             with (prompt_thread_switching() if pacer is not None else contextlib.nullcontext(),
-                  realtime_priority(rt_priority)):
+                  realtime_priority(rt_priority),
+                  realtime_section() if pacer is not None else contextlib.nullcontext() as collector):
+                outcome.collector = collector
+                outcome.init_time_s = time.perf_counter() - wall_start  # the section's set-up included
+                loop_start = time.perf_counter()
                 if pacer is not None:
                     pacer.start()
                 for k in range(steps):
@@ -317,6 +322,8 @@ def _run_loop(master: Master, writer: CsvWriter, start: float, step: float, step
                     if master.ended is not None and not master.ended.step_completed:
                         break
                     writer.write(row)
+                    if collector is not None:
+                        collector.safe_point()  # the step is done: slack until the next release
                     outcome.completed = k + 1
                     stop_request.check()
                     if outcome.completed % chunk == 0:
@@ -355,7 +362,8 @@ def _closing_summary(loop: _LoopOutcome, master: Master, writer: CsvWriter, star
         "do_step_wall_time_s": do_step_total,
         "exchange_and_record_us_per_step": (loop_time - do_step_total) / completed * 1e6 if completed else None,
         "timing": loop.timing,
-        "realtime": pacer.report() if pacer is not None else None,
+        "realtime": None if pacer is None else {**pacer.report(),
+                                                **(loop.collector.report() if loop.collector is not None else {})},
     }
     if master.ended is not None:
         entries.update(_horizon_note(master.ended, entries["end_time_s"]))

@@ -244,12 +244,19 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} rig "
               f"faults, {link['reconnects']} reconnects; at most {link['samples_missed_max']} samples missed in a row, "
               f"sample age mean {link['measurement_age_mean_s'] * 1e6:.0f} us, max {link['measurement_age_max_s'] * 1e6:.0f} us")
+        if "drive_gap_max_s" in link:
+            print(f"gaps between DRIVE commands: p50 {link['drive_gap_p50_s'] * 1e3:.2f} ms, p99 "
+                  f"{link['drive_gap_p99_s'] * 1e3:.2f} ms, max {link['drive_gap_max_s'] * 1e3:.2f} ms")
     realtime = summary.get("realtime")
     if realtime:
         print(f"real time: {realtime.get('overruns')} overruns in {realtime.get('steps')} steps; step-start jitter "
               f"p50 {realtime.get('jitter_p50_s', 0) * 1e6:.0f} us, p99 {realtime.get('jitter_p99_s', 0) * 1e6:.0f} us, "
               f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us"
               + (f" (SCHED_FIFO priority {summary['rt_priority']})" if summary.get("rt_priority") else ""))
+        pauses = realtime.get("gc_pauses")
+        if pauses:
+            print(f"collector: {pauses['count']} young collections in slack, longest {pauses['max_s'] * 1e6:.0f} us; memory "
+                  + ("locked" if realtime.get("memory_locked") else f"not locked ({realtime.get('memory_lock_note')})"))
         if realtime.get("overruns") and not summary.get("rt_priority"):
             print("hint: --rt-priority 50 runs the loop under SCHED_FIFO, so other processes cannot delay it "
                   "(docs/hil.md, \"Real time\")")

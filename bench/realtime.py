@@ -1,0 +1,175 @@
+"""Real time at full length, on an idle or a busy machine (docs/hil.md, "Real time that holds").
+
+    python bench/realtime.py identify --runs 10 --truths default mass damping [--neighbour]
+    python bench/realtime.py hil --duration 600 [--neighbour]
+    python bench/realtime.py tests --runs 20            # the suite's real-time tests; the neighbour in every other run
+
+The rig emulator stands for the rig, a separate machine: it runs under SCHED_FIFO (priority 50) where the system
+allows it, with its default 20 ms watchdog. The host (``nfal identify``, ``nfal run fig7_hil``) runs at normal
+priority. ``--neighbour`` starts a CPU-bound process at normal priority beside them (``python -c "while True: pass"``).
+Each command prints one JSON line per run and writes the whole result, with the machine and the command, to
+``bench/results/realtime-<kind>[-neighbour].json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from machine import describe
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+#: The emulator's truths for the identification runs: the design model's and two it was not designed for.
+TRUTHS = {"default": [], "mass": ["--param", "Plant.mass=0.18"],
+          "damping": ["--param", "Plant.excess_damping_height=115e-6", "--param", "Plant.excess_damping_exponent=8"]}
+#: The staircase of Figs. 9-10, repeated for a long HIL run [m].
+CYCLE = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6)
+RT_PRIORITY = "50"
+
+
+@contextlib.contextmanager
+def neighbour(enabled: bool) -> Iterator[None]:
+    """A CPU-bound process at normal priority, for the duration of the block."""
+    process = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if enabled else None
+    try:
+        yield
+    finally:
+        if process is not None:
+            process.kill()
+            process.wait()
+
+
+@contextlib.contextmanager
+def emulator(folder: Path, *options: str) -> Iterator[tuple[str, subprocess.Popen]]:
+    """`nfal rig-emulator` under SCHED_FIFO (if allowed), default watchdog: (its port, the process)."""
+    priority = ["--rt-priority", RT_PRIORITY] if os.geteuid() == 0 else []
+    link = folder / f"rig-{time.monotonic_ns()}.pty"
+    log = open(folder / f"{link.stem}.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
+    process = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--link", str(link), *priority, *options],
+                               stdout=subprocess.PIPE, stderr=log, text=True)
+    try:
+        port = process.stdout.readline().strip()
+        yield port, process
+    finally:
+        process.terminate()
+        rest = process.communicate(timeout=30)[0]
+        (folder / f"{link.stem}.events").write_text(rest, encoding="utf-8")
+        log.close()
+
+
+def resident_mb(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/status", encoding="utf-8") as handle:
+            return next(int(line.split()[1]) / 1024 for line in handle if line.startswith("VmRSS"))
+    except (OSError, StopIteration):
+        return None
+
+
+def run_identify(args, folder: Path) -> list[dict]:
+    rows = []
+    for truth in args.truths:
+        for run in range(args.runs):
+            with emulator(folder, *TRUTHS[truth]) as (port, _):
+                out = folder / f"{truth}-{run}.json"
+                started = time.perf_counter()
+                done = subprocess.run([sys.executable, "-m", "nfal", "identify", "--port", port, "--out", str(out),
+                                       *(["--mass", "0.18"] if truth == "mass" else [])],
+                                      capture_output=True, text=True)
+                wall = time.perf_counter() - started
+            row = {"truth": truth, "run": run, "exit": done.returncode, "wall_s": round(wall, 1)}
+            if done.returncode == 0:
+                provenance = json.loads(out.read_text())["provenance"]
+                gaps = provenance["realtime"]["drive_gaps"]
+                row.update(rig_time_s=round(provenance["rig_time_s"], 1),
+                           **{f"drive_gap_{q}_ms": round(gaps[f"{q}_s"] * 1e3, 2) for q in ("p50", "p99", "max")},
+                           gc_pause_max_ms=round(provenance["realtime"]["gc_pauses"]["max_s"] * 1e3, 3))
+            else:
+                row["error"] = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    return rows
+
+
+def run_hil(args, folder: Path) -> list[dict]:
+    levels = [CYCLE[i % len(CYCLE)] for i in range(int(args.duration / 0.6) + 2)]
+    spec = "staircase:" + ",".join(f"{level:g}" for level in levels) + ":0.6:1.0"
+    out = folder / "hil"
+    with emulator(folder) as (port, rig):
+        command = [sys.executable, "-m", "nfal", "run", "fig7_hil", "--realtime", "--param", f"proxy.port={port}",
+                   "--reference", spec, "--stop-time", str(args.duration), "--out", str(out), "--json"]
+        host = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        memory = []
+        while host.poll() is None:
+            summary_path = out / "summary.json"
+            with contextlib.suppress(OSError, json.JSONDecodeError):  # sampled while the loop runs
+                if json.loads(summary_path.read_text()).get("status") == "running":
+                    memory.append(resident_mb(host.pid))
+            time.sleep(10)
+        output, errors = host.communicate()
+    events = (folder / next(folder.glob("*.events")).name).read_text()
+    summary = json.loads(out.joinpath("summary.json").read_text())
+    realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
+    memory = [m for m in memory if m is not None]
+    row = {"exit": host.returncode, "status": summary["status"], "steps": realtime.get("steps"),
+           "overruns": realtime.get("overruns"),
+           "overrun_share_percent": round(100 * realtime.get("overruns", 0) / max(1, realtime.get("steps") or 1), 4),
+           "jitter_p99_ms": round(realtime.get("jitter_p99_s", 0) * 1e3, 3),
+           "jitter_max_ms": round(realtime.get("jitter_max_s", 0) * 1e3, 2),
+           **{f"drive_gap_{q}_ms": round(link.get(f"drive_gap_{q}_s", 0) * 1e3, 2) for q in ("p50", "p99", "max")},
+           "gc_pause_max_ms": round((realtime.get("gc_pauses") or {}).get("max_s", 0) * 1e3, 3),
+           "watchdog_trips": events.count("watchdog: no DRIVE"), "missed_sample_stop": "no measurement" in errors,
+           "rss_mb_first_last_max": [round(memory[0]), round(memory[-1]), round(max(memory))] if memory else None,
+           "error": summary.get("error")}
+    print(json.dumps(row), flush=True)
+    return [row]
+
+
+def run_tests(args, folder: Path) -> list[dict]:
+    rows = []
+    for run in range(args.runs):
+        busy = run % 2 == 1
+        with neighbour(busy):
+            started = time.perf_counter()
+            done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "realtime", "-p", "no:cacheprovider"],
+                                  cwd=HERE.parent, capture_output=True, text=True)
+        last = done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr[-300:]
+        row = {"run": run, "neighbour": busy, "exit": done.returncode, "summary": last,
+               "wall_s": round(time.perf_counter() - started, 1)}
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("kind", choices=("identify", "hil", "tests"))
+    parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--truths", nargs="+", default=list(TRUTHS), choices=list(TRUTHS))
+    parser.add_argument("--duration", type=float, default=600.0, help="hil: seconds of the run (default 600)")
+    parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests: every other run)")
+    args = parser.parse_args()
+    folder = Path("runs") / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")
+    folder.mkdir(parents=True)
+    print(describe(), flush=True)
+    runner = {"identify": run_identify, "hil": run_hil, "tests": run_tests}[args.kind]
+    with neighbour(args.neighbour and args.kind != "tests"):
+        rows = runner(args, folder)
+    name = f"realtime-{args.kind}" + ("-neighbour" if args.neighbour and args.kind != "tests" else "")
+    RESULTS.mkdir(exist_ok=True)
+    result = {"bench": name, "machine": describe(), "command": "python bench/realtime.py " + " ".join(sys.argv[1:]),
+              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_average": os.getloadavg(),
+              "runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)}
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    print(f"{result['completed']} of {result['of']} completed; {RESULTS / (name + '.json')}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
