@@ -1028,7 +1028,8 @@ def hil_cases() -> list[Case]:
         ("metres-per-volt-1e300", ["--metres-per-volt", "1e300"]), ("equilibria-mm", ["--equilibria", "50:200:12"]),
         ("equilibria-negative", ["--equilibria=-1e-4,1e-4"]), ("connect-timeout-nan", ["--connect-timeout", "nan"]),
         ("max-silence-zero", ["--max-silence", "0"]), ("time-constant-negative", ["--amplitude-time-constant", "-1"]),
-        ("mass-grams", ["--mass", "134.7"])]]
+        ("mass-grams", ["--mass", "134.7"]), ("connect-timeout-1e9", ["--connect-timeout", "1e9"]),
+        ("max-silence-a-day", ["--max-silence", "86400"]), ("max-hold-a-day", ["--max-hold", "86400"])]]
     short_identify = ["identify", "--port", "{port}", "--out", "rig.json", "--equilibria", "60e-6:180e-6:5",
                       "--damping-heights", "80e-6,140e-6", "--steps", "2"]
     cases += [

@@ -101,6 +101,9 @@ def run_identify(args: argparse.Namespace) -> int:
     from nfal.orchestration.interrupts import deferred_interrupts
     from nfal.realtime import BackgroundWriter, realtime_section
 
+    from nfal.models.identification import LONGEST_HOLD_S
+
+    require_duration("--max-hold", args.max_hold, LONGEST_HOLD_S)  # named by its flag, before the plan checks it
     plan = _plan(args)
     for name in ("metres_per_volt", "max_voltage"):
         require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
