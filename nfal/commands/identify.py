@@ -94,14 +94,12 @@ def _print_plan(plan) -> None:
 def run_identify(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.identify import Experiments, LinkRig, SampleRecorder, move_law, recorder_capacity
-    from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
+    from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S, LONGEST_HOLD_S
     from nfal.models.pid_design import design_schedule
     from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
     from nfal.models.stability import realizable_schedule
     from nfal.orchestration.interrupts import deferred_interrupts
     from nfal.realtime import BackgroundWriter, realtime_section
-
-    from nfal.models.identification import LONGEST_HOLD_S
 
     require_duration("--max-hold", args.max_hold, LONGEST_HOLD_S)  # named by its flag, before the plan checks it
     plan = _plan(args)
