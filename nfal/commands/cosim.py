@@ -259,4 +259,4 @@ def _print_summary(summary: dict, out: Path) -> None:
                   + ("locked" if realtime.get("memory_locked") else f"not locked ({realtime.get('memory_lock_note')})"))
         if realtime.get("overruns") and not summary.get("rt_priority"):
             print("hint: --rt-priority 50 runs the loop under SCHED_FIFO, so other processes cannot delay it "
-                  "(docs/hil.md, \"Real time\")")
+                  "(docs/hil.md, \"Real time that holds\")")
