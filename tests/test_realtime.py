@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import gc
+import io
+import os
+import tracemalloc
 import weakref
 
 import numpy as np
 import pytest
 
-from nfal.realtime import BINS_PER_DECADE, YOUNG_THRESHOLD, GapStats, LatencyStats, realtime_section
+from nfal.identify import RigSample, SampleRecorder
+from nfal.realtime import (BINS_PER_DECADE, YOUNG_THRESHOLD, BackgroundWriter, GapStats, LatencyStats,
+                           realtime_section)
 
 #: A percentile from the histogram is within half a bin of the exact one (plus the spacing of the sample).
 BIN_TOLERANCE = 10 ** (1 / BINS_PER_DECADE) - 1
@@ -85,3 +90,61 @@ def test_memory_is_locked_or_the_report_says_why():
     with realtime_section() as collector:
         report = collector.report()
     assert report["memory_locked"] or "memory not locked" in report["memory_lock_note"]
+
+
+class Refusing(io.StringIO):
+    """A file whose disk is full from the ``after``-th write on."""
+
+    def __init__(self, after: int) -> None:
+        super().__init__()
+        self.after = after
+
+    def write(self, text: str) -> int:
+        self.after -= 1
+        if self.after < 0:
+            raise OSError(28, "No space left on device")
+        return super().write(text)
+
+    def close(self) -> None:  # keep the text readable after close()
+        pass
+
+
+def test_background_writer_writes_everything_in_order_on_close():
+    file = Refusing(after=10**9)
+    writer = BackgroundWriter(file)
+    for k in range(1000):
+        writer.write(f"{k}\n")
+        if k % 100 == 0:
+            writer.flush()
+    writer.close()
+    assert file.getvalue() == "".join(f"{k}\n" for k in range(1000))
+
+
+def test_a_refused_write_is_raised_by_a_later_call_or_by_close():
+    writer = BackgroundWriter(Refusing(after=1))
+    writer.write("a\n")
+    writer.flush()  # the thread writes "a": fine
+    writer.write("b\n")
+    writer.flush()  # the thread's second write is refused
+    writer._thread.join(timeout=10)
+    with pytest.raises(OSError, match="No space"):
+        writer.write("c\n")
+    with pytest.raises(OSError, match="No space"):
+        writer.close()
+
+
+def test_the_recorder_keeps_no_object_per_sample(tmp_path):
+    """The identification's recorder: 20 000 samples cost no memory beyond its preallocated columns."""
+    stream = open(os.devnull, "w", encoding="utf-8")  # the disk's side is the BackgroundWriter's tests'
+    recorder = SampleRecorder(stream, capacity=30_000)
+    batch = [RigSample(k * 5e-4, 1e-4, 28500.0, 50.0, False) for k in range(2)]
+    recorder.add(batch, 50.0, "warm")
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    for k in range(10_000):
+        recorder.add(batch, 50.0, "hold")
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
+    stream.close()
+    assert recorder.count == 20_002
+    assert grown < 50_000  # bytes (a RigSample kept per sample: ~2 MB)
