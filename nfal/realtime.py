@@ -146,6 +146,15 @@ def lock_memory() -> str:
     return ""
 
 
+def _locked_kib() -> int:
+    """The process's locked memory [KiB] (Linux: VmLck of /proc/self/status; 0 elsewhere)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            return next((int(line.split()[1]) for line in status if line.startswith("VmLck:")), 0)
+    except OSError:
+        return 0
+
+
 def unlock_memory() -> None:
     if sys.platform.startswith("linux"):
         ctypes.CDLL(None).munlockall()
@@ -159,7 +168,8 @@ def realtime_section(*, lock: bool = True) -> Iterator[SlackCollector]:
     master around its loop; the FMU's copy of this module is not the master's, so the process's collector tells) this
     one changes nothing: its collector's safe points collect as the outer one's do."""
     if not gc.isenabled() and gc.get_freeze_count():
-        yield SlackCollector(memory_lock_note="inside another real-time section, which holds the settings")
+        locked = _locked_kib() > 0
+        yield SlackCollector(memory_locked=locked, memory_lock_note="" if locked else "inside another real-time section")
         return
     collector = SlackCollector()
     was_enabled, switch_interval = gc.isenabled(), sys.getswitchinterval()

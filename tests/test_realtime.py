@@ -76,7 +76,7 @@ def test_safe_point_does_nothing_while_the_young_generation_is_small():
 def test_an_inner_section_is_the_outer_one():
     with realtime_section(lock=False) as outer:
         with realtime_section(lock=False) as inner:
-            assert inner is not outer and "inside another" in inner.memory_lock_note
+            assert inner is not outer and not inner.memory_locked and "inside another" in inner.memory_lock_note
             garbage = weakref.ref(Node())
             for _ in range(YOUNG_THRESHOLD):
                 Node()
@@ -89,6 +89,8 @@ def test_an_inner_section_is_the_outer_one():
 def test_memory_is_locked_or_the_report_says_why():
     with realtime_section() as collector:
         report = collector.report()
+        with realtime_section() as inner:  # an inner section reports what the outer did
+            assert inner.memory_locked == report["memory_locked"]
     assert report["memory_locked"] or "memory not locked" in report["memory_lock_note"]
 
 
