@@ -172,6 +172,7 @@ class Emulator:
         ticks = None if duration_s is None else max(1, round(duration_s / period))
         k = 0
         with realtime_section() as collector:  # the collector runs between ticks only (nfal.realtime)
+            collector.settle()
             pacer.start()
             while not self._stop and (ticks is None or k < ticks):
                 pacer.wait(k)

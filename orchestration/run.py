@@ -309,6 +309,8 @@ def _run_loop(master: Master, writer: CsvWriter, start: float, step: float, step
                   realtime_priority(rt_priority),
                   realtime_section() if pacer is not None else contextlib.nullcontext() as collector):
                 outcome.collector = collector
+                if collector is not None:
+                    collector.settle()  # everything set up so far frozen, before the first step
                 outcome.init_time_s = time.perf_counter() - wall_start  # the section's set-up included
                 loop_start = time.perf_counter()
                 if pacer is not None:

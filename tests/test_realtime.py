@@ -66,6 +66,16 @@ def test_section_turns_the_automatic_collector_off_and_restores_it():
     assert collector.report()["gc_pauses"]["count"] >= 1
 
 
+def test_settle_freezes_what_set_up_built_so_the_first_safe_point_is_cheap():
+    with realtime_section(lock=False) as collector:
+        built = [Node() for _ in range(3 * YOUNG_THRESHOLD)]  # set-up after the section began
+        frozen = gc.get_freeze_count()
+        collector.settle()
+        assert gc.get_freeze_count() >= frozen + len(built) and gc.get_count()[0] < YOUNG_THRESHOLD
+        collector.safe_point()
+    assert collector.pauses.count == 0
+
+
 def test_safe_point_does_nothing_while_the_young_generation_is_small():
     with realtime_section(lock=False) as collector:
         gc.collect(0)

@@ -148,6 +148,7 @@ def run_identify(args: argparse.Namespace) -> int:
                                       law=move_law(plan, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
                                                    schedule=schedule), on_hold=lambda: bar.update(1),
                                       stop_request=stop_request)
+            collector.settle()  # the set-up's objects frozen too, before the first DRIVE
             equilibria, steps = _run(experiments, link, raw)
         timing = {**link.timing(), **collector.report(), "rig_watchdog_s": hello.watchdog_timeout_us * 1e-6}
     result = _analyse(equilibria, steps, rig, args, lag, raw)
