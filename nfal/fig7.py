@@ -74,6 +74,7 @@ def generated_reference(system) -> GeneratedReference | None:
     (:func:`nfal.fmus.reference_generator.reference_of`): the SSD's bindings and ``--param`` overrides, the
     FMU's defaults otherwise. A ``table`` that names a file inside the FMU, or another FMU, leaves it unknown.
     """
+    # on use: the FMU's slave module (pythonfmu) loads only when a structure is read
     from nfal.fmus.reference_generator import PARAMETERS, reference_of
 
     link = next((l for l in system.links if l.target.path == REFERENCE), None)

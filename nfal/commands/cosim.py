@@ -50,7 +50,7 @@ def register(commands) -> None:
                      help="start time [s] (default: the structure's DefaultExperiment startTime, else 0)")
     run.add_argument("--stop-time", type=positive_float, metavar="S",
                      help="stop time [s] (default: the structure's DefaultExperiment stopTime: 3.7 s for fig7_slow and "
-                     "fig7_reynolds, 4.7 s for fig7_hil; where it has none, the reference's length)")
+                     "fig7_reynolds, 4.6 s for fig7_hil; where it has none, the reference's length)")
     run.add_argument("--step", type=positive_float, metavar="S", help="communication step [s] (default: the structure's "
                      "DefaultExperiment FixedStepAlgorithm baseStepSize annotation, 5e-4 s (2 kHz) for Fig. 7)")
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
