@@ -7,7 +7,8 @@ order they take precedence:
 
 * ``table``: rows ``time_s,reference_m`` (newlines, ``;`` or spaces between rows; an optional header), or the
   name of a CSV file in the FMU's ``resources/`` folder (``my_reference.csv``);
-* ``times`` [s] with ``levels`` [m]: change times and levels, comma-separated lists of equal length;
+* ``times`` [s] with ``levels`` [m]: change times and levels, lists of equal length separated by spaces (or
+  commas: but a host that logs string parameters into an unquoted CSV, as ecos does, splits them);
 * else the staircase: ``levels`` [m], the first held ``lead`` [s], the others ``hold`` [s]; by default the
   paper's (60-180 um, 0.1 s lead, 0.6 s holds: 3.7 s).
 
@@ -26,8 +27,9 @@ from nfal.models.closed_loop import Staircase
 from nfal.models.reference import StepSequence, numbers
 
 _PAPER = Staircase()
-#: The staircase's defaults as the FMU declares them (levels as text: ``"6e-05,0.0001,..."``).
-DEFAULT_LEVELS = ",".join(repr(level) for level in _PAPER.levels_m)
+#: The staircase's defaults as the FMU declares them (levels as text, space-separated: ``"6e-05 0.0001 ..."``; a
+#: host that logs string parameters into an unquoted CSV, as ecos does, would split a comma-separated one).
+DEFAULT_LEVELS = " ".join(repr(level) for level in _PAPER.levels_m)
 #: The parameters and their defaults.
 PARAMETERS = {"levels": DEFAULT_LEVELS, "lead": _PAPER.lead_s, "hold": _PAPER.hold_s, "times": "", "table": ""}
 
@@ -72,10 +74,10 @@ class ReferenceGenerator(NfalSlave):
         self.add_output("reference", unit="m", description="height reference h_ref (held between changes)",
                         getter=self._reference)
         self.add_parameter("levels", PARAMETERS["levels"],
-                           description="levels of the staircase or of the steps [m], comma-separated")
+                           description="levels of the staircase or of the steps [m], separated by spaces or commas")
         self.add_parameter("lead", _PAPER.lead_s, unit="s", description="staircase: how long the first level is held")
         self.add_parameter("hold", _PAPER.hold_s, unit="s", description="staircase: how long each later level is held")
-        self.add_parameter("times", "", description="change times [s], one per level, comma-separated; "
+        self.add_parameter("times", "", description="change times [s], one per level, separated by spaces or commas; "
                            "empty: the staircase of lead and hold")
         self.add_parameter("table", "", description="time_s,reference_m rows (separated by newlines, ';' or spaces) "
                            "or the name of a CSV file in the FMU's resources folder; overrides levels and times")

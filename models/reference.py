@@ -89,7 +89,7 @@ class StepSequence:
     def from_table(cls, text: str, *, name: str = "table") -> "StepSequence":
         """Rows of ``time_s,reference_m`` (see the module docstring); a first row that is not numbers is a header."""
         rows = [row for line in text.splitlines() if not line.strip().startswith("#")
-                for row in _ROW_SEPARATOR.split(line.strip()) if row]
+                for row in _ROW_SEPARATOR.split(re.sub(r"\s*,\s*", ",", line.strip())) if row]
         times, levels = [], []
         for i, row in enumerate(rows):
             fields = [f.strip() for f in row.split(",")]
