@@ -345,8 +345,9 @@ class Master:
     algorithm : {"causal", "jacobi"}
         See the module docstring.
     inputs : mapping, optional
-        External inputs: ``"Element.variable"`` (an input no connection feeds) or the name of an input
-        connector of the top-level system -> a function of time [s] or a constant (SI). A top-level
+        External inputs: ``"Element.variable"`` (an input; if a connection feeds it, this replaces the
+        connection) or the name of an input connector of the top-level system -> a function of time [s]
+        or a constant (SI). A top-level
         input connector with a bound value and no entry here is held at that value.
     fmu_logging : {"on", "off"}
         Instantiate with logging on (default: every category; messages go to this module's logger,

@@ -1,4 +1,4 @@
-"""FMI 3.0 variants of the six FMUs (``nfal build --fmi 3``, fmus/fmi3.py): valid, and equal to FMI 2.0 in FMPy.
+"""FMI 3.0 variants of the FMUs (``nfal build --fmi 3``, fmus/fmi3.py): valid, and equal to FMI 2.0 in FMPy.
 
 Each FMU is the same slave (fmus/<slave>.py) packed with pythonfmu3's FMI 3.0 wrapper; FMPy runs both
 builds with the same start values and inputs, and the outputs must agree exactly (the same Python code
@@ -31,6 +31,7 @@ SCENARIOS = {
     "Controller": ({"reference": 100e-6, "measured_height": 60e-6}, 0.05),
     "ResonanceTracker": ({"drive_voltage": 50.0, "resonance_shift": 20.0}, 0.05),
     "SensorChain": ({"true_height": 80e-6, "noise_peak": 2e-6}, 0.05),
+    "ReferenceGenerator": ({"lead": 0.01, "hold": 0.02}, 0.05),
 }
 STEP = 5e-4
 ECOS_OUTPUTS = Path(__file__).parent / "hosts" / "ecos_outputs.py"
