@@ -21,10 +21,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from nfal.errors import InvalidParameterError
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.closed_loop import Staircase
 from nfal.models.reference import StepSequence, numbers
+
+from nfal.errors import InvalidParameterError
 
 _PAPER = Staircase()
 #: The staircase's defaults as the FMU declares them (levels as text, space-separated: ``"6e-05 0.0001 ..."``; a

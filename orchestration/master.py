@@ -60,13 +60,13 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2Integer, fmi2Real, fmi2True,
                        fmi2ValueReference)
-from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3LogMessageCallback, fmi3True, fmi3ValueReference
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3True, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 
 from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
                          TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive)
 
-from .resolve import TRANSPORT, Element, ResolvedSystem, variable_kind, variable_unit
+from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
 from .results import Column
 from .schedule import Action, causal_sweep
 from .signals import as_signal

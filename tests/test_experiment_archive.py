@@ -23,16 +23,16 @@ import numpy as np
 import pytest
 from fmpy import simulate_fmu
 from fmpy.validation import validate_fmu
-
-from nfal.cli import main
-from nfal.commands.cosim import _stop_time
-from nfal.errors import DataFormatError, InvalidParameterError
-from nfal.fig7 import DEFAULT_STAIRCASES, generated_reference
 from nfal.fmus.reference_generator import PARAMETERS, ReferenceGenerator, reference_of
 from nfal.models.closed_loop import Staircase
 from nfal.models.reference import StepSequence, staircase_of
 from nfal.orchestration import read_results, read_ssp, resolve
 from nfal.orchestration.signals import as_signal
+
+from nfal.cli import main
+from nfal.commands.cosim import _stop_time
+from nfal.errors import DataFormatError, InvalidParameterError
+from nfal.fig7 import DEFAULT_STAIRCASES, generated_reference
 
 STEP = 5e-4
 ECOS_SSP_OUTPUTS = Path(__file__).parent / "hosts" / "ecos_ssp_outputs.py"
@@ -128,7 +128,7 @@ def test_bad_parameters_fail_initialisation_by_name(tmp_path, parameters, named)
 
 
 def test_stop_time_the_ssd_governs_and_the_run_says_where_the_reference_differs():
-    args = lambda stop=None: argparse.Namespace(stop_time=stop)  # noqa: E731
+    args = lambda stop=None: argparse.Namespace(stop_time=stop)
     assert _stop_time(args(), 3.7, Staircase()) == (3.7, None)
     stop, note = _stop_time(args(), 0.25, Staircase())
     assert stop == 0.25 and "stopTime (0.25 s) governs, before the reference's end" in note and "3.7 s" in note
@@ -246,8 +246,9 @@ def test_the_fmi3_archive_equals_the_fmi2_run(fig7_archives, fmi3_archives, tmp_
 
 @pytest.mark.slow
 def test_a_structure_mixing_fmi2_and_fmi3_runs_as_either(fig7_archives, fmi3_archives, tmp_path):
-    from nfal.build import structure_sources
     from nfal.orchestration.ssp_archive import pack
+
+    from nfal.build import structure_sources
 
     mixed = tmp_path / "mixed"
     mixed.mkdir()
@@ -314,7 +315,8 @@ def test_ecospy_gives_the_heights_of_nfal_run_to_1e_9_m(fig7_archives, ecos, jac
     out = tmp_path / "ecos.npz"
     names = ["Plant::height", "ReferenceGenerator::reference"]
     done = subprocess.run([sys.executable, str(ECOS_SSP_OUTPUTS), str(fig7_archives["fig7_slow"]), "3.7", str(STEP),
-                           str(out), *names], env=preload_environment(), capture_output=True, text=True, timeout=600)
+                           str(out), *names], env=preload_environment(), capture_output=True, text=True, timeout=600,
+                          check=False)
     assert out.is_file(), done.stderr[-3000:]
     theirs = np.load(out)
     assert theirs["time"].size == jacobi_run.time.size == 7401
