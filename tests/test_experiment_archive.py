@@ -165,6 +165,14 @@ def test_each_structure_carries_the_staircase_nfal_run_used_to_feed(fig7_archive
     assert generated.reference == Staircase((70e-6, 90e-6), lead_s=expected.lead_s)
 
 
+def test_a_bad_generator_parameter_on_the_command_line_is_refused_by_name(fig7_archives, tmp_path, capsys):
+    archive = str(fig7_archives["fig7_slow"])
+    assert main(["run", archive, "--param", "ReferenceGenerator.levels=60e-6", "--out", str(tmp_path / "a")]) == 2
+    assert "levels_m = (6e-05,) is invalid: must be at least two levels" in capsys.readouterr().err  # a number, read as its text
+    assert main(["run", archive, "--param", "ReferenceGenerator.table=0,60e-6;0.1,-1", "--out", str(tmp_path / "b")]) == 2
+    assert "level 2 = -1.0 is invalid" in capsys.readouterr().err
+
+
 def _table(folder: Path):
     return read_results(folder / "results.csv")
 
