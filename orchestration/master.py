@@ -169,9 +169,10 @@ class _Slave:
             raise UnsupportedFeatureError(f"{self.name}.{variable.name}: cannot set a {variable.type} variable")
         getattr(self.fmu, f"set{suffix}")([variable.valueReference], [value])
 
-    def start(self, start_time: float, stop_time: float | None) -> None:
-        """setupExperiment, then enter initialisation mode."""
+    def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
         self.fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
+
+    def enter_initialization_mode(self) -> None:
         self.fmu.enterInitializationMode()
 
     def do_step(self, t: float, dt: float) -> None:
@@ -224,7 +225,11 @@ class _Slave3(_Slave):
             raise UnsupportedFeatureError(f"{self.name}.{variable.name}: cannot set a {variable.type} variable")
         getattr(self.fmu, f"set{suffix}")([variable.valueReference], [value])
 
-    def start(self, start_time: float, stop_time: float | None) -> None:
+    def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
+        self._experiment = (start_time, stop_time)  # FMI 3.0 has no setupExperiment: they go with the next call
+
+    def enter_initialization_mode(self) -> None:
+        start_time, stop_time = self._experiment
         self.fmu.enterInitializationMode(startTime=start_time, stopTime=stop_time)
 
     def do_step(self, t: float, dt: float) -> float | None:
@@ -569,7 +574,9 @@ class Master:
         slave = None
         try:
             for slave in self.slaves:
-                slave.start(self.start_time, stop_time)
+                slave.setup_experiment(self.start_time, stop_time)
+            for slave in self.slaves:  # as FMI 2.0 hosts do: every setupExperiment first, then initialisation
+                slave.enter_initialization_mode()
         except FMICallException as exc:
             raise self._failure(slave, exc) from None
         for slave in self.slaves:
