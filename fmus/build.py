@@ -67,6 +67,7 @@ FMU_SCRIPTS: dict[str, str] = {
     "ResonanceTracker": "resonance_tracker.py",
     "SensorChain": "sensor_chain.py",
     "HardwareProxy": "hardware_proxy.py",
+    "ReferenceGenerator": "reference_generator.py",
 }
 #: What every FMU copies from fmus/ beside its script.
 FMUS_SUPPORT = ("__init__.py", "base.py", "fmi3.py")

@@ -23,12 +23,16 @@ def structure_sources() -> Path:
     return Path(str(importlib.resources.files("nfal.ssp")))
 
 
-def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES + RIG_STRUCTURES) -> dict[str, Path]:
+def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES + RIG_STRUCTURES, *,
+              fmi_version: int = 2) -> dict[str, Path]:
     """Build the FMUs into ``out_dir`` (only those missing or older than their sources) and pack
-    ``<structure>.ssp`` for each of ``structures``. Returns {structure name: archive path}."""
+    ``<structure>.ssp`` for each of ``structures``. Returns {structure name: archive path}.
+
+    ``fmi_version=3``: the FMUs are FMI 3.0 co-simulation FMUs (pythonfmu3, :mod:`nfal.fmus.fmi3`), and the
+    archives the same structures wired to them (``nfal build --fmi 3`` puts them in ``build/fmi3/``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    fmus = build_fmus(out)
+    fmus = build_fmus(out, fmi_version=fmi_version)
     logger.info("FMUs in %s: %s", out, ", ".join(sorted(fmus)))
     sources = structure_sources()
     archives = {}

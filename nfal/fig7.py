@@ -15,10 +15,12 @@ from nfal.errors import InvalidParameterError
 from nfal.fig7_names import (  # noqa: F401
     CONTROLLER_CALIBRATION,
     EXCITATION_COMMAND,
+    GENERATED_REFERENCE,
     HARDWARE,
     PLANT_SHAPE,
     PROXY,
     REFERENCE,
+    REFERENCE_GENERATOR,
     SATURATED_TIME,
     SIMULATED,
     LoopColumns,
@@ -55,6 +57,39 @@ def reference_staircase(spec: str, structure: str, lead_s: float | None = None) 
                                     "or a CSV file") from None
 
 
+@dataclasses.dataclass(frozen=True)
+class GeneratedReference:
+    """What feeds ``Controller.reference`` in a structure: ``source`` (``Element.output``) and, when it is a
+    ReferenceGenerator FMU, the reference its parameters make (a Staircase or a StepSequence; None otherwise)."""
+
+    source: str
+    reference: object | None
+
+
+def generated_reference(system) -> GeneratedReference | None:
+    """The output connected to ``Controller.reference`` in the resolved ``system``
+    (:func:`nfal.orchestration.resolve`), or None: the structure leaves the reference to the host.
+
+    The ReferenceGenerator's reference is worked out from its parameters as the FMU works it out
+    (:func:`nfal.fmus.reference_generator.reference_of`): the SSD's bindings and ``--param`` overrides, the
+    FMU's defaults otherwise. A ``table`` that names a file inside the FMU, or another FMU, leaves it unknown.
+    """
+    # on use: the FMU's slave module (pythonfmu) loads only when a structure is read
+    from nfal.fmus.reference_generator import PARAMETERS, reference_of
+
+    link = next((l for l in system.links if l.target.path == REFERENCE), None)
+    if link is None:
+        return None
+    element = next(e for e in system.elements if e.name == link.source.element)
+    if element.model_description.coSimulation.modelIdentifier != REFERENCE_GENERATOR:
+        return GeneratedReference(link.source.path, None)
+    parameters = {name: value for name, value in element.start_values.items() if name in PARAMETERS}
+    table = str(parameters.get("table", "")).strip()
+    if table.lower().endswith(".csv") and "," not in table:
+        return GeneratedReference(link.source.path, None)  # a file inside the FMU: the FMU reads it
+    return GeneratedReference(link.source.path, reference_of(parameters))
+
+
 def matched_design(parameters: dict) -> dict:
     """``parameters`` with Controller.calibration = 'perturbation:SHAPE' added when Plant.shape = SHAPE is
     given and Controller.calibration is not: the Reynolds loop's controller is designed on the film it
@@ -72,7 +107,7 @@ def loop_columns(element_names) -> LoopColumns:
 def response_panels(columns: LoopColumns = SIMULATED) -> list:
     """Height (reference, true, measured) in um; excitation in um; the drive frequency's change in Hz (and, with
     hardware, the commanded and applied voltage and the age of the sample used)."""
-    heights = (REFERENCE, columns.measured) + ((columns.height,) if columns.height != columns.measured else ())
+    heights = (columns.reference, columns.measured) + ((columns.height,) if columns.height != columns.measured else ())
     excitation = tuple(dict.fromkeys((EXCITATION_COMMAND, columns.excitation)))
     return [PlotPanel(heights, 1e6, "height [um]"), PlotPanel(excitation, 1e6, "|a| [um]"),
             PlotPanel((columns.frequency,), 1.0, "drive frequency change [Hz]", from_start=True),
@@ -81,7 +116,7 @@ def response_panels(columns: LoopColumns = SIMULATED) -> list:
 
 def loop_run(table, name: str = "fmu loop", columns: LoopColumns = SIMULATED) -> ClosedLoopRun:
     """The Fig. 7 columns of a result table as a :class:`ClosedLoopRun` (for :func:`step_metrics`)."""
-    return ClosedLoopRun(name, np.asarray(table.time), np.asarray(table[REFERENCE]), np.asarray(table[columns.height]),
+    return ClosedLoopRun(name, np.asarray(table.time), np.asarray(table[columns.reference]), np.asarray(table[columns.height]),
                          np.asarray(table[columns.measured]), np.asarray(table[columns.excitation]))
 
 
@@ -90,7 +125,8 @@ def loop_metrics(table, reference: Staircase, columns: LoopColumns = SIMULATED) 
     long saturations (:func:`saturation_episodes`), and the first level apart (:func:`first_level`)."""
     run = loop_run(table, columns=columns)
     return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)],
-            "saturation": saturation_episodes(table), "first_level": first_level(run, reference)}
+            "saturation": saturation_episodes(table, reference_column=columns.reference),
+            "first_level": first_level(run, reference)}
 
 
 def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
@@ -101,14 +137,15 @@ def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
             "iae_m_s": total_iae(run, before), "steps_iae_m_s": total_iae(run, ~before)}
 
 
-def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S) -> list[dict]:
+def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S, *,
+                        reference_column: str = REFERENCE) -> list[dict]:
     """Every stretch in which the Controller's drive stayed saturated longer than ``longest_allowed_s``:
     its start, length and the reference then (what the film could not reach). Empty when the table has
     no ``Controller.saturated_time`` column (a controller without it)."""
     if SATURATED_TIME not in table:
         return []
     time, saturated = np.asarray(table.time), np.asarray(table[SATURATED_TIME])
-    reference = np.asarray(table[REFERENCE])
+    reference = np.asarray(table[reference_column])
     ends = np.flatnonzero((saturated[:-1] > 0) & (saturated[1:] <= saturated[:-1]))  # the run's last sample
     if saturated.size and saturated[-1] > 0:
         ends = np.append(ends, saturated.size - 1)

@@ -13,6 +13,10 @@ import dataclasses
 PROXY = "proxy"
 #: The Controller's reference input (what ``--reference`` drives) and its outputs.
 REFERENCE = "Controller.reference"
+#: The element that feeds REFERENCE in the Fig. 7 structures (the experiment in the archive; fmus/reference_generator.py),
+#: its FMU's model identifier and its output.
+REFERENCE_GENERATOR = "ReferenceGenerator"
+GENERATED_REFERENCE = f"{REFERENCE_GENERATOR}.reference"
 EXCITATION_COMMAND = "Controller.excitation_command"
 DRIVE_VOLTAGE = "Controller.drive_voltage"
 SATURATED_TIME = "Controller.saturated_time"
@@ -33,6 +37,7 @@ class LoopColumns:
     excitation: str
     frequency: str
     extra_panels: tuple = ()
+    reference: str = REFERENCE  #: the reference's column: the driven input, or GENERATED_REFERENCE
 
 
 SIMULATED = LoopColumns("Plant.height", "SensorChain.measured_height", "ResonanceTracker.excitation_amplitude",

@@ -1,4 +1,4 @@
-"""Runs SSP system structures of anyone's FMI 2.0 co-simulation FMUs over fmpy (never imports nfal.fmus).
+"""Runs SSP system structures of anyone's FMI 2.0 and FMI 3.0 co-simulation FMUs over fmpy (never imports nfal.fmus).
 
 Modules, one job each: :mod:`.ssp` reads SSP 1.0 into data classes; :mod:`.resolve` checks them
 against the FMUs and flattens them; :mod:`.schedule` orders the exchange at a communication point;

@@ -1,4 +1,4 @@
-"""The fixed-step co-simulation master over fmpy: any FMI 2.0 co-simulation FMUs.
+"""The fixed-step co-simulation master over fmpy: any FMI 2.0 or FMI 3.0 co-simulation FMUs, mixed at will.
 
 Two algorithms (docs/cosimulation.md, "The loop and the step order"):
 
@@ -23,6 +23,15 @@ instantiate it with a logger that keeps its last messages, set the start values 
 experiment, enter initialisation, set the external inputs at t0 and propagate (per algorithm), exit
 initialisation. The master's ``row`` holds every recorded value at the current communication point:
 ``[time, external inputs..., every output of every element...]`` (see ``columns``).
+
+An external input given for an input that a connection feeds replaces that connection for the run (logged),
+as a host's override does (libcosim's override manipulator): ``nfal run --reference`` drives
+``Controller.reference`` in place of the structure's ReferenceGenerator.
+
+FMI 3.0 (fmpy's ``FMU3Slave``): the same steps without ``setupExperiment`` (start and stop go to
+``fmi3EnterInitializationMode``); Float64/Float32 variables are Reals, Int8..UInt64 Integers (an
+Enumeration travels as Int64); a ``doStep`` that returns ``terminateSimulation`` ends the run at its
+``lastSuccessfulTime`` as an FMI 2.0 horizon end does.
 
 Values cross a link as the target's type (Integer -> Real) and through its ``LinearTransformation``,
 if any (:mod:`~nfal.orchestration.resolve`). An FMU that ends its own horizon (fmi2Discard from
@@ -51,6 +60,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2Integer, fmi2Real, fmi2True,
                        fmi2ValueReference)
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3True, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 
 from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
@@ -73,6 +83,14 @@ _CTYPES = {"Real": fmi2Real, "Integer": fmi2Integer, "Boolean": fmi2Boolean}
 _CONVERT: dict[str, Callable[[float], object]] = {"Real": float, "Integer": lambda v: int(round(v)),
                                                    "Boolean": lambda v: int(bool(v))}
 _ORDER = ("Real", "Integer", "Boolean")
+#: FMI 3.0: the function suffix (fmi3Get<X>/fmi3Set<X>, FMU3Slave.set<X>) and C type of each variable type.
+_FMI3_CALLS = {"Float64": ("Float64", ctypes.c_double), "Float32": ("Float32", ctypes.c_float),
+               "Boolean": ("Boolean", ctypes.c_bool), "Enumeration": ("Int64", ctypes.c_int64),
+               **{f"{sign}Int{bits}": (f"{sign}Int{bits}", getattr(ctypes, f"c_{sign.lower()}int{bits}"))
+                  for sign in ("", "U") for bits in (8, 16, 32, 64)}}
+#: FMI 2.0: the same (the transport type names the functions).
+_FMI2_CALLS = {"Real": ("Real", fmi2Real), "Integer": ("Integer", fmi2Integer), "Enumeration": ("Integer", fmi2Integer),
+               "Boolean": ("Boolean", fmi2Boolean)}
 
 
 def _route_log(environment, instance, status, category, message) -> None:
@@ -104,7 +122,9 @@ _NEXT_ID = itertools.count(1)
 
 
 class _Slave:
-    """One FMU instance: the fmpy object, its callbacks and what became of it."""
+    """One FMI 2.0 FMU instance: the fmpy object, its callbacks and what became of it."""
+
+    fmi = 2
 
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
         self.element, self.name = element, element.name
@@ -139,21 +159,127 @@ class _Slave:
         self.component = self.fmu.component
         self.state = "instantiated"
 
+    def calls(self, type_: str) -> tuple[str, type]:
+        """The suffix of the get/set functions of variables of ``type_`` and their C value type."""
+        return _FMI2_CALLS[type_]
+
+    def set_start(self, variable, value) -> None:
+        suffix = "String" if variable.type == "String" else _FMI2_CALLS.get(variable.type, (None,))[0]
+        if suffix is None:
+            raise UnsupportedFeatureError(f"{self.name}.{variable.name}: cannot set a {variable.type} variable")
+        getattr(self.fmu, f"set{suffix}")([variable.valueReference], [value])
+
+    def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
+        self.fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
+
+    def enter_initialization_mode(self) -> None:
+        self.fmu.enterInitializationMode()
+
+    def do_step(self, t: float, dt: float) -> None:
+        self.fmu.fmi2DoStep(self.component, t, dt, fmi2True)
+
+
+class _Slave3(_Slave):
+    """One FMI 3.0 co-simulation FMU instance (fmpy's FMU3Slave): as :class:`_Slave`, with FMI 3.0's calls."""
+
+    fmi = 3
+
+    def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
+        self.element, self.name = element, element.name
+        self.messages = collections.deque(maxlen=20)
+        self.reason_logged = False
+        self.state = "loaded"
+        self.step_time = 0.0
+        self.fmu_logging = fmu_logging
+        md = element.model_description
+        try:
+            self.fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzip_dir,
+                                 modelIdentifier=md.coSimulation.modelIdentifier, instanceName=element.name)
+        except Exception as exc:  # fmpy raises bare Exceptions for missing or unloadable binaries
+            raise FmuLoadError(f"element {self.name!r}: cannot load {element.source.name}: {exc}") from None
+        # FMI 3.0's logger has no instance name: one callback per instance, which knows its slave
+        slave = weakref.ref(self)
+        self._log_message = lambda environment, status, category, message: _log3(slave(), status, message)
+        self._event, self._terminate, self._early = fmi3Boolean(), fmi3Boolean(), fmi3Boolean()
+        self._last = fmi3Float64()
+        self._step_flags = (ctypes.byref(self._event), ctypes.byref(self._terminate), ctypes.byref(self._early),
+                            ctypes.byref(self._last))
+
+    def instantiate(self) -> None:
+        try:
+            self.fmu.instantiate(loggingOn=self.fmu_logging != "off", logMessage=self._log_message)
+        except Exception as exc:
+            raise FmuCallError(self.name, "fmi3InstantiateCoSimulation", 3, float("nan"),
+                               [*self.messages, str(exc)]) from None
+        self.component = self.fmu.component
+        self.state = "instantiated"
+
+    def calls(self, type_: str) -> tuple[str, type]:
+        if type_ not in _FMI3_CALLS:
+            raise UnsupportedFeatureError(f"element {self.name!r}: {type_} variables cannot be exchanged")
+        return _FMI3_CALLS[type_]
+
+    def set_start(self, variable, value) -> None:
+        suffix = "String" if variable.type == "String" else _FMI3_CALLS.get(variable.type, (None,))[0]
+        if suffix is None:
+            raise UnsupportedFeatureError(f"{self.name}.{variable.name}: cannot set a {variable.type} variable")
+        getattr(self.fmu, f"set{suffix}")([variable.valueReference], [value])
+
+    def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
+        self._experiment = (start_time, stop_time)  # FMI 3.0 has no setupExperiment: they go with the next call
+
+    def enter_initialization_mode(self) -> None:
+        start_time, stop_time = self._experiment
+        self.fmu.enterInitializationMode(startTime=start_time, stopTime=stop_time)
+
+    def do_step(self, t: float, dt: float) -> float | None:
+        """One fmi3DoStep; None, or the last successful time when the FMU asks to terminate the simulation."""
+        self.fmu.fmi3DoStep(self.component, t, dt, fmi3True, *self._step_flags)
+        return self._last.value if self._terminate.value else None
+
+
+def _log3(slave: "_Slave | None", status: int, message: bytes | None) -> None:
+    """The FMI 3.0 logger of ``slave`` (one per instance), routed as FMI 2.0 messages are."""
+    try:
+        text = message.decode("utf-8", "replace") if message else ""
+        level = _STATUS_LEVELS.get(status, logging.ERROR)
+        name = "?"
+        if slave is not None:
+            name = slave.name
+            if status >= 1:
+                slave.messages.append(text)
+            if status >= 3:  # the failing call's FmuCallError carries the messages
+                level = logging.DEBUG
+                slave.reason_logged = True
+        logger.log(level, "[%s] %s", name, text)
+    except Exception:  # pragma: no cover - never let an exception cross the C callback
+        pass
+
+
+def _slave(element: Element, unzip_dir: str, fmu_logging: str) -> _Slave:
+    """The instance of ``element``'s FMU for its FMI version."""
+    major = str(element.model_description.fmiVersion).split(".")[0]
+    return (_Slave3 if major == "3" else _Slave)(element, unzip_dir, fmu_logging)
+
 
 class _Transfer:
     """One fmi2Set<Type> or fmi2Get<Type> call: value references, a value buffer and row columns."""
 
     __slots__ = ("slave", "kind", "type", "names", "vr", "n", "buffer", "function", "component", "pairs", "scaled",
-                 "run")
+                 "run", "count", "boolean")
 
     def __init__(self, slave: _Slave, kind: str, type_: str, names: tuple[str, ...], columns: tuple[int, ...],
                  immediate: bool, transformations: tuple[LinearTransformation | None, ...] = ()) -> None:
         variables = slave.element.variables
         self.slave, self.kind, self.type, self.names = slave, kind, type_, names
         self.n = len(names)
-        self.vr = (fmi2ValueReference * self.n)(*(variables[n].valueReference for n in names))
-        self.buffer = (_CTYPES[type_] * self.n)()
-        self.function = getattr(slave.fmu, f"fmi2{kind.capitalize()}{type_}")
+        suffix, value_type = slave.calls(type_)
+        reference = fmi3ValueReference if slave.fmi == 3 else fmi2ValueReference
+        self.vr = (reference * self.n)(*(variables[n].valueReference for n in names))
+        self.buffer = (value_type * self.n)()
+        self.function = getattr(slave.fmu, f"fmi{slave.fmi}{kind.capitalize()}{suffix}")
+        self.count = (self.n,) if slave.fmi == 3 else ()  # FMI 3.0's nValues
+        self.boolean = slave.fmi == 3 and value_type is ctypes.c_bool  # read as 0/1, as FMI 2.0's fmi2Boolean
         transformations = transformations or (None,) * self.n
         # set: most values are copied; a connection's LinearTransformation is applied on the way
         self.pairs = tuple((j, c) for j, (c, f) in enumerate(zip(columns, transformations)) if f is None)
@@ -168,7 +294,11 @@ class _Transfer:
 
     def get(self, row: list) -> None:
         buffer = self.buffer
-        self.function(self.component, self.vr, self.n, buffer)
+        self.function(self.component, self.vr, self.n, buffer, *self.count)
+        if self.boolean:
+            for j, column in self.pairs:
+                row[column] = int(buffer[j])
+            return
         for j, column in self.pairs:
             row[column] = buffer[j]
 
@@ -180,11 +310,11 @@ class _Transfer:
             buffer[j] = factor * row[column] + offset
 
     def push(self, row: list | None = None) -> None:
-        self.function(self.component, self.vr, self.n, self.buffer)
+        self.function(self.component, self.vr, self.n, self.buffer, *self.count)
 
     def load_and_push(self, row: list) -> None:
         self.load(row)
-        self.function(self.component, self.vr, self.n, self.buffer)
+        self.function(self.component, self.vr, self.n, self.buffer, *self.count)
 
 
 _FMI2_LAST_SUCCESSFUL_TIME, _FMI2_TERMINATED = 2, 3  # fmi2StatusKind
@@ -201,11 +331,12 @@ class HorizonEnd:
     time_s: float
     step_completed: bool
     messages: list[str] = dataclasses.field(default_factory=list)
+    how: str = "fmi2Discard from fmi2DoStep, fmi2Terminated"
 
     @property
     def note(self) -> str:
-        return (f"{self.element} ended its own horizon at t = {self.time_s:g} s (fmi2Discard from fmi2DoStep, "
-                f"fmi2Terminated); the run stops there" + (f": {self.messages[-1]}" if self.messages else ""))
+        return (f"{self.element} ended its own horizon at t = {self.time_s:g} s ({self.how}); the run stops there"
+                + (f": {self.messages[-1]}" if self.messages else ""))
 
 
 class Master:
@@ -219,8 +350,9 @@ class Master:
     algorithm : {"causal", "jacobi"}
         See the module docstring.
     inputs : mapping, optional
-        External inputs: ``"Element.variable"`` (an input no connection feeds) or the name of an input
-        connector of the top-level system -> a function of time [s] or a constant (SI). A top-level
+        External inputs: ``"Element.variable"`` (an input; if a connection feeds it, this replaces the
+        connection) or the name of an input connector of the top-level system -> a function of time [s]
+        or a constant (SI). A top-level
         input connector with a bound value and no entry here is held at that value.
     fmu_logging : {"on", "off"}
         Instantiate with logging on (default: every category; messages go to this module's logger,
@@ -252,6 +384,7 @@ class Master:
     def _plan_columns(self, inputs: dict[str, object]) -> None:
         """Columns: time, external inputs, every recordable output; and who sets each driven input."""
         linked = {(l.target.element, l.target.name): l for l in self.system.links}
+        self.overridden: list = []  # connections an external input replaces
         self.columns: list[Column] = [Column("time", "s")]
         self.signals: list[tuple[int, Callable[[float], float], Callable]] = []
         self.sources: dict[tuple[str, str], int] = {}  # driven input -> row column
@@ -287,7 +420,9 @@ class Master:
                 self.output_columns[(element.name, output)] = len(self.columns)
                 self.columns.append(Column(f"{element.name}.{output}", variable_unit(variable), kind))
         self.transformations: dict[tuple[str, str], LinearTransformation] = {}
-        for link in self.system.links:
+        replaced = {id(link) for link in self.overridden}
+        self.links = tuple(link for link in self.system.links if id(link) not in replaced)
+        for link in self.links:
             key = (link.source.element, link.source.name)
             if key not in self.output_columns:
                 raise UnsupportedFeatureError(f"connection {link.source.path} -> {link.target.path}: "
@@ -312,8 +447,9 @@ class Master:
             raise CausalityError(f"external input {name!r}: {name} is a {variable.causality}, not an input "
                                  "(set parameters with parameter overrides)")
         if (element_name, variable_name) in linked:
-            raise CausalityError(f"external input {name!r}: {name} is already fed by "
-                                 f"{linked[(element_name, variable_name)].source.path}")
+            link = linked[(element_name, variable_name)]
+            logger.info("external input %r replaces the connection %s -> %s", name, link.source.path, link.target.path)
+            self.overridden.append(link)
         return [element.port(variable_name)]
 
     def _plan_exchange(self) -> None:
@@ -321,7 +457,7 @@ class Master:
         outputs = {e: [o for (el, o) in self.output_columns if el == e] for e in names}
         inputs = {e: [i for (el, i) in self.sources if el == e] for e in names}
         if self.algorithm == "causal":
-            links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.system.links]
+            links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.links]
             feedthrough = {e.name: e.feedthrough for e in self.system.elements}
             self.plan: tuple[Action, ...] = causal_sweep(names, outputs, inputs, links, feedthrough)
         else:
@@ -332,7 +468,7 @@ class Master:
                 logger.info("algebraic loop %s: broken by jacobi's one-step delay", loop)
 
     def _loop_under_jacobi(self, names, outputs, inputs) -> str | None:
-        links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.system.links]
+        links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.links]
         try:
             causal_sweep(names, outputs, inputs, links, {e.name: e.feedthrough for e in self.system.elements})
         except AlgebraicLoopError as exc:
@@ -370,7 +506,7 @@ class Master:
                     raise FmuLoadError(f"element {element.name!r}: cannot extract {source}: {exc}") from None
                 self._folders.append(folder)
                 folders[source] = folder
-            slave = _Slave(element, folder, self.fmu_logging)
+            slave = _slave(element, folder, self.fmu_logging)
             self._slaves[element.name] = slave
             slave.instantiate()
             self._apply_start_values(slave)
@@ -380,18 +516,8 @@ class Master:
         variables = slave.element.variables
         for name, value in slave.element.start_values.items():
             variable = variables[name]
-            vr = [variable.valueReference]
             try:
-                if variable.type == "Real":
-                    slave.fmu.setReal(vr, [value])
-                elif variable.type in ("Integer", "Enumeration"):
-                    slave.fmu.setInteger(vr, [value])
-                elif variable.type == "Boolean":
-                    slave.fmu.setBoolean(vr, [value])
-                elif variable.type == "String":
-                    slave.fmu.setString(vr, [value])
-                else:
-                    raise UnsupportedFeatureError(f"{slave.name}.{name}: cannot set a {variable.type} variable")
+                slave.set_start(variable, value)
             except FMICallException as exc:
                 raise self._failure(slave, exc, f" (setting {name} = {value!r}, from "
                                                 f"{slave.element.origins.get(name, '?')})") from None
@@ -402,13 +528,13 @@ class Master:
         self.sweep: list[_Transfer] = []
         for action in self.plan:
             slave = self._slaves[action.element]
-            by_type: dict[str, list[str]] = {}
+            by_type: dict[tuple[int, str], list[str]] = {}  # (transport order, FMU type) -> names
             for name in action.variables:
-                by_type.setdefault(TRANSPORT[slave.element.variables[name].type], []).append(name)
-            for kind in _ORDER:
-                names = tuple(by_type.get(kind, ()))
-                if not names:
-                    continue
+                type_ = slave.element.variables[name].type
+                type_ = type_ if slave.fmi == 3 else TRANSPORT[type_]
+                by_type.setdefault((_ORDER.index(TRANSPORT[type_]), type_), []).append(name)
+            for _, kind in sorted(by_type):
+                names = tuple(by_type[(_, kind)])
                 table = self.output_columns if action.kind == "get" else self.sources
                 columns = tuple(table[(action.element, n)] for n in names)
                 transformations = tuple(self.transformations.get((action.element, n)) for n in names) \
@@ -448,10 +574,11 @@ class Master:
         slave = None
         try:
             for slave in self.slaves:
-                slave.fmu.setupExperiment(startTime=self.start_time, stopTime=stop_time)
+                slave.setup_experiment(self.start_time, stop_time)
+            for slave in self.slaves:  # as FMI 2.0 hosts do: every setupExperiment first, then initialisation
+                slave.enter_initialization_mode()
         except FMICallException as exc:
             raise self._failure(slave, exc) from None
-        self._call_all("enterInitializationMode")
         for slave in self.slaves:
             slave.state = "initialization"
         self._update_signals()
@@ -494,11 +621,16 @@ class Master:
         for slave in self.slaves:
             started = clock()
             try:
-                slave.fmu.fmi2DoStep(slave.component, t, dt, fmi2True)
+                terminated_at = slave.do_step(t, dt)
             except FMICallException as exc:
                 self.ended = self._horizon_end(slave, exc, t + dt)
                 if not self.ended.step_completed:
                     return
+            else:
+                if terminated_at is not None:  # FMI 3.0: terminateSimulation
+                    self.ended = self._terminated(slave, terminated_at, t + dt)
+                    if not self.ended.step_completed:
+                        return
             finally:
                 slave.step_time += clock() - started
         self.step_index += 1
@@ -513,7 +645,7 @@ class Master:
     def _horizon_end(self, slave: _Slave, exc: FMICallException, step_end: float) -> "HorizonEnd":
         """A discarded doStep is the end of the FMU's horizon if it says it has terminated (FMI 2.0,
         fmi2GetBooleanStatus(fmi2Terminated)); anything else is a failure."""
-        if exc.status != fmi2Discard:
+        if exc.status != fmi2Discard or slave.fmi == 3:  # FMI 3.0 ends a horizon with terminateSimulation
             raise self._failure(slave, exc) from None
         terminated, reached = fmi2Boolean(0), fmi2Real(0.0)
         try:
@@ -529,6 +661,13 @@ class Master:
             last = self.time
         ended = HorizonEnd(slave.name, last, abs(last - step_end) <= 1e-9 * max(1.0, abs(step_end)),
                            list(slave.messages))
+        logger.warning("%s", ended.note)
+        return ended
+
+    def _terminated(self, slave: _Slave, last: float, step_end: float) -> HorizonEnd:
+        """FMI 3.0: fmi3DoStep asked to terminate the simulation, having reached ``last``."""
+        ended = HorizonEnd(slave.name, last, abs(last - step_end) <= 1e-9 * max(1.0, abs(step_end)),
+                           list(slave.messages), "terminateSimulation from fmi3DoStep")
         logger.warning("%s", ended.note)
         return ended
 

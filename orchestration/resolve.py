@@ -53,6 +53,16 @@ logger = logging.getLogger(__name__)
 UNDECLARED_DEPENDENCIES = ("none", "all")
 #: FMU variable types the master moves and records, with the transport type of each.
 TRANSPORT = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Boolean": "Boolean", "String": "String"}
+#: FMI 3.0 variable types -> the FMI 2.0 type they stand for here (their values cross links as that type).
+FMI3_KINDS = {"Float64": "Real", "Float32": "Real", **{f"{sign}Int{bits}": "Integer" for sign in ("", "U")
+                                                          for bits in (8, 16, 32, 64)}}
+TRANSPORT.update(FMI3_KINDS)
+
+
+def variable_kind(variable: ModelVariable) -> str:
+    """The variable's type as FMI 2.0 names it (Real, Integer, Enumeration, Boolean, String, ...): an FMI 3.0
+    Float64 is a Real, an Int32 an Integer."""
+    return FMI3_KINDS.get(variable.type, variable.type)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,9 +201,9 @@ def load_model_description(name: str, source: Path) -> ModelDescription:
             md = read_model_description(str(source), validate=False)
     except Exception as exc:  # fmpy raises bare Exceptions for unreadable FMUs
         raise StructureError(f"element {name!r}: cannot read the modelDescription.xml of {source}: {exc}") from None
-    if not str(md.fmiVersion).startswith("2."):
+    if not str(md.fmiVersion).startswith(("2.", "3.")):
         raise UnsupportedFeatureError(f"element {name!r}: {source.name} is an FMI {md.fmiVersion} FMU; only FMI 2.0 "
-                                      "co-simulation FMUs are supported")
+                                      "and FMI 3.0 co-simulation FMUs are supported")
     if md.coSimulation is None:
         raise UnsupportedFeatureError(f"element {name!r}: {source.name} has no co-simulation interface "
                                       "(model exchange only)")
@@ -221,7 +231,7 @@ def coerce_value(variable: ModelVariable, value: object, where: str, *, strict_t
     Strings are parsed by the variable's type ("1e-6", "true", an enumeration item name). With
     ``strict_type`` (the type an .ssv declares), only Integer -> Real widening is allowed.
     """
-    kind = variable.type
+    kind = variable_kind(variable)
     if strict_type is not None and TRANSPORT.get(strict_type, strict_type) != TRANSPORT.get(kind, kind) \
             and not (strict_type == "Integer" and kind == "Real") \
             and not (strict_type == "Enumeration" and kind in ("Enumeration", "Integer")):
@@ -264,6 +274,8 @@ def coerce_value(variable: ModelVariable, value: object, where: str, *, strict_t
     if kind == "String":
         if isinstance(value, str):
             return value
+        if strict_type is None and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return repr(value)  # a command line's number (--param X.levels=60e-6) for a String: its text
         raise bad
     raise UnsupportedFeatureError(f"{where}: variables of type {kind} are not supported")
 

@@ -133,7 +133,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                   metrics: Callable[[ResultTable], Mapping] | None = None, undeclared_dependencies: str = "none",
                   fmu_logging: str = "on", flush_interval_s: float = 0.25, rt_priority: int | None = None,
                   overwrite: bool = False, max_steps: int | None = None) -> RunResult:
-    """Run an SSP 1.0 system structure of FMI 2.0 co-simulation FMUs with a fixed step.
+    """Run an SSP 1.0 system structure of FMI 2.0 and FMI 3.0 co-simulation FMUs (mixed at will) with a fixed step.
 
     Parameters
     ----------
@@ -145,6 +145,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     inputs : mapping, optional
         External inputs: ``"Element.variable"`` or a top-level system input connector -> a function
         of time (e.g. :func:`~nfal.orchestration.signals.staircase`, a ``Staircase``) or a constant.
+        An input that a connection feeds is driven from here instead (the connection is replaced).
     parameters : mapping, optional
         ``"Element.variable"`` -> value, applied after the SSD's parameter bindings. Strings are parsed
         by the variable's type.

@@ -541,6 +541,13 @@ def cli_cases() -> list[Case]:
         Case("run-reference-staircase-negative-hold", "cli-run", RUN + ["--reference", "staircase:1e-4,1.4e-4:-1"]),
         Case("run-reference-staircase-junk", "cli-run", RUN + ["--reference", "staircase:a,b"]),
         Case("run-reference-input-unknown", "cli-run", RUN + ["--reference-input", "Nothing.x"]),
+        # the structure's own experiment (the ReferenceGenerator), edited from the command line
+        Case("run-generator-levels-mm", "cli-run", RUN + ["--param", "ReferenceGenerator.levels=100 140"]),
+        Case("run-generator-levels-junk", "cli-run", RUN + ["--param", "ReferenceGenerator.levels=60um,100um"]),
+        Case("run-generator-one-level", "cli-run", RUN + ["--param", "ReferenceGenerator.levels=60e-6"]),
+        Case("run-generator-hold-negative", "cli-run", RUN + ["--param", "ReferenceGenerator.hold=-0.6"]),
+        Case("run-generator-table-nan", "cli-run", RUN + ["--param", "ReferenceGenerator.table=0,60e-6;0.01,nan"]),
+        Case("run-generator-table-outside", "cli-run", RUN + ["--param", "ReferenceGenerator.table=../../../etc/x.csv"]),
         Case("run-rt-priority-without-realtime", "cli-run", RUN + ["--rt-priority", "50"]),
         Case("run-rt-priority-200", "cli-run", RUN + ["--realtime", "--rt-priority", "200"]),
         Case("run-hil-without-port", "cli-run", ["run", "fig7_hil", "--build-dir", "{build}", "--out", "out"]),

@@ -14,8 +14,8 @@ def test_build_packs_every_structure(capsys, tmp_path):
     archives = json.loads(capsys.readouterr().out)
     assert set(archives) == {"fig7_slow", "fig7_reynolds", "fig7_hil", "rig_slow", "rig_reynolds"}
     assert sorted(p.name for p in tmp_path.glob("*.fmu")) == [
-        "Controller.fmu", "HardwareProxy.fmu", "ResonanceTracker.fmu", "ReynoldsPlant.fmu", "SensorChain.fmu",
-        "SlowPlant.fmu"]
+        "Controller.fmu", "HardwareProxy.fmu", "ReferenceGenerator.fmu", "ResonanceTracker.fmu", "ReynoldsPlant.fmu",
+        "SensorChain.fmu", "SlowPlant.fmu"]
 
 
 def test_run_writes_results_summary_and_plot(capsys, tmp_path, fig7_archives):

@@ -1,4 +1,4 @@
-"""FMI 3.0 variants of the six FMUs (``nfal build --fmi 3``, fmus/fmi3.py): valid, and equal to FMI 2.0 in FMPy.
+"""FMI 3.0 variants of the FMUs (``nfal build --fmi 3``, fmus/fmi3.py): valid, and equal to FMI 2.0 in FMPy.
 
 Each FMU is the same slave (fmus/<slave>.py) packed with pythonfmu3's FMI 3.0 wrapper; FMPy runs both
 builds with the same start values and inputs, and the outputs must agree exactly (the same Python code
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import zipfile
 import sys
 from pathlib import Path
 
@@ -30,6 +31,7 @@ SCENARIOS = {
     "Controller": ({"reference": 100e-6, "measured_height": 60e-6}, 0.05),
     "ResonanceTracker": ({"drive_voltage": 50.0, "resonance_shift": 20.0}, 0.05),
     "SensorChain": ({"true_height": 80e-6, "noise_peak": 2e-6}, 0.05),
+    "ReferenceGenerator": ({"lead": 0.01, "hold": 0.02}, 0.05),
 }
 STEP = 5e-4
 ECOS_OUTPUTS = Path(__file__).parent / "hosts" / "ecos_outputs.py"
@@ -180,8 +182,11 @@ def test_fmi3_bad_parameter_is_one_logged_error_not_a_crash(builds):
     assert 0 < float(lines[-1]) < 1e-3  # the same process still runs the FMU
 
 
-def test_nfal_build_fmi3_builds_the_fmus_only(capsys, tmp_path):
+def test_nfal_build_fmi3_builds_the_fmus_and_packs_the_structures(capsys, tmp_path):
     assert main(["build", "--fmi", "3", "--out", str(tmp_path), "--json"]) == 0
-    out = capsys.readouterr().out
+    archives = json.loads(capsys.readouterr().out)
     assert sorted(p.name for p in (tmp_path / "fmi3").glob("*.fmu")) == sorted(f"{n}.fmu" for n in FMU_SCRIPTS)
-    assert "SlowPlant" in out and not list(tmp_path.glob("*.ssp"))
+    assert archives["fig7_slow"] == str(tmp_path / "fmi3" / "fig7_slow.ssp") and not list(tmp_path.glob("*.ssp"))
+    with zipfile.ZipFile(archives["fig7_slow"]) as packed:
+        with packed.open("resources/SlowPlant.fmu") as fmu, zipfile.ZipFile(fmu) as inner:
+            assert b'fmiVersion="3.0"' in inner.read("modelDescription.xml")

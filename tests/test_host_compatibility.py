@@ -21,7 +21,7 @@ from nfal.orchestration.ssp_archive import pack
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="LD_PRELOAD is the Linux mechanism")]
 
-FIG7_FMUS = ["SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain"]
+FIG7_FMUS = ["SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain", "ReferenceGenerator"]
 RUNS = 10
 STOP_S, STEP_S = 0.01, 5e-4
 ECOS_STOP_S = 0.2

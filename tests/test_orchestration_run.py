@@ -153,13 +153,24 @@ def test_staircase_drives_an_input_like_the_python_loop_sees_it(tmp_path, toys):
 
 
 @pytest.mark.parametrize("inputs, error", [
-    ({"Controller.u": 1.0}, CausalityError),  # already fed by Plant.x
     ({"Controller.k": 1.0}, CausalityError),  # a parameter
     ({"Controller.nothing": 1.0}, UnknownConnectorError),
 ])
 def test_bad_external_inputs_are_named(loop, tmp_path, inputs, error):
     with pytest.raises(error, match=list(inputs)[0].replace(".", r"\.")):
         run_structure(loop, inputs=inputs, out_dir=tmp_path, progress=False)
+
+
+@pytest.mark.parametrize("algorithm", ["causal", "jacobi"])
+def test_an_external_input_replaces_the_connection_it_names(loop, tmp_path, algorithm):
+    """A host's override: Controller.u held at 0.5 instead of Plant.x, so y = k 0.5 and x' = k 0.5 (a ramp)."""
+    result = run_structure(loop, inputs={"Controller.u": 0.5}, algorithm=algorithm, out_dir=tmp_path, progress=False,
+                           plot=False)
+    np.testing.assert_array_equal(result["Controller.u"], 0.5)
+    np.testing.assert_allclose(result["Controller.y"], GAIN * 0.5, rtol=1e-12)
+    np.testing.assert_allclose(result["Plant.x"], X0 + GAIN * 0.5 * DT * np.arange(STEPS + 1), rtol=1e-12, atol=1e-14)
+    assert "Plant.x -> Controller.u" in result.summary["connections"]  # the structure's, as written
+    assert result.summary["exchange_order"] and result.summary["status"] == "ok"
 
 
 def test_results_files(loop, tmp_path):

@@ -26,7 +26,8 @@ from nfal.orchestration.ssp_schema import (SSC_NS, SSD_NS, SSV_NS, libcosim_port
 SSP_DIR = structure_sources()
 SSP_FILES = sorted(p.name for p in SSP_DIR.iterdir() if p.suffix in (".ssd", ".ssv"))
 STRUCTURES = {"fig7_slow.ssd": "SlowPlant.fmu", "fig7_reynolds.ssd": "ReynoldsPlant.fmu"}
-FMU_NAMES = ("SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain", "HardwareProxy")
+FMU_NAMES = ("SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain", "HardwareProxy",
+             "ReferenceGenerator")
 RIG_STRUCTURES = {"rig_slow.ssd": "SlowPlant.fmu", "rig_reynolds.ssd": "ReynoldsPlant.fmu"}
 D, C, V = f"{{{SSD_NS}}}", f"{{{SSC_NS}}}", f"{{{SSV_NS}}}"
 
@@ -36,6 +37,7 @@ FIG7_CONNECTIONS = {
     ("ResonanceTracker", "drive_frequency", "Plant", "drive_frequency"),
     ("Plant", "height", "SensorChain", "true_height"),
     ("SensorChain", "measured_height", "Controller", "measured_height"),
+    ("ReferenceGenerator", "reference", "Controller", "reference"),
 }
 PAPER_RIG = {"mass": 0.1347, "radius": 0.05, "nominal_frequency": 28500.0, "viscosity": 1.81e-5,
              "ambient_pressure": 101325.0, "gravity": 9.81, "calibration": "paper"}
@@ -46,6 +48,8 @@ BINDINGS = {"Plant": ["paper_rig.ssv"], "Controller": ["paper_rig.ssv", "table2.
             "ResonanceTracker": ["table2.ssv"], "SensorChain": ["table2.ssv"]}
 #: The Reynolds loop's controller is designed on the film it controls (docs/cosimulation.md).
 EXTRA_BINDINGS = {"fig7_slow.ssd": [], "fig7_reynolds.ssd": ["reynolds_design.ssv"]}
+#: The ReferenceGenerator's binding: none (its defaults are the paper's staircase) or the loop's own staircase.
+REFERENCE_BINDINGS = {"fig7_slow.ssd": [], "fig7_reynolds.ssd": ["reference_reynolds.ssv"]}
 
 
 def _root(name: str) -> etree._Element:
@@ -81,7 +85,7 @@ def archives(fmu_dir, tmp_path_factory) -> dict[str, Path]:
 # --- the shipped files --------------------------------------------------------------------------------
 
 def test_the_shipped_files_are_the_expected_ones():
-    assert SSP_FILES == ["fig7_hil.ssd", "fig7_reynolds.ssd", "fig7_slow.ssd", "paper_rig.ssv", "reynolds_design.ssv", "rig_reynolds.ssd",
+    assert SSP_FILES == ["fig7_hil.ssd", "fig7_reynolds.ssd", "fig7_slow.ssd", "paper_rig.ssv", "reference_reynolds.ssv", "reynolds_design.ssv", "rig_reynolds.ssd",
                          "rig_slow.ssd", "rig_truth.ssv", "table2.ssv"]
     assert sorted(p.name for p in schema_dir().glob("*.xsd")) == [
         "SystemStructureCommon.xsd", "SystemStructureDescription.xsd", "SystemStructureParameterMapping.xsd",
@@ -105,19 +109,19 @@ def test_ssp_file_uses_the_literal_prefixes_libcosim_needs(name):
 def test_structure_is_the_fig7_loop(name):
     root = _root(name)
     components = {c.get("name"): c for c in root.iterfind(f"{D}System/{D}Elements/{D}Component")}
-    assert set(components) == {"Plant", "Controller", "ResonanceTracker", "SensorChain"}
+    assert set(components) == {"Plant", "Controller", "ResonanceTracker", "SensorChain", "ReferenceGenerator"}
     assert components["Plant"].get("source") == f"resources/{STRUCTURES[name]}"
-    for element in ("Controller", "ResonanceTracker", "SensorChain"):
+    for element in ("Controller", "ResonanceTracker", "SensorChain", "ReferenceGenerator"):
         assert components[element].get("source") == f"resources/{element}.fmu"
     connections = {(c.get("startElement"), c.get("startConnector"), c.get("endElement"), c.get("endConnector"))
                    for c in root.iterfind(f"{D}System/{D}Connections/{D}Connection")}
     assert connections == FIG7_CONNECTIONS
-    # Controller.reference is declared but left for the host to drive.
+    # Controller.reference is fed by the ReferenceGenerator: the experiment travels with the archive.
     assert "reference" in {c.get("name") for c in components["Controller"].iterfind(f"{D}Connectors/{D}Connector")}
-    assert not any(end[2:] == ("Controller", "reference") for end in connections)
     bindings = {n: [b.get("source").removeprefix("resources/")
                     for b in c.iterfind(f"{D}ParameterBindings/{D}ParameterBinding")] for n, c in components.items()}
-    assert bindings == {**BINDINGS, "Controller": BINDINGS["Controller"] + EXTRA_BINDINGS[name]}
+    assert bindings == {**BINDINGS, "Controller": BINDINGS["Controller"] + EXTRA_BINDINGS[name],
+                        "ReferenceGenerator": REFERENCE_BINDINGS[name]}
 
 
 @pytest.mark.parametrize("name", STRUCTURES)
@@ -154,6 +158,7 @@ def test_swapping_the_plant_is_one_element():
             root.attrib.pop(attribute)
         elements = root.find(f"{D}System/{D}Elements")
         elements.remove(elements.find(f"{D}Component[@name='Plant']"))
+        elements.remove(elements.find(f"{D}Component[@name='ReferenceGenerator']"))  # its staircase differs
         for binding in root.iterfind(f".//{D}ParameterBinding[@source='resources/reynolds_design.ssv']"):
             binding.getparent().remove(binding)
         return re.sub(rb">\s+<", b"><", etree.tostring(root, method="c14n", with_comments=False))
@@ -173,11 +178,14 @@ def _connections(name: str) -> set:
 
 
 def test_hil_structure_keeps_the_controller_and_experiment_exactly():
-    """The HIL variant swaps the rig's blocks for the proxy; the Controller element is byte for byte the same."""
+    """The HIL variant swaps the rig's blocks for the proxy; the Controller element is byte for byte the same, and the
+    experiment is the staircase after a 1 s lift-off lead (which nfal run drives), at the same step."""
     canonical = lambda e: etree.tostring(e, method="c14n", with_comments=False)  # noqa: E731
     assert canonical(_component("fig7_hil.ssd", "Controller")) == canonical(_component("fig7_slow.ssd", "Controller"))
-    assert canonical(_root("fig7_hil.ssd").find(f"{D}DefaultExperiment")) == \
-        canonical(_root("fig7_slow.ssd").find(f"{D}DefaultExperiment"))
+    hil, slow = (_root(name).find(f"{D}DefaultExperiment") for name in ("fig7_hil.ssd", "fig7_slow.ssd"))
+    assert float(hil.get("stopTime")) == pytest.approx(float(slow.get("stopTime")) + 0.9)  # lead 0.1 -> 1 s
+    assert canonical(hil.find(f"{D}Annotations")) == canonical(slow.find(f"{D}Annotations"))
+
 
 
 def test_hil_structure_wires_the_proxy():
@@ -265,8 +273,8 @@ def test_packed_archive_layout(archives, name):
         assert archive.read("SystemStructure.ssd") == (SSP_DIR / name).read_bytes()
     assert sorted(names[1:]) == sorted(
         ["resources/Controller.fmu", "resources/ResonanceTracker.fmu", "resources/SensorChain.fmu",
-         f"resources/{STRUCTURES[name]}", "resources/paper_rig.ssv", "resources/table2.ssv",
-         *(f"resources/{ssv}" for ssv in EXTRA_BINDINGS[name])])
+         "resources/ReferenceGenerator.fmu", f"resources/{STRUCTURES[name]}", "resources/paper_rig.ssv",
+         "resources/table2.ssv", *(f"resources/{ssv}" for ssv in EXTRA_BINDINGS[name] + REFERENCE_BINDINGS[name])])
 
 
 @pytest.mark.parametrize("name", STRUCTURES)
@@ -282,14 +290,14 @@ def test_packing_is_reproducible(fmu_dir, archives, tmp_path):
 def test_referenced_resources_in_document_order():
     assert referenced_resources(SSP_DIR / "fig7_slow.ssd") == {
         "fmu": ["resources/SlowPlant.fmu", "resources/Controller.fmu", "resources/ResonanceTracker.fmu",
-                "resources/SensorChain.fmu"],
+                "resources/SensorChain.fmu", "resources/ReferenceGenerator.fmu"],
         "ssv": ["resources/paper_rig.ssv", "resources/table2.ssv"], "other": []}
 
 
 def test_a_missing_fmu_is_named(fmu_dir, tmp_path):
     partial = tmp_path / "fmus"
     partial.mkdir()
-    for name in ("SlowPlant", "Controller", "SensorChain"):
+    for name in ("SlowPlant", "Controller", "SensorChain", "ReferenceGenerator"):
         (partial / f"{name}.fmu").write_bytes((fmu_dir / f"{name}.fmu").read_bytes())
     with pytest.raises(MissingFmuError, match="references ResonanceTracker.fmu, not in .*holds Controller.fmu"):
         pack(SSP_DIR / "fig7_slow.ssd", partial, tmp_path / "out.ssp")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import sys
 from pathlib import Path
@@ -20,9 +21,10 @@ def register(commands) -> None:
         "rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
     build.add_argument("--out", default="build", metavar="DIR", help="output folder (default build/)")
     build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
-                       help="FMI version: 2 (default; FMUs and SSP archives) or 3 (the same six FMUs as FMI 3.0 "
-                       "co-simulation FMUs, with pythonfmu3, into DIR/fmi3/; no archives: `nfal run` runs FMI 2.0)")
-    build.add_argument("--json", action="store_true", help="print the built archives (FMUs with --fmi 3) as JSON")
+                       help="FMI version: 2 (default) or 3 (the same FMUs as FMI 3.0 co-simulation FMUs, with "
+                       "pythonfmu3, and the same SSP archives wired to them, into DIR/fmi3/: `nfal run "
+                       "DIR/fmi3/fig7_slow.ssp` runs them)")
+    build.add_argument("--json", action="store_true", help="print the built archives as JSON")
     build.set_defaults(handler=run_build)
 
     run = commands.add_parser(
@@ -30,9 +32,13 @@ def register(commands) -> None:
         description="Run an SSP system structure with the fixed-step master over fmpy. Without STRUCTURE, builds "
         "what is missing and runs fig7_slow (gain-scheduled PID, slow plant, resonance tracker, sensor chain) on the "
         "reference of Figs. 9-10, writing runs/<name>/results.csv, summary.json and response.png, and printing the "
-        "step metrics. Start, stop and step come from the structure's ssd:DefaultExperiment (startTime, stopTime; the "
-        "step from its OSP FixedStepAlgorithm baseStepSize annotation) unless --start-time, --stop-time or --step is "
-        "given. An FMU that ends its own horizon (fmi2Discard, then fmi2Terminated) ends the run there, with a note.",
+        "step metrics. The experiment is the structure's: its ReferenceGenerator element drives Controller.reference "
+        "(the staircase, as its parameters say) unless --reference is given, and start, stop and step come from its "
+        "ssd:DefaultExperiment (startTime, stopTime; the step from its OSP FixedStepAlgorithm baseStepSize annotation) "
+        "unless --start-time, --stop-time or --step is given; the reference's own length is the stop time only where "
+        "the structure has none, and a run says so where the two differ. FMI 2.0 and FMI 3.0 co-simulation FMUs, "
+        "mixed at will. An FMU that ends its own horizon (fmi2Discard, then fmi2Terminated; FMI 3.0: "
+        "terminateSimulation) ends the run there, with a note.",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
         "nfal run --reference my_reference.csv --realtime; hardware in the loop against `nfal rig-emulator` or the rig: "
@@ -43,17 +49,20 @@ def register(commands) -> None:
     run.add_argument("--start-time", type=finite_float, metavar="S",
                      help="start time [s] (default: the structure's DefaultExperiment startTime, else 0)")
     run.add_argument("--stop-time", type=positive_float, metavar="S",
-                     help="stop time [s] (default: the built-in staircase's length when it drives the reference, 3.7 s "
-                     "(4.7 s against hardware); else the structure's DefaultExperiment stopTime)")
+                     help="stop time [s] (default: the structure's DefaultExperiment stopTime: 3.7 s for fig7_slow and "
+                     "fig7_reynolds, 4.6 s for fig7_hil; where it has none, the reference's length)")
     run.add_argument("--step", type=positive_float, metavar="S", help="communication step [s] (default: the structure's "
                      "DefaultExperiment FixedStepAlgorithm baseStepSize annotation, 5e-4 s (2 kHz) for Fig. 7)")
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                      help="override a parameter or start value (repeatable)")
-    run.add_argument("--reference", default="staircase", metavar="staircase[:L1,L2,...[:HOLD[:LEAD]]]|FILE.csv",
-                     help="reference on Controller.reference: the built-in staircase of Figs. 9-10 (60-180 um; against "
+    run.add_argument("--reference", metavar="staircase[:L1,L2,...[:HOLD[:LEAD]]]|FILE.csv",
+                     help="drive Controller.reference from the master instead of the structure's ReferenceGenerator (its "
+                     "connection is replaced): the built-in staircase of Figs. 9-10 (60-180 um; against "
                      "hardware its first level is held 1 s, for lift-off from rest; fig7_reynolds: 60-100 um, what the "
                      "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s; step "
-                     "metrics are reported for it) or a CSV of time_s,reference_m (held between rows) (default staircase). "
+                     "metrics are reported for it) or a CSV of time_s,reference_m (held between rows). Default: the "
+                     "structure's ReferenceGenerator (its parameters: --param ReferenceGenerator.levels=... etc.; "
+                     "docs/cosimulation.md), or the built-in staircase in a structure without one. "
                      "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
                      "perturbation:SHAPE) unless Controller.calibration is given")
     run.add_argument("--reference-input", metavar="ELEMENT.VAR",
@@ -84,9 +93,8 @@ def register(commands) -> None:
 def run_build(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.build import build_all
-    from nfal.fmus.build import build_fmus
 
-    archives = build_all(args.out) if args.fmi == 2 else build_fmus(Path(args.out) / "fmi3", fmi_version=3)
+    archives = build_all(args.out) if args.fmi == 2 else build_all(Path(args.out) / "fmi3", fmi_version=3)
     if args.json:
         print_json({name: str(path) for name, path in archives.items()})
     else:
@@ -144,16 +152,39 @@ def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
     from nfal.fig7 import reference_staircase
     from nfal.orchestration.signals import csv_signal
 
-    staircase = reference_staircase(args.reference, structure.stem, HARDWARE_LEAD_S if hardware else None)
-    return csv_signal(args.reference) if staircase is None else staircase
+    spec = args.reference or "staircase"
+    staircase = reference_staircase(spec, structure.stem, HARDWARE_LEAD_S if hardware else None)
+    return csv_signal(spec) if staircase is None else staircase
 
 
-def _element_names(structure: Path) -> list[str]:
+def _read_structure(structure: Path, parameters: dict):
+    """(element names, the DefaultExperiment's stop time or None, the GeneratedReference or None)."""
     # on use: `nfal --help` stays fast
+    from nfal.fig7 import generated_reference
     from nfal.orchestration import read_ssp
+    from nfal.orchestration.resolve import resolve
 
     with read_ssp(structure) as read:
-        return [element.name for element in read.system.elements]
+        names = [element.name for element in read.system.elements]
+        stop = read.default_experiment.stop_time
+        generated = generated_reference(resolve(read, parameters)) if "Controller" in names else None
+    return names, stop, generated
+
+
+def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> tuple[float | None, str | None]:
+    """The run's stop time and a note where the structure's and the reference's differ: --stop-time, else the
+    SSD's DefaultExperiment stopTime, else the reference's length (the staircase is a default only where the
+    SSD says nothing)."""
+    length = getattr(reference, "duration_s", None) if reference is not None else None
+    if args.stop_time is not None:
+        return args.stop_time, None
+    if ssd_stop is None:
+        return length, None
+    if length is not None and abs(length - ssd_stop) > 1e-9 * max(1.0, length):
+        where = "before the reference's end" if ssd_stop < length else "after the reference's last change"
+        return ssd_stop, (f"the structure's DefaultExperiment stopTime ({ssd_stop:g} s) governs, {where}: the reference "
+                          f"lasts {length:g} s (--stop-time {length:g} runs all of it)")
+    return ssd_stop, None
 
 
 def run_run(args: argparse.Namespace) -> int:
@@ -166,7 +197,7 @@ def run_run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("--max-steps", args.max_steps, "a whole number of steps >= 1")
     parameters = matched_design(dict(parse_parameter(text) for text in args.param))
     structure = _structure_path(args)
-    names = _element_names(structure)
+    names, ssd_stop, generated = _read_structure(structure, parameters)
     columns = loop_columns(names)
     if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a device "
@@ -177,13 +208,18 @@ def run_run(args: argparse.Namespace) -> int:
         args.realtime = True
     if args.rt_priority is not None and not args.realtime:
         raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
-    reference = _reference(args, columns is HARDWARE, structure)
     reference_input = args.reference_input or (REFERENCE if "Controller" in names else "none")
-    inputs = {} if reference_input == "none" else {reference_input: reference}
+    from_structure = args.reference is None and reference_input == REFERENCE and generated is not None
+    if from_structure:  # the experiment in the archive: its ReferenceGenerator drives the reference
+        reference, inputs = generated.reference, {}
+        columns = dataclasses.replace(columns, reference=generated.source)
+    else:
+        reference = _reference(args, columns is HARDWARE, structure)
+        inputs = {} if reference_input == "none" else {reference_input: reference}
     inputs.update(parse_input(text) for text in args.input)
-    stop_time = args.stop_time
-    if stop_time is None and reference_input != "none" and isinstance(reference, Staircase):
-        stop_time = reference.duration_s  # the staircase's steps complete (against hardware, after its lead)
+    stop_time, note = _stop_time(args, ssd_stop, reference if reference_input != "none" else None)
+    if note:
+        print(f"nfal run: {note}", file=sys.stderr)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
     fig7 = reference_input == REFERENCE
@@ -201,6 +237,9 @@ def run_run(args: argparse.Namespace) -> int:
             _report(exc.result.summary, out, args.json)
         raise
     _add_link_summary(result, columns)
+    experiment = {"reference": generated.source if from_structure else (reference_input if fig7 else None),
+                  "stop_time_note": note}
+    result.update_summary(experiment=experiment)
     _report(result.summary, out, args.json)
     return 0
 
