@@ -77,7 +77,7 @@ static void configure(void) {
 
 static void tick(void) {
     static uint8_t in[TUNNEL_BYTES];
-    uint8_t head[2], end[13];
+    uint8_t head[2], end[18];
     uint16_t n;
     uint32_t start, cost;
     plat_plant_read(head, 2);
@@ -98,8 +98,10 @@ static void tick(void) {
     end[5] = (uint8_t)fw.last_status;
     end[6] = (uint8_t)(fw.last_status >> 8);
     memcpy(end + 7, &fw.applied, 4);
-    end[11] = (uint8_t)plant.out_len;
-    end[12] = (uint8_t)(plant.out_len >> 8);
+    put_u32(end + 11, fw.command_seq);
+    end[15] = (uint8_t)(fw.armed | (fw.ramping << 1));
+    end[16] = (uint8_t)plant.out_len;
+    end[17] = (uint8_t)(plant.out_len >> 8);
     plat_plant_write(end, sizeof end);
     if (plant.out_len) plat_plant_write(plant.out, plant.out_len);
 }

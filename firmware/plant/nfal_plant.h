@@ -8,8 +8,10 @@
  *   'C' sample_us watchdog_us ramp_us heartbeat_us        'R' ok u8 (1: config taken)
  *       (u32 each) max_drive_voltage f32 tunnel u8
  *   'T' n u16, n bytes (tunnel: the host's bytes)         'D' volts f32 (hal_drive_write)
- *   'S' height f32 frequency f32 flags u8                 'E' cost u32, status u16, applied f32, n u16,
- *       (flags: 1 locked, 2 resting, 4 out of range)          n bytes (tunnel: the rig's bytes)
+ *   'S' height f32 frequency f32 flags u8                 'E' cost u32, status u16, applied f32,
+ *       (flags: 1 locked, 2 resting, 4 out of range)          command_seq u32, state u8 (1 armed,
+ *                                                             2 ramping), n u16, n bytes (tunnel: the
+ *                                                             rig's bytes)
  *   'K'                                                   'k' 12 x u32: the 9 counters, rx_overflow,
  *                                                             tx_dropped, the largest tick cost
  *
