@@ -189,7 +189,7 @@ class FirmwareProcess:
             raise InvalidParameterError("firmware", kind, "c or qemu")
         self.kind, self.icount_shift = kind, icount_shift
         self.serial_path: str | None = None
-        self._socket = self._folder = None
+        self._socket = self._folder = self._holder = None
         if kind == "c":
             program = build("host", build_dir)
             self.process = subprocess.Popen([str(program), *(["--pty"] if serial else [])], stdin=subprocess.PIPE,
@@ -223,6 +223,10 @@ class FirmwareProcess:
             self.channel = PlantChannel(self._socket.fileno(), self._socket.fileno(), self.process, "QEMU")
             if serial:  # QEMU says "char device redirected to /dev/pts/N (label serial0)" on stdout
                 self.serial_path = self._announced(self.process.stdout, "char device redirected to ").split()[0]
+                # held open here (never read), as the host build and PtyPort hold theirs: QEMU's pty is then always
+                # connected, and a host that goes and comes back finds the rig streaming (QEMU polls a closed pty
+                # for a reader only once a second)
+                self._holder = os.open(self.serial_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
 
     def _announced(self, stream, prefix: str) -> str:
         ready, _, _ = select.select([stream], [], [], ANSWER_TIMEOUT_S)
@@ -245,6 +249,9 @@ class FirmwareProcess:
                 stream.close()
         if self._socket is not None:
             self._socket.close()
+        if self._holder is not None:
+            os.close(self._holder)
+            self._holder = None
         if self._folder is not None:
             self._folder.cleanup()
 
@@ -272,7 +279,9 @@ class ExternalFirmware:
         self.command_seq = 0
         self.last_measurement: Measurement | None = None
         self.costs: list[int] = []
+        self.on_event = lambda t, text: None  # on_event(rig_time_s, text), as Firmware's (set by the Emulator)
         self._period_us = round(timing.sample_period_s * 1e6)
+        self._status = 0
 
     def receive(self, data: bytes, tick: int) -> list[bytes]:
         if data and not self.tunnel:
@@ -288,13 +297,73 @@ class ExternalFirmware:
         self.costs.append(end.cost)
         self.applied, self.command_seq, self.armed = end.applied, end.command_seq, end.armed
         self.session = bool(end.status & StatusFlags.SESSION_ACTIVE)
+        self._events(tick, end.status)
         if self.session:
             self.last_measurement = Measurement(tick * self._period_us, reading.height, reading.drive_frequency,
                                                 end.applied, end.status, end.command_seq)
         return [frame + b"\x00" for frame in end.rig_bytes.split(b"\x00")[:-1]]
+
+    def _events(self, tick: int, status: int) -> None:
+        """What a rig would log, from the status word's changes (the C firmware has no printf)."""
+        changed, self._status = status ^ self._status, status
+        now = tick * self.timing.sample_period_s
+        if changed & StatusFlags.SESSION_ACTIVE:
+            self.on_event(now, "session open" if status & StatusFlags.SESSION_ACTIVE else "session ended (STOP), drive "
+                          "ramping down")
+        if changed & StatusFlags.WATCHDOG_TRIPPED and status & StatusFlags.WATCHDOG_TRIPPED:
+            self.on_event(now, f"watchdog: no DRIVE for {self.timing.watchdog_timeout_s * 1e3:g} ms, drive ramping "
+                          f"down over {self.timing.ramp_down_s * 1e3:g} ms")
+        if changed & StatusFlags.DRIVE_LIMITED and status & StatusFlags.DRIVE_LIMITED:
+            self.on_event(now, f"DRIVE above {self.timing.max_drive_voltage:g} V: clamped")
 
     @property
     def decoder(self):
         """Like :class:`~nfal.hil.protocol.FrameDecoder`: ``.counters`` (asked of the firmware now)."""
         counters = self.channel.counters()
         return types.SimpleNamespace(counters=DecoderCounters(**{name: counters[name] for name in _COUNTER_NAMES}))
+
+
+class FirmwarePort:
+    """The port of a firmware with its own serial line, for the emulator: a stable symlink at ``path`` to the
+    firmware's pty (as :class:`~nfal.hil.ports.PtyPort` makes one); the bytes never pass through Python."""
+
+    def __init__(self, process: FirmwareProcess, path: str | os.PathLike | None = None) -> None:
+        from .ports import _require_free_link_path
+
+        if process.serial_path is None:
+            raise InvalidParameterError("firmware process", process.kind, "one started with serial=True")
+        if path is None:
+            handle, path = tempfile.mkstemp(prefix="nfal-rig-")
+            os.close(handle)
+            os.unlink(path)
+        self.process, self.path = process, Path(path)
+        _require_free_link_path(self.path)
+        temporary = self.path.with_name(f".{self.path.name}.{os.getpid()}.new")
+        try:
+            temporary.unlink(missing_ok=True)
+            os.symlink(process.serial_path, temporary)
+            os.replace(temporary, self.path)
+        except OSError as exc:
+            raise LinkError(f"cannot make the port's link {self.path}: {exc.strerror or exc}") from None
+        self.failures, self.last_error, self.connected = 0, "", True
+
+    @property
+    def bytes_dropped(self) -> int:
+        """Bytes the firmware could not queue for the host (its TX queue full)."""
+        return self.process.channel.counters()["tx_dropped"] if self.process.process.poll() is None else 0
+
+    def read(self) -> bytes:
+        return b""
+
+    def write(self, data: bytes) -> None:
+        if data:
+            raise InvalidParameterError("bytes for the host", len(data), "none: the firmware writes its own line")
+
+    def connect(self) -> None:
+        self.connected = True
+
+    def disconnect(self) -> None:
+        self.connected = False
+
+    def close(self) -> None:
+        self.path.unlink(missing_ok=True)
