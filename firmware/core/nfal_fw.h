@@ -24,9 +24,12 @@
 #define NFAL_PROTOCOL_VERSION 1u
 #define NFAL_MAX_FRAME_BYTES 64u
 #define NFAL_MAX_ENCODED_BYTES 65u
-/* Bytes from the host queued between two ticks (a power of two). At 2 Mbaud a 0.5 ms tick brings 100. */
+/* Bytes from the host queued between two ticks (a power of two). At 2 Mbaud a 0.5 ms tick brings 100 at
+ * most, so 256 hold 2.5 ticks' worth and bound the tick's work; the host build, whose emulator may stall on a
+ * busy machine, takes 4096. Bytes that do not fit are counted in rx_overflow (and the damaged frames they
+ * leave are dropped as the protocol says). */
 #ifndef NFAL_FW_RX_BYTES
-#define NFAL_FW_RX_BYTES 1024u
+#define NFAL_FW_RX_BYTES 256u
 #endif
 
 enum nfal_type {
