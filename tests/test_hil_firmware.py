@@ -410,6 +410,24 @@ def test_corrupt_frames_give_one_bad_frame_fault_per_tick_and_change_nothing(ses
     assert (beat.frames_received, beat.frames_dropped) == (2, 4)
 
 
+def test_duplicates_are_dropped_and_gaps_counted_as_lost(session):
+    """§3: a frame sent twice is used once (the copy is out_of_order: a BAD_FRAME fault); frames that never
+    came are counted as lost when the next one is accepted, and are no fault."""
+    frame = session.frame(Drive(40.0))  # seq 1
+    hit = session.tick(raw=frame + frame)
+    counters = session.firmware.decoder.counters
+    assert hit.voltage == 40.0 and hit.measurement.command_seq == 1
+    assert (counters.frames_ok, counters.out_of_order, counters.lost) == (2, 1, 0)
+    assert hit.faults() == [Fault(1000, FaultCode.BAD_FRAME, 1.0)]
+    old = session.tick(raw=encode(Drive(99.0), 0))  # older than the last accepted: dropped, changes nothing
+    assert old.voltage == 40.0 and [f.detail for f in old.faults()] == [2.0]
+    session.host.next_seq = 5  # seqs 2, 3 and 4 never sent (lost on the wire)
+    gap = session.tick(Drive(45.0))
+    counters = session.firmware.decoder.counters
+    assert gap.voltage == 45.0 and gap.measurement.command_seq == 5 and not gap.faults()
+    assert (counters.frames_ok, counters.out_of_order, counters.lost) == (3, 2, 3)
+
+
 @pytest.mark.parametrize("voltage", [-1.0, -1e-30, math.nan, math.inf, -math.inf])
 def test_an_invalid_drive_is_dropped_and_has_no_effect(session, voltage):
     session.tick(Drive(30.0))  # tick 1: armed, trips at tick 1 + watchdog
