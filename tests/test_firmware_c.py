@@ -9,6 +9,7 @@ libnewlib-arm-none-eabi, qemu-system-arm) fails with FirmwareBuildError naming i
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -198,3 +199,42 @@ def test_a_host_that_reconnects_within_the_watchdog_time_takes_over_without_a_tr
         records = list(ticker.records)
     assert not any(r[2] & StatusFlags.WATCHDOG_TRIPPED for r in records if r[0] <= taken[0])
     assert [r[1] for r in records if r[0] <= taken[0] and r[1] not in (0.0, 70.0, 75.0)] == []
+
+
+# --- nfal rig-emulator --firmware c|qemu ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("options", [("--drop", "0.1"), ("--disconnect-at", "1"), ("--port", "socket://localhost:1")])
+def test_the_emulator_refuses_what_the_c_firmware_cannot_do(options, capsys):
+    from nfal.cli import main
+
+    assert main(["rig-emulator", "--firmware", "c", *options]) == 2
+    error = capsys.readouterr().err
+    assert "error: " in error and ("pty with --firmware c or qemu" in error or "python when faults" in error)
+
+
+@pytest.mark.parametrize("kind", ["c", "qemu"])
+def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7_archives, tmp_path, kind):
+    """`nfal rig-emulator --firmware c|qemu`: the first line is a port a RigLink opens; the truth answers (the
+    height the host measures is the rig_slow sensor's, at rest); the exit summary counts the ticks."""
+    link_path = tmp_path / "rig"
+    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--truth", str(fig7_archives["rig_slow"]),
+                                 "--firmware", kind, "--link", str(link_path), "--watchdog", "0.5", "--duration", "60",
+                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert emulator.stdout.readline().strip() == str(link_path)
+        assert "C firmware" in emulator.stdout.readline()
+        link = RigLink(str(link_path), connect_timeout_s=10.0)
+        try:
+            ack = link.open()
+            assert (ack.sample_period_us, ack.watchdog_timeout_us, ack.max_drive_voltage) == (500, 500_000, 150.0)
+            assert link.wait_until(lambda: link.latest() is not None, WAIT_S)
+            assert 0.0 < link.latest().measurement.height < 50e-6  # the object at rest on the surface
+        finally:
+            link.close()
+    finally:
+        emulator.terminate()
+        output, errors = emulator.communicate(timeout=30)
+    assert emulator.returncode == 0, errors
+    assert "session open" in output
+    report = json.loads(output[output.index("{"):])
+    assert report["ticks"] > 0 and report["decoder"]["frames_ok"] >= 1  # the HELLO (the STOP may come after the end)
