@@ -59,7 +59,7 @@ QEMU_SYSTICK_NS = 40
 _CONFIG = struct.Struct("<IIIIfB")
 _SENSOR = struct.Struct("<ffB")
 _END = struct.Struct("<IHfIBH")
-_COUNTERS = struct.Struct("<12I")
+_COUNTERS = struct.Struct("<13I")
 _COUNTER_NAMES = ("frames_ok", "cobs_errors", "crc_errors", "truncated", "oversized", "unknown_type", "invalid_value",
                   "out_of_order", "lost")
 
@@ -163,10 +163,10 @@ class PlantChannel:
         return TickEnd(cost, status, applied, command_seq, bool(state & 1), self._read(n) if n else b"")
 
     def counters(self) -> dict[str, int]:
-        """The firmware's receive counters, with rx_overflow, tx_dropped and cost_max."""
+        """The firmware's receive counters, with rx_overflow, tx_dropped, cost_max and tx_frames (since configured)."""
         self._write(b"K")
         values = _COUNTERS.unpack(self._expect(b"k", _COUNTERS.size))
-        return dict(zip((*_COUNTER_NAMES, "rx_overflow", "tx_dropped", "cost_max"), values))
+        return dict(zip((*_COUNTER_NAMES, "rx_overflow", "tx_dropped", "cost_max", "tx_frames"), values))
 
 
 class FirmwareProcess:

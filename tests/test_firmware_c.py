@@ -238,3 +238,4 @@ def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7
     assert "session open" in output
     report = json.loads(output[output.index("{"):])
     assert report["ticks"] > 0 and report["decoder"]["frames_ok"] >= 1  # the HELLO (the STOP may come after the end)
+    assert report["frames_sent"] > 0  # counted by the firmware, which wrote them on its own line

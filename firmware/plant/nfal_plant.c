@@ -12,7 +12,7 @@ static struct {
     uint8_t tunnel, configured;
     uint8_t out[TUNNEL_BYTES];
     uint16_t out_len;
-    uint32_t tx_dropped, cost_max, paused_at, waited;
+    uint32_t tx_dropped, tx_frames, cost_max, paused_at, waited;
 } plant;
 
 static void put_u32(uint8_t *p, uint32_t v) {
@@ -45,6 +45,7 @@ void hal_sensor_read(nfal_fw_reading *r) {
 }
 
 void hal_serial_write(const uint8_t *data, size_t n) {
+    plant.tx_frames++; /* the core writes one frame a call */
     if (plant.tunnel) {
         size_t room = TUNNEL_BYTES - plant.out_len, take = n < room ? n : room;
         memcpy(plant.out + plant.out_len, data, take);
@@ -67,7 +68,7 @@ static void configure(void) {
     ok = (uint8_t)(nfal_fw_init(&fw, &c) == 0);
     plant.configured = ok;
     plant.tunnel = rec[20] ? 1u : 0u;
-    plant.tx_dropped = plant.cost_max = 0;
+    plant.tx_dropped = plant.tx_frames = plant.cost_max = 0;
     {
         uint8_t reply[2] = {'R', 0};
         reply[1] = ok;
@@ -107,15 +108,15 @@ static void tick(void) {
 }
 
 static void counters(void) {
-    uint8_t rec[1 + 12 * 4];
+    uint8_t rec[1 + 13 * 4];
     const nfal_fw_counters *c = &fw.counters;
-    uint32_t v[12];
+    uint32_t v[13];
     int i;
     v[0] = c->frames_ok; v[1] = c->cobs_errors; v[2] = c->crc_errors; v[3] = c->truncated; v[4] = c->oversized;
     v[5] = c->unknown_type; v[6] = c->invalid_value; v[7] = c->out_of_order; v[8] = c->lost;
-    v[9] = fw.rx_overflow; v[10] = plant.tx_dropped; v[11] = plant.cost_max;
+    v[9] = fw.rx_overflow; v[10] = plant.tx_dropped; v[11] = plant.cost_max; v[12] = plant.tx_frames;
     rec[0] = 'k';
-    for (i = 0; i < 12; i++) put_u32(rec + 1 + 4 * i, v[i]);
+    for (i = 0; i < 13; i++) put_u32(rec + 1 + 4 * i, v[i]);
     plat_plant_write(rec, sizeof rec);
 }
 

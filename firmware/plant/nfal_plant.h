@@ -12,8 +12,8 @@
  *       (flags: 1 locked, 2 resting, 4 out of range)          command_seq u32, state u8 (1 armed,
  *                                                             2 ramping), n u16, n bytes (tunnel: the
  *                                                             rig's bytes)
- *   'K'                                                   'k' 12 x u32: the 9 counters, rx_overflow,
- *                                                             tx_dropped, the largest tick cost
+ *   'K'                                                   'k' 13 x u32: the 9 counters, rx_overflow,
+ *                                                             tx_dropped, the largest tick cost, frames sent
  *
  * Tunnel mode carries the protocol's bytes in 'T' and 'E' (exact, tick by tick: the conformance tests);
  * otherwise they go on the platform's serial line (a pty, QEMU's UART0). cost is the tick's own work in

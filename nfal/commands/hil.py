@@ -136,6 +136,8 @@ def run_emulator(args: argparse.Namespace) -> int:
                      f"{timing.watchdog_timeout_s * 1e3:g} ms{_scheduling(args.rt_priority)}; Ctrl-C to stop")
                 with realtime_priority(args.rt_priority):  # the paced ticks only
                     report = emulator.run(args.duration)
+                if firmware is not None:  # its frames went out on its own line: it counted them
+                    report.frames_sent = firmware.channel.counters()["tx_frames"]
             finally:
                 for number, handler in previous.items():
                     signal.signal(number, handler)
