@@ -66,7 +66,8 @@ _COUNTER_NAMES = ("frames_ok", "cobs_errors", "crc_errors", "truncated", "oversi
 
 def require_tools(build: str) -> None:
     """Raise FirmwareBuildError naming the Debian package of each program ``build`` needs and lacks."""
-    missing = [f"{program} (Debian package {package})" for program, package in NEEDS[build] if not shutil.which(program)]
+    missing = [f"{program} (Debian package {package})" for program, package in NEEDS[build]
+               if not shutil.which(program)]
     if missing:
         raise FirmwareBuildError(f"the {build} build of the reference firmware needs {', '.join(missing)}: "
                                  f"apt-get install {' '.join(p for _, p in NEEDS[build])}")
@@ -211,13 +212,13 @@ class FirmwareProcess:
                  "-serial", "pty" if serial else "null", "-chardev", f"socket,id=plant,path={path}",
                  "-serial", "chardev:plant", "-kernel", str(elf), *icount],
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-            server.settimeout(ANSWER_TIMEOUT_S)
             try:
-                self._socket, _ = server.accept()
+                self._socket = self._accept(server)
             except OSError:
+                exited = self.process.poll() is not None
+                reason = self.process.stderr.read().decode(errors="replace").strip() if exited else "timed out"
                 self.close()
-                raise LinkError("qemu-system-arm did not connect to the plant channel: "
-                                f"{self.process.stderr.read().decode(errors='replace') if self.process.poll() is not None else 'timed out'}") from None
+                raise LinkError(f"qemu-system-arm did not connect to the plant channel: {reason}") from None
             finally:
                 server.close()
             self.channel = PlantChannel(self._socket.fileno(), self._socket.fileno(), self.process, "QEMU")
@@ -227,6 +228,19 @@ class FirmwareProcess:
                 # connected, and a host that goes and comes back finds the rig streaming (QEMU polls a closed pty
                 # for a reader only once a second)
                 self._holder = os.open(self.serial_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+
+    def _accept(self, server: socket.socket) -> socket.socket:
+        """QEMU's connection to the plant channel; OSError if QEMU exits first or takes ANSWER_TIMEOUT_S."""
+        server.settimeout(0.1)
+        deadline = time.monotonic() + ANSWER_TIMEOUT_S
+        while self.process.poll() is None and time.monotonic() < deadline:
+            try:
+                connection, _ = server.accept()
+            except socket.timeout:
+                continue
+            connection.settimeout(None)
+            return connection
+        raise OSError("QEMU did not connect")
 
     def _announced(self, stream, prefix: str) -> str:
         ready, _, _ = select.select([stream], [], [], ANSWER_TIMEOUT_S)

@@ -52,6 +52,15 @@ def test_a_missing_tool_fails_naming_its_debian_package(monkeypatch):
         require_tools("qemu")
 
 
+def test_a_qemu_that_cannot_start_fails_with_its_reason(monkeypatch):
+    from nfal.errors import LinkError
+    from nfal.hil import plant_channel
+
+    monkeypatch.setattr(plant_channel, "QEMU_MACHINE", "no-such-board")
+    with pytest.raises(LinkError, match="unsupported machine"):
+        FirmwareProcess("qemu")
+
+
 def test_the_microcontroller_build_fits_a_small_cortex_m4():
     elf = build("mps2")
     require_tools("mps2")
@@ -212,6 +221,7 @@ def test_the_emulator_refuses_what_the_c_firmware_cannot_do(options, capsys):
     assert "error: " in error and ("pty with --firmware c or qemu" in error or "python when faults" in error)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["c", "qemu"])
 def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7_archives, tmp_path, kind):
     """`nfal rig-emulator --firmware c|qemu`: the first line is a port a RigLink opens; the truth answers (the

@@ -132,8 +132,9 @@ def run_emulator(args: argparse.Namespace) -> int:
             previous = {number: signal.signal(number, lambda *_: emulator.stop()) for number in STOP_SIGNALS}
             try:
                 _say(str(port.path))
-                _say(f"rig emulator: truth {args.truth}, {_firmware_name(args.firmware)}, {1 / timing.sample_period_s:g} Hz, watchdog "
-                     f"{timing.watchdog_timeout_s * 1e3:g} ms{_scheduling(args.rt_priority)}; Ctrl-C to stop")
+                _say(f"rig emulator: truth {args.truth}, {_firmware_name(args.firmware)}, "
+                     f"{1 / timing.sample_period_s:g} Hz, watchdog {timing.watchdog_timeout_s * 1e3:g} ms"
+                     f"{_scheduling(args.rt_priority)}; Ctrl-C to stop")
                 with realtime_priority(args.rt_priority):  # the paced ticks only
                     report = emulator.run(args.duration)
                 if firmware is not None:  # its frames went out on its own line: it counted them
