@@ -142,12 +142,18 @@ class Ticker:
 
 @pytest.fixture(params=["c", "qemu"])
 def serial_rig(request):
+    """(the firmware process with its own serial line, a :class:`Ticker` on it with ``timing``)."""
     with FirmwareProcess(request.param, serial=True) as process:
-        ticker = Ticker(process)
+        tickers = []
+
+        def start(timing: RigTiming = SERIAL_TIMING) -> Ticker:
+            tickers.append(Ticker(process, timing))
+            return tickers[-1]
         try:
-            yield process, ticker
+            yield process, start
         finally:
-            ticker.close()
+            for ticker in tickers:
+                ticker.close()
 
 
 HOST_SCRIPT = """
@@ -163,7 +169,8 @@ while True:
 
 
 def test_a_host_on_the_serial_line_gets_hello_ack_and_drives(serial_rig):
-    process, ticker = serial_rig
+    process, start = serial_rig
+    ticker = start()
     link = RigLink(process.serial_path, connect_timeout_s=10.0)
     try:
         assert link.open() == HelloAck(1, 1000, 500_000, 50_000, 150.0)
@@ -175,7 +182,8 @@ def test_a_host_on_the_serial_line_gets_hello_ack_and_drives(serial_rig):
 
 
 def test_a_killed_host_leaves_the_rig_ramping_to_0_within_watchdog_plus_ramp_in_rig_time(serial_rig):
-    process, ticker = serial_rig
+    process, start = serial_rig
+    ticker = start()
     host = subprocess.Popen([sys.executable, "-c", HOST_SCRIPT, process.serial_path], stdout=subprocess.PIPE)
     try:
         assert host.stdout.readline().strip() == b"driving"
@@ -195,7 +203,11 @@ def test_a_killed_host_leaves_the_rig_ramping_to_0_within_watchdog_plus_ramp_in_
 
 
 def test_a_host_that_reconnects_within_the_watchdog_time_takes_over_without_a_trip(serial_rig):
-    process, ticker = serial_rig
+    """The rig's watchdog here is 20 s of rig time: a busy machine cannot stretch a reconnection that long (the rule
+    itself, tick by tick, is in tests/test_hil_firmware.py)."""
+    process, start = serial_rig
+    ticker = start(RigTiming(sample_period_s=1e-3, watchdog_timeout_s=20.0, ramp_down_s=0.05, max_drive_voltage=150.0,
+                             heartbeat_period_s=0.1))
     first = RigLink(process.serial_path, connect_timeout_s=10.0)
     first.open()
     first.send_drive(70.0)
