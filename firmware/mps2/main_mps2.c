@@ -90,6 +90,10 @@ void plat_plant_write(const uint8_t *p, size_t n) {
 }
 
 void plat_serial_poll(nfal_fw *fw) {
+    if (serial_rx_overflow) { /* bytes UART0's interrupt could not queue: the firmware's count of lost RX bytes */
+        fw->rx_overflow += serial_rx_overflow;
+        serial_rx_overflow = 0;
+    }
     while (serial_rx.tail != serial_rx.head) {
         uint32_t head = serial_rx.head, tail = serial_rx.tail % Q_SIZE(serial_rx);
         uint32_t n = head - serial_rx.tail, contiguous = Q_SIZE(serial_rx) - tail;
