@@ -59,6 +59,11 @@ class HostUnavailableError(NfalError, RuntimeError):
     """A host cannot run here (no C compiler, ecospy or libtbb12 missing)."""
 
 
+class FirmwareBuildError(NfalError, RuntimeError):
+    """The reference firmware (firmware/) cannot be built or started here (no make, C compiler, arm-none-eabi-gcc
+    with newlib, or qemu-system-arm: the message names the Debian package)."""
+
+
 # --- the rig link ---------------------------------------------------------------------------------
 
 class LinkError(NfalError, RuntimeError):

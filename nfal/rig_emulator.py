@@ -84,14 +84,22 @@ class Emulator:
         ``on_event(text)`` for a line of the emulator's log (session, watchdog, link events).
     record : text file, optional
         Gets one CSV line per MEASUREMENT the rig takes in a session (before fault injection): :data:`RECORD_HEADER`.
+    firmware : optional
+        The rig's firmware, if not the Python one: an :class:`~nfal.hil.plant_channel.ExternalFirmware` (the C
+        reference firmware, on the host or in QEMU), whose events go to ``on_event`` too.
     """
 
     def __init__(self, port, model, *, timing: RigTiming = RigTiming(), faults: FaultSettings = FaultSettings(),
                  disconnection: Disconnection | None = None, on_event: Callable[[str], None] | None = None,
-                 record: TextIO | None = None) -> None:
+                 record: TextIO | None = None, firmware=None) -> None:
         self.port, self.model, self.timing = port, model, timing
         self.on_event = on_event or (lambda text: logger.info("%s", text))
-        self.firmware = Firmware(timing, on_event=lambda t, text: self.on_event(f"t = {t:.4f} s: {text}"))
+        firmware_event = lambda t, text: self.on_event(f"t = {t:.4f} s: {text}")  # noqa: E731
+        if firmware is None:
+            firmware = Firmware(timing, on_event=firmware_event)
+        else:
+            firmware.on_event = firmware_event
+        self.firmware = firmware
         self.inject = FaultInjector(faults)
         self.disconnection = disconnection
         self.report = EmulatorReport()

@@ -1010,6 +1010,11 @@ def hil_cases() -> list[Case]:
     cases += [
         Case("rig-emulator-garbage-from-host", "hil", emulator + ["--duration", "1.5"], during=emulator_fed_garbage(garbage),
              expect="ok", why="random bytes and oversized frames from the host are dropped and counted; the rig runs on"),
+        Case("rig-emulator-c-firmware-garbage-from-host", "hil", emulator + ["--firmware", "c", "--duration", "1.5"],
+             during=emulator_fed_garbage(garbage), expect="ok",
+             why="the C reference firmware drops and counts the same garbage (bounded buffers) and runs on"),
+        Case("rig-emulator-c-firmware-with-faults", "hil", emulator + ["--firmware", "c", "--drop", "0.1", "--duration", "1"],
+             why="faults are injected by the Python side into its own pty: refused with the C firmware, naming why"),
         Case("rig-emulator-sigterm", "hil", emulator + ["--duration", "30"], expect="ok",
              why="SIGTERM ends the emulator after its tick, with its report, the symlink removed",
              during=_signal_emulator(signal.SIGTERM), check=_link_removed, timeout=60),

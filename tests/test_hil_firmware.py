@@ -1,8 +1,13 @@
-"""The rig's firmware (nfal.hil.firmware): session, drive, watchdog, clamp and bad frames, tick by tick.
+"""The rig's firmware: session, drive, watchdog, clamp and bad frames, tick by tick: the conformance suite.
 
-:class:`Firmware` is clock-free and transport-free, so every check is exact: the host's frames come from a
-:class:`FrameEncoder`, the rig's answers go through a host-side :class:`FrameDecoder`, and each tick runs
-receive -> voltage -> report, as the emulator does. Rules are those of docs/protocol.md §6-§7.
+Every test runs against the three firmwares (``firmware`` parameter): the Python one (nfal.hil.firmware), the C
+reference firmware built for the host, and the same C built for a Cortex-M4F running in QEMU (mps2-an386). The
+C ones run in tunnel mode (nfal.hil.plant_channel): the host's bytes and the rig's frames ride the plant
+channel, so each tick is exact. A firmware is clock-free and transport-free, so every check is exact, in rig
+time: the host's frames come from a :class:`FrameEncoder`, the rig's answers go through a host-side
+:class:`FrameDecoder`, and each tick runs receive -> voltage -> report, as the emulator does. Rules are those
+of docs/protocol.md §6-§7. The C firmware computes in binary32 (a Cortex-M4F's FPU): voltages are compared to
+binary32 precision (:func:`close`).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from cobs import cobs
 
 from nfal.errors import InvalidParameterError
 from nfal.hil.firmware import Firmware, RigReading, RigTiming
+from nfal.hil.plant_channel import FIRMWARES, ExternalFirmware, FirmwareProcess
 from nfal.hil.protocol import (PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder,
                                Hello, HelloAck, HostHeartbeat, Measurement, Message, RigHeartbeat, StatusFlags, Stop,
                                encode)
@@ -25,6 +31,11 @@ FAST = RigTiming(sample_period_s=1e-3, watchdog_timeout_s=5e-3, ramp_down_s=4e-3
 WATCHDOG_TICKS, RAMP_TICKS, HEARTBEAT_TICKS = 5, 4, 10
 READING = RigReading(height=1e-4, drive_frequency=28_500.0, locked=True, resting=False)
 SESSION, TRIPPED, LIMITED = StatusFlags.SESSION_ACTIVE, StatusFlags.WATCHDOG_TRIPPED, StatusFlags.DRIVE_LIMITED
+
+
+def close(values: list[float]):
+    """``values`` to binary32 precision (the C firmware ramps in binary32; the Python one in double)."""
+    return pytest.approx(values, rel=2e-7, abs=1e-30)
 
 
 def f32(x: float) -> float:
@@ -55,8 +66,8 @@ class Tick:
 class Bench:
     """A :class:`Firmware` beside a host encoder and a host decoder; :meth:`tick` runs one sample period."""
 
-    def __init__(self, timing: RigTiming = FAST, reading: RigReading = READING) -> None:
-        self.firmware = Firmware(timing)
+    def __init__(self, timing: RigTiming = FAST, reading: RigReading = READING, firmware=None) -> None:
+        self.firmware = firmware if firmware is not None else Firmware(timing)
         self.host = FrameEncoder()
         self.decoder = FrameDecoder(RIG_TO_HOST)
         self.reading = reading
@@ -86,15 +97,38 @@ class Bench:
         return self.tick(Hello(PROTOCOL_VERSION))
 
 
-@pytest.fixture
-def bench() -> Bench:
-    return Bench()
+@pytest.fixture(scope="module")
+def processes():
+    """The C firmwares' processes, started on first use and kept for the module (each bench reboots its firmware)."""
+    running: dict[str, FirmwareProcess] = {}
+    yield running
+    for process in running.values():
+        process.close()
+
+
+@pytest.fixture(params=FIRMWARES)
+def make_bench(request, processes):
+    """``make_bench(timing=FAST, reading=READING)``: a bench around the firmware of this parameter, fresh from reset."""
+    kind = request.param
+
+    def make(timing: RigTiming = FAST, reading: RigReading = READING) -> Bench:
+        if kind == "python":
+            return Bench(timing, reading)
+        if kind not in processes:
+            processes[kind] = FirmwareProcess(kind)
+        return Bench(timing, reading, ExternalFirmware(processes[kind], timing))
+    return make
 
 
 @pytest.fixture
-def session() -> Bench:
+def bench(make_bench) -> Bench:
+    return make_bench()
+
+
+@pytest.fixture
+def session(make_bench) -> Bench:
     """A bench with a session open (HELLO at tick 0)."""
-    bench = Bench()
+    bench = make_bench()
     bench.hello()
     return bench
 
@@ -115,11 +149,11 @@ def ramp(v0: float, then: int = 2) -> list[float]:
     (FAST, HelloAck(1, 1000, 5000, 4000, 150.0)),
     (RigTiming(2.5e-4, 0.01, 0.125, 80.5, 0.05), HelloAck(1, 250, 10_000, 125_000, 80.5)),
 ], ids=["emulator", "fast", "other"])
-def test_hello_is_answered_with_hello_ack_in_microseconds_at_seq_0(timing, ack):
-    bench = Bench(timing)
+def test_hello_is_answered_with_hello_ack_in_microseconds_at_seq_0(make_bench, timing, ack):
+    bench = make_bench(timing)
     for _ in range(3):  # the rig's counter moves on (a heartbeat at tick 0) before the host says HELLO
         bench.tick()
-    assert bench.firmware.encoder.next_seq > 0
+    assert bench.decoder.counters.frames_ok > 0
     answer = bench.hello()
     assert answer.messages[0] == ack and answer.received[0].seq == 0
     assert bench.firmware.session and answer.measurement.status & SESSION
@@ -129,7 +163,7 @@ def test_hello_is_answered_with_hello_ack_in_microseconds_at_seq_0(timing, ack):
 @pytest.mark.parametrize("version", [0, 2, 0xFFFF])
 def test_hello_for_another_version_is_refused_and_opens_nothing(bench, version):
     bench.tick()
-    seq_before = bench.firmware.encoder.next_seq
+    seq_before = bench.decoder.last_seq + 1  # the rig's next seq
     answer = bench.tick(Hello(version))
     assert answer.messages == [Fault(1000, FaultCode.VERSION_MISMATCH, float(version))]
     assert answer.received[0].seq == seq_before  # no restart: not a session opener
@@ -150,9 +184,9 @@ def test_a_refused_hello_changes_nothing_in_an_open_session(session):
     (False, False, 0), (True, False, StatusFlags.PLL_LOCKED), (False, True, StatusFlags.RESTING),
     (True, True, StatusFlags.PLL_LOCKED | StatusFlags.RESTING),
 ])
-def test_a_session_measures_every_tick_with_the_readings_flags(locked, resting, flags):
+def test_a_session_measures_every_tick_with_the_readings_flags(make_bench, locked, resting, flags):
     reading = RigReading(1.25e-4, 28_400.0, locked, resting)
-    bench = Bench(reading=reading)
+    bench = make_bench(reading=reading)
     bench.hello()
     ticks = bench.ticks(3)
     assert [t.measurement for t in ticks] == [
@@ -173,8 +207,8 @@ def test_no_measurement_outside_a_session_but_heartbeats_always(bench):
     assert all(len(t.of(Measurement)) == 1 for t in during)
 
 
-def test_heartbeats_keep_the_emulators_period():
-    bench = Bench(RigTiming())
+def test_heartbeats_keep_the_emulators_period(make_bench):
+    bench = make_bench(RigTiming())
     ticks = bench.ticks(401)
     assert [k for k, t in enumerate(ticks) if t.of(RigHeartbeat)] == [0, 200, 400]
 
@@ -220,7 +254,7 @@ def test_the_watchdog_trips_after_its_timeout_and_ramps_down_linearly(session, v
     v0 = f32(v0)
     assert voltages(before) == [v0] * WATCHDOG_TICKS
     assert all(not t.faults() and not t.measurement.status & TRIPPED for t in before)
-    assert voltages(after) == ramp(v0) and [t.measurement.drive_voltage for t in after] == [f32(v) for v in ramp(v0)]
+    assert voltages(after) == close(ramp(v0)) and [t.measurement.drive_voltage for t in after] == close(ramp(v0))
     [fault] = after[0].faults()
     assert fault == Fault((1 + WATCHDOG_TICKS) * 1000, FaultCode.WATCHDOG, f32(WATCHDOG_TICKS * FAST.sample_period_s))
     assert all(t.measurement.status & TRIPPED and t.measurement.status & SESSION for t in after)
@@ -231,7 +265,7 @@ def test_the_watchdog_trips_after_its_timeout_and_ramps_down_linearly(session, v
 def test_the_watchdog_trips_from_a_clamped_voltage(session):
     session.ticks(WATCHDOG_TICKS, Drive(400.0))
     after = session.ticks(RAMP_TICKS + 3)
-    assert voltages(after) == ramp(150.0)
+    assert voltages(after) == close(ramp(150.0))
 
 
 def test_a_tripped_watchdog_ignores_drive_until_hello(session):
@@ -254,15 +288,15 @@ def test_hello_clears_the_trip_and_the_next_drive_drives_again(session):
     assert all(not t.faults() and not t.measurement.status & TRIPPED for t in quiet)
     before, after = trip(session, 70.0)  # re-armed by the DRIVE, and it trips again on silence
     assert voltages(before) == [70.0] * WATCHDOG_TICKS and before[0].measurement.command_seq == 1
-    assert voltages(after) == ramp(70.0) and [len(t.faults(FaultCode.WATCHDOG)) for t in after[:2]] == [1, 0]
+    assert voltages(after) == close(ramp(70.0)) and [len(t.faults(FaultCode.WATCHDOG)) for t in after[:2]] == [1, 0]
 
 
 def test_hello_during_the_ramp_clears_the_trip_and_the_ramp_runs_on(session):
     trip_ticks = session.ticks(WATCHDOG_TICKS + 2, Drive(100.0))  # the trip, then one ramp step
-    assert voltages(trip_ticks[-2:]) == ramp(100.0)[:2]
+    assert voltages(trip_ticks[-2:]) == close(ramp(100.0)[:2])
     ack = session.hello()
     rest = session.ticks(RAMP_TICKS)
-    assert [ack.voltage, *voltages(rest)] == ramp(100.0)[2:2 + RAMP_TICKS + 1]
+    assert [ack.voltage, *voltages(rest)] == close(ramp(100.0)[2:2 + RAMP_TICKS + 1])
     assert not any(t.measurement.status & TRIPPED for t in [ack, *rest])
 
 
@@ -296,7 +330,7 @@ def test_a_hello_then_drive_takes_over_without_a_trip(session):
 def test_stop_ends_the_session_and_ramps_down(session):
     session.ticks(2, Drive(100.0))
     stopped = session.ticks(3 * HEARTBEAT_TICKS, Stop())
-    assert voltages(stopped[:RAMP_TICKS + 3]) == ramp(100.0)
+    assert voltages(stopped[:RAMP_TICKS + 3]) == close(ramp(100.0))
     assert not session.firmware.session and not any(t.of(Measurement) for t in stopped)
     assert not any(t.faults() for t in stopped)  # disarmed: no watchdog trip
     beats = [beat for t in stopped for beat in t.of(RigHeartbeat)]
@@ -307,7 +341,7 @@ def test_drive_and_stop_after_stop_are_ignored(session):
     session.ticks(2, Drive(100.0))
     session.tick(Stop())  # tick 3
     ramp_ticks = [session.tick(Drive(120.0)), session.tick(Stop()), *session.ticks(RAMP_TICKS)]
-    assert voltages(ramp_ticks) == ramp(100.0)[1:RAMP_TICKS + 3]
+    assert voltages(ramp_ticks) == close(ramp(100.0)[1:RAMP_TICKS + 3])
     assert session.firmware.command_seq == 1 and not session.firmware.armed
 
 
@@ -323,7 +357,7 @@ def test_stop_during_a_watchdog_ramp_lets_the_ramp_run_on(session):
     """STOP ramps down "exactly as the watchdog does": a ramp already running is not started over."""
     session.ticks(WATCHDOG_TICKS, Drive(100.0))
     during = [session.tick() for _ in range(3)] + [session.tick(Stop())] + session.ticks(RAMP_TICKS)
-    assert voltages(during) == ramp(100.0, then=3)
+    assert voltages(during) == close(ramp(100.0, then=3))
 
 
 def test_drive_after_stop_and_hello_drives_again(session):
@@ -374,6 +408,24 @@ def test_corrupt_frames_give_one_bad_frame_fault_per_tick_and_change_nothing(ses
     assert session.tick(raw=damaged(encode(Drive(1.0), 9))).faults() == [Fault(4000, FaultCode.BAD_FRAME, 4.0)]
     [beat] = [b for t in session.ticks(HEARTBEAT_TICKS) for b in t.of(RigHeartbeat)]
     assert (beat.frames_received, beat.frames_dropped) == (2, 4)
+
+
+def test_duplicates_are_dropped_and_gaps_counted_as_lost(session):
+    """§3: a frame sent twice is used once (the copy is out_of_order: a BAD_FRAME fault); frames that never
+    came are counted as lost when the next one is accepted, and are no fault."""
+    frame = session.frame(Drive(40.0))  # seq 1
+    hit = session.tick(raw=frame + frame)
+    counters = session.firmware.decoder.counters
+    assert hit.voltage == 40.0 and hit.measurement.command_seq == 1
+    assert (counters.frames_ok, counters.out_of_order, counters.lost) == (2, 1, 0)
+    assert hit.faults() == [Fault(1000, FaultCode.BAD_FRAME, 1.0)]
+    old = session.tick(raw=encode(Drive(99.0), 0))  # older than the last accepted: dropped, changes nothing
+    assert old.voltage == 40.0 and [f.detail for f in old.faults()] == [2.0]
+    session.host.next_seq = 5  # seqs 2, 3 and 4 never sent (lost on the wire)
+    gap = session.tick(Drive(45.0))
+    counters = session.firmware.decoder.counters
+    assert gap.voltage == 45.0 and gap.measurement.command_seq == 5 and not gap.faults()
+    assert (counters.frames_ok, counters.out_of_order, counters.lost) == (3, 2, 3)
 
 
 @pytest.mark.parametrize("voltage", [-1.0, -1e-30, math.nan, math.inf, -math.inf])

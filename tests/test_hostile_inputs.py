@@ -31,7 +31,7 @@ IN_PROCESS = {
                        "calibrate-experimental-mm-heights", "design-calibration-k-zero", "compare-max-excitation-1m",
                        "sweep-ssp-structure-absolute-outside"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
-    "misleading messages": ["ssp-not-zip", "run-max-steps-0"],
+    "misleading messages": ["ssp-not-zip", "run-max-steps-0", "rig-emulator-c-firmware-with-faults"],
 }
 
 #: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
@@ -47,7 +47,7 @@ OWN_PROCESS = {
                        "run-generator-levels-mm", "run-generator-table-outside"],
     "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9",
                           "fmu-SlowPlant-excitation-1e200", "fmu-ReynoldsPlant-radial-nodes-2pow31",
-                          "fmu-SlowPlant-free-twice", "ssp-self-nested"],
+                          "fmu-SlowPlant-free-twice", "ssp-self-nested", "rig-emulator-c-firmware-garbage-from-host"],
     "tracebacks": ["ssp-encrypted-flag", "ssp-unknown-compression", "identify-rig-random-bytes"],
 }
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import signal
 from pathlib import Path
@@ -64,6 +65,11 @@ def register(commands) -> None:
     emulator.add_argument("--rt-priority", type=int, metavar="1-99", help="run the rig under SCHED_FIFO at this "
                           "priority, so the host's busy loop beside it cannot delay its ticks (Linux; needs root, "
                           "CAP_SYS_NICE or an rtprio limit; e.g. 50)")
+    emulator.add_argument("--firmware", default="python", choices=("python", "c", "qemu"),
+                          help="the rig's firmware: the Python one (default); c, the C reference firmware (firmware/) "
+                          "built for this machine, on its own pty; qemu, the same C built for a Cortex-M4F and run in "
+                          "qemu-system-arm (mps2-an386), protocol on its UART0. The truth is the same; see "
+                          "docs/firmware.md. With c or qemu the port is a pty and no faults are injected")
     emulator.add_argument("--json", action="store_true", help="print the exit summary as JSON")
     emulator.set_defaults(handler=run_emulator)
 
@@ -103,22 +109,36 @@ def run_emulator(args: argparse.Namespace) -> int:
     if args.link and args.port != "pty":
         raise InvalidParameterError("--link", args.link, "used with --port pty only")
     parameters = dict(parse_parameter(text) for text in args.param)
+    if args.firmware != "python":
+        _require_plain_link(args, faults, disconnection)
     require_realtime_priority(args.rt_priority)  # refused now, before anything is built or opened
-    with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model:
-        port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
+    with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model, \
+            contextlib.ExitStack() as stack:
+        firmware = None
+        if args.firmware == "python":
+            port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
+        else:
+            from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess
+
+            process = stack.enter_context(FirmwareProcess(args.firmware, serial=True))
+            firmware = ExternalFirmware(process, timing, tunnel=False)
+            port = FirmwarePort(process, args.link)
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
             emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
-                                record=record)
+                                record=record, firmware=firmware)
             # Ctrl-C, SIGTERM and SIGHUP (a closed terminal) end the run after the current tick, so the report is
             # complete and the link removed (from the moment the port is announced: whoever reads it may signal at once)
             previous = {number: signal.signal(number, lambda *_: emulator.stop()) for number in STOP_SIGNALS}
             try:
                 _say(str(port.path))
-                _say(f"rig emulator: truth {args.truth}, {1 / timing.sample_period_s:g} Hz, watchdog "
-                     f"{timing.watchdog_timeout_s * 1e3:g} ms{_scheduling(args.rt_priority)}; Ctrl-C to stop")
+                _say(f"rig emulator: truth {args.truth}, {_firmware_name(args.firmware)}, "
+                     f"{1 / timing.sample_period_s:g} Hz, watchdog {timing.watchdog_timeout_s * 1e3:g} ms"
+                     f"{_scheduling(args.rt_priority)}; Ctrl-C to stop")
                 with realtime_priority(args.rt_priority):  # the paced ticks only
                     report = emulator.run(args.duration)
+                if firmware is not None:  # its frames went out on its own line: it counted them
+                    report.frames_sent = firmware.channel.counters()["tx_frames"]
             finally:
                 for number, handler in previous.items():
                     signal.signal(number, handler)
@@ -128,6 +148,19 @@ def run_emulator(args: argparse.Namespace) -> int:
                 record.close()
     _print_report(report, args.json)
     return 0
+
+
+def _firmware_name(kind: str) -> str:
+    return {"python": "Python firmware", "c": "C firmware (host build)", "qemu": "C firmware in QEMU mps2-an386"}[kind]
+
+
+def _require_plain_link(args: argparse.Namespace, faults, disconnection) -> None:
+    """--firmware c|qemu: the firmware owns its serial line, so nothing can be injected into it or unplugged."""
+    if args.port != "pty":
+        raise InvalidParameterError("--port", args.port, "pty with --firmware c or qemu (the firmware opens its own)")
+    if faults.active or disconnection is not None:
+        raise InvalidParameterError("--firmware", args.firmware, "python when faults are injected (--drop, --corrupt, "
+                                    "--duplicate, --delay, --disconnect-at): the C firmware writes its own line")
 
 
 def _scheduling(priority: int | None) -> str:
