@@ -78,7 +78,7 @@ LIBRARY_NAME = "libpythonfmu-export.so"
 #: The loader, built beside it (the FMU's copy is ``binaries/<platform>/<model>.so``).
 LOADER_NAME = "nfal-loader.so"
 #: Changed whenever forwarders_source changes what it writes (part of the loader's cache key).
-_GENERATOR_VERSION = b"1"
+_GENERATOR_VERSION = b"2"
 #: What the FMU's runtime is called beside the loader: ``<model>`` + this.
 RUNTIME_SUFFIX = "_runtime.so"
 #: The file in the FMU's resources that names its Python (:func:`python_settings`; read by the loader).
@@ -175,6 +175,15 @@ def _failure_value(returns: str, fmi_version: int) -> str:
     return " NULL"
 
 
+#: What a getter with pointer outputs answers for an instance that is not live, besides its error: empty
+#: values (ecos 0.7.2 reads a String output of an instance whose instantiation failed, ignoring the error).
+_POINTER_OUTPUTS = {
+    "fmi2GetString": "for (size_t k = 0; a3 && k < a2; ++k) a3[k] = \"\";",
+    "fmi3GetString": "for (size_t k = 0; values && k < nValues; ++k) values[k] = \"\";",
+    "fmi3GetBinary": "for (size_t k = 0; values && valueSizes && k < nValues; ++k) { values[k] = NULL; valueSizes[k] = 0; }",
+}
+
+
 def forwarders_source(functions, exported: set[str], fmi_version: int) -> str:
     """C source (``nfal_forwarders.h``) of the loader's function table and one exported forwarder per
     function of ``functions`` (:func:`fmi_functions`) that the runtime exports (``exported``)."""
@@ -211,7 +220,11 @@ def forwarders_source(functions, exported: set[str], fmi_version: int) -> str:
             lines += [f"    if (nfal_live_remove({first})) nfal_table.{name}({first});", "}", ""]
             continue
         guard = f"nfal_live_has({first})" if first in ("a0", "instance") else "nfal_runtime_handle"
-        lines += [f"    if (!{guard}) return{fail};", f"    return nfal_table.{name}({arguments});", "}", ""]
+        if name in _POINTER_OUTPUTS:  # hosts that ignore the error status (ecos) must not read garbage pointers
+            lines += [f"    if (!{guard}) {{", f"        {_POINTER_OUTPUTS[name]}", f"        return{fail};", "    }"]
+        else:
+            lines += [f"    if (!{guard}) return{fail};"]
+        lines += [f"    return nfal_table.{name}({arguments});", "}", ""]
     return "\n".join(lines)
 
 

@@ -18,7 +18,8 @@
  *      pythonfmu3 runtime), and forwards every call to it.
  *
  * Anything missing makes the instantiate call return NULL with one line through the host's logger that
- * names what is missing and the override; nothing here crashes a host. The interpreter is never
+ * names what is missing and the override (also written to stderr: ecos shows FMU messages only at its
+ * debug level); nothing here crashes a host. The interpreter is never
  * finalised (see PyState.hpp in the runtimes), and neither library is ever closed.
  *
  * The loader also keeps the set of live instances: a call with an instance that is not live (freed
@@ -368,26 +369,23 @@ static int nfal_live_remove(void *instance)
     return instance && found;
 }
 
-/* The one line a failed instantiate logs, through the host's logger (or stderr when it gave none). */
+/* The one line a failed instantiate logs, through the host's logger, and the same line on stderr: some hosts
+   show FMU messages only at a debug level (ecos 0.7.2) and go on with the instance they did not get. */
 #if NFAL_FMI_VERSION == 2
 static void nfal_log_failure(fmi2String instance, const fmi2CallbackFunctions *functions, const char *message)
 {
     if (functions && functions->logger) {
         functions->logger(functions->componentEnvironment, instance ? instance : nfal_model, fmi2Error,
                           "logStatusError", "%s", message);
-    } else {
-        fprintf(stderr, "%s: %s\n", instance ? instance : nfal_model, message);
     }
+    fprintf(stderr, "%s (%s FMU): %s\n", instance ? instance : nfal_model, nfal_model, message);
 }
 #else
 static void nfal_log_failure(fmi3String instance, fmi3InstanceEnvironment environment, fmi3LogMessageCallback logger,
                              const char *message)
 {
-    if (logger) {
-        logger(environment, fmi3Error, "logStatusError", message);
-    } else {
-        fprintf(stderr, "%s: %s\n", instance ? instance : nfal_model, message);
-    }
+    if (logger) logger(environment, fmi3Error, "logStatusError", message);
+    fprintf(stderr, "%s (%s FMU): %s\n", instance ? instance : nfal_model, nfal_model, message);
 }
 #endif
 
