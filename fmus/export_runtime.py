@@ -20,7 +20,13 @@ pending: SIGSEGV), an import failure is no longer printed away before it is repo
 callback is allowed, two leaks are closed, and a failed reset leaves no dangling references.
 
 :func:`runtime_library` builds one with CMake for the running Python (once; the result is cached by
-the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU in place of the stock one.
+the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU as ``<model>_runtime.so``.
+
+In front of it, as the binary a host loads (``<model>.so``), goes the loader (``fmus/loader/loader.c``,
+:func:`loader_library`): it has no Python symbols, starts the Python the FMU recorded in
+``resources/python.cfg`` (:func:`python_settings`, :func:`python_config`; the override
+:data:`PYTHON_OVERRIDE_ENV`) and forwards every FMI function the runtime exports (generated from the FMI
+headers, :func:`fmi_functions`, :func:`forwarders_source`). docs/cosimulation.md, "The loader".
 """
 
 from __future__ import annotations
