@@ -14,18 +14,25 @@ everything the slave imports from nfal, under the same import names as in the in
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
         nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
-    binaries/linux64/<Model>.so   the patched pythonfmu runtime built from fmus/runtime/ (fmus/export_runtime.py)
-    binaries/win64/<Model>.dll    pythonfmu's own, not patched and not tested (Fatal on an exception, and the
-                                  instance is released twice: freeing a failed one may crash the host)
+        python.cfg              the Python that built the FMU (executable, libpython, site-packages), which
+                                the loader starts in a host without Python; override= (or NFAL_FMU_PYTHON)
+                                names another
+    binaries/linux64/<Model>.so   the loader (fmus/loader/loader.c): no Python symbols; finds the Python,
+                                  loads libpython and the runtime, forwards every FMI call
+    binaries/linux64/<Model>_runtime.so   the patched pythonfmu runtime built from fmus/runtime/
+                                  (fmus/export_runtime.py)
+
+No Windows binary: pythonfmu's and pythonfmu3's stock DLLs (unpatched, and run by no test here) are left
+out, so an FMU declares only the platform it was tested on.
 
 ``fmi_version=3`` builds the same slave as an FMI 3.0 FMU with pythonfmu3: the layout above (the FMI 3.0
-binary under ``binaries/x86_64-linux/``: the patched pythonfmu3 runtime built from fmus/runtime3/;
-``binaries/x86_64-windows/`` keeps pythonfmu3's own, not patched and not tested), plus ``pythonfmu/`` (pythonfmu's
+binaries under ``binaries/x86_64-linux/``: the loader, and the patched pythonfmu3 runtime built from
+fmus/runtime3/), plus ``pythonfmu/`` (pythonfmu's
 Python side, which NfalSlave builds on), ``pythonfmu3/`` (added by pythonfmu3) and the generated slave module
 ``nfal3_<script>.py`` (:func:`nfal.fmus.fmi3.fmi3_script`), named in ``slavemodule.txt``.
 
 Third-party packages (numpy, scipy, numba, python-control; pyserial and cobs for the proxy) come from
-the Python environment that runs the FMU, as with every pythonfmu FMU; a missing one fails
+the Python environment that runs the FMU (a Python host's own, else the one python.cfg records); a missing one fails
 fmi2Instantiate with a logged line naming it and its pip command. Every FMU runs the nfal code it
 carries, whatever else the host process has imported (``fmus/bundle_loader.py``).
 
@@ -53,7 +60,8 @@ import nfal
 import nfal.hil
 import nfal.models
 from nfal.errors import InvalidParameterError, RuntimeBuildError
-from nfal.fmus.export_runtime import RUNTIMES, runtime_library
+from nfal.fmus.export_runtime import (PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME_SUFFIX, RUNTIMES, loader_library,
+                                      python_config, python_settings, runtime_library)
 from nfal.fmus.fmi3 import fmi3_script
 
 logger = logging.getLogger(__name__)
@@ -161,18 +169,29 @@ def _stage(name: str, stage: Path) -> Path:
 
 
 def _with_runtime(built: Path, name: str, target: Path, fmi_version: int) -> None:
-    """Copy the FMU ``built`` to ``target`` with the patched runtime of ``fmi_version`` as its Linux binary."""
-    binary = f"binaries/{RUNTIMES[fmi_version].platform}/{name}.so"
+    """Copy the FMU ``built`` to ``target`` with our binaries for Linux (the loader as ``<name>.so``, the
+    patched runtime of ``fmi_version`` beside it as ``<name>_runtime.so``) and ``resources/python.cfg``
+    (the Python that runs it, :func:`nfal.fmus.export_runtime.python_settings`); no binary of another
+    platform (none is tested: the builders' stock Windows DLLs are left out)."""
+    platform = RUNTIMES[fmi_version].platform
+    binary = f"binaries/{platform}/{name}.so"
+    settings = python_settings()
+    if not settings.get("libpython"):
+        logger.warning("the Python building %s (%s) has no shared libpython: a host without Python cannot run "
+                       "the FMU until %s (or override= in resources/%s) names one that has", name,
+                       settings.get("executable"), PYTHON_OVERRIDE_ENV, PYTHON_CONFIG)
     with zipfile.ZipFile(built) as source, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as out:
         replaced = False
         for item in source.infolist():
             if item.filename == binary:
                 replaced = True
-            else:
+            elif not item.filename.startswith("binaries/"):
                 out.writestr(item, source.read(item))
         if not replaced:  # the builder's layout changed: the stock binary would stay beside ours
             raise RuntimeBuildError(f"{built.name} has no {binary} to replace with the patched runtime")
-        out.write(runtime_library(fmi_version), binary)
+        out.write(loader_library(fmi_version), binary)
+        out.write(runtime_library(fmi_version), f"binaries/{platform}/{name}{RUNTIME_SUFFIX}")
+        out.writestr(f"resources/{PYTHON_CONFIG}", python_config(settings))
 
 
 def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]:

@@ -20,13 +20,21 @@ pending: SIGSEGV), an import failure is no longer printed away before it is repo
 callback is allowed, two leaks are closed, and a failed reset leaves no dangling references.
 
 :func:`runtime_library` builds one with CMake for the running Python (once; the result is cached by
-the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU in place of the stock one.
+the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU as ``<model>_runtime.so``.
+
+In front of it, as the binary a host loads (``<model>.so``), goes the loader (``fmus/loader/loader.c``,
+:func:`loader_library`): it has no Python symbols, starts the Python the FMU recorded in
+``resources/python.cfg`` (:func:`python_settings`, :func:`python_config`; the override
+:data:`PYTHON_OVERRIDE_ENV`) and forwards every FMI function the runtime exports (generated from the FMI
+headers, :func:`fmi_functions`, :func:`forwarders_source`). docs/cosimulation.md, "The loader".
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -49,27 +57,190 @@ class Runtime:
     platform: str
     #: The cache folder's name (``~/.cache/nfal/<cache_name>/<hash>/``).
     cache_name: str
+    #: The FMI version (the loader is compiled for it).
+    fmi_version: int
 
     def source_files(self) -> list[Path]:
-        return sorted(p for p in self.sources.rglob("*") if p.is_file())
+        """The runtime's sources and the loader's (the FMU's binaries are built from both)."""
+        return sorted(p for p in self.sources.rglob("*") if p.is_file()) + [LOADER_SOURCE]
+
+    @property
+    def function_types(self) -> Path:
+        """The FMI header with one ``typedef <return> <name>TYPE(<parameters>);`` per function."""
+        name = "fmi2FunctionTypes.h" if self.fmi_version == 2 else "fmi3FunctionTypes.h"
+        return self.sources / "src" / "fmi" / name
 
 
 _HERE = Path(__file__).resolve().parent
+#: The loader every FMU's binary is (fmus/loader/loader.c).
+LOADER_SOURCE = _HERE / "loader" / "loader.c"
 #: FMI version -> its runtime.
 RUNTIMES: dict[int, Runtime] = {
-    2: Runtime(_HERE / "runtime", "linux64", "pythonfmu-export"),
-    3: Runtime(_HERE / "runtime3", "x86_64-linux", "pythonfmu3-export"),
+    2: Runtime(_HERE / "runtime", "linux64", "pythonfmu-export", 2),
+    3: Runtime(_HERE / "runtime3", "x86_64-linux", "pythonfmu3-export", 3),
 }
-#: The library CMake builds (the builders name the FMU's copy ``binaries/<platform>/<model>.so``).
+#: The library CMake builds (the FMU's copy is ``binaries/<platform>/<model>_runtime.so``).
 LIBRARY_NAME = "libpythonfmu-export.so"
+#: The loader, built beside it (the FMU's copy is ``binaries/<platform>/<model>.so``).
+LOADER_NAME = "nfal-loader.so"
+#: Changed whenever forwarders_source changes what it writes (part of the loader's cache key).
+_GENERATOR_VERSION = b"2"
+#: What the FMU's runtime is called beside the loader: ``<model>`` + this.
+RUNTIME_SUFFIX = "_runtime.so"
+#: The file in the FMU's resources that names its Python (:func:`python_settings`; read by the loader).
+PYTHON_CONFIG = "python.cfg"
+#: The environment variable that overrides it (a Python executable).
+PYTHON_OVERRIDE_ENV = "NFAL_FMU_PYTHON"
 BUILD_TIMEOUT_S = 600
+
+#: Prints a Python's settings as ``key=value`` lines: the build runs it in the Python that builds the
+#: FMU (recorded in resources/python.cfg), the loader in an override's Python. Standard library only.
+PYTHON_INFO = r"""
+import os, site, sys, sysconfig
+get = sysconfig.get_config_var
+def libpython():
+    names = [n for n in (get("INSTSONAME"), get("LDLIBRARY")) if n and ".so" in n]
+    folders = [f for f in (get("LIBDIR"), get("LIBPL"), os.path.join(sys.base_prefix, "lib")) if f]
+    if get("LIBDIR") and get("MULTIARCH"):
+        folders.append(os.path.join(get("LIBDIR"), get("MULTIARCH")))
+    for folder in folders:
+        for name in names:
+            if os.path.isfile(os.path.join(folder, name)):
+                return os.path.join(folder, name)
+    return ""
+paths = list(site.getsitepackages())
+if site.ENABLE_USER_SITE:
+    paths.append(site.getusersitepackages())
+paths += [sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
+paths = [p for i, p in enumerate(paths) if os.path.isdir(p) and p not in paths[:i]]
+print("executable=" + sys.executable)
+print("version=%d.%d" % sys.version_info[:2])
+print("prefix=" + sys.prefix)
+print("base_prefix=" + sys.base_prefix)
+print("libpython=" + libpython())
+print("site=" + os.pathsep.join(paths))
+"""
+
+
+def python_settings(executable: str | os.PathLike | None = None) -> dict[str, str]:
+    """The settings of the Python ``executable`` (default: this one) that an FMU records: executable,
+    version, prefix, base_prefix, libpython ("" without a shared one), site (``os.pathsep``-joined)."""
+    done = subprocess.run([str(executable or sys.executable), "-c", PYTHON_INFO], capture_output=True, text=True,
+                          timeout=60)
+    if done.returncode != 0:
+        raise RuntimeBuildError(f"cannot read the settings of the Python {executable or sys.executable}: "
+                                f"{done.stderr.strip()[-500:]}")
+    return dict(line.split("=", 1) for line in done.stdout.splitlines() if "=" in line)
+
+
+def python_config(settings: dict[str, str]) -> str:
+    """The text of an FMU's ``resources/python.cfg`` for ``settings`` (:func:`python_settings`)."""
+    lines = ["# The Python this FMU runs in a host that has none loaded (written by nfal build; read by the",
+             "# loader, binaries/<platform>/<Model>.so). To run it with another Python, set override= to that",
+             f"# Python's executable, or the environment variable {PYTHON_OVERRIDE_ENV} (which wins): it needs a",
+             "# shared libpython and this FMU's packages (numpy, scipy, numba, control; pyserial, cobs for",
+             "# the HardwareProxy). Check a Python with:",
+             "#   python -c \"import sysconfig; print(sysconfig.get_config_var('Py_ENABLE_SHARED'))\"   (1: shared)",
+             "override="]
+    lines += [f"{key}={settings.get(key, '')}" for key in ("executable", "version", "prefix", "base_prefix",
+                                                             "libpython", "site")]
+    return "\n".join(lines) + "\n"
+
+
+#: One FMI function: its return type, name, and parameters as (declaration, argument name).
+_TYPEDEF = re.compile(r"typedef\s+([\w\s\*]+?)\s*\b(fmi[23]\w+)TYPE\s*\(([^;]*?)\)\s*;", re.S)
+_TYPE_WORDS = re.compile(r"^(fmi[23]\w+|size_t|void|char|int|double|unsigned|const)$")
+
+
+def fmi_functions(header: str) -> list[tuple[str, str, list[tuple[str, str]]]]:
+    """Every function of an FMI ``*FunctionTypes.h`` text: (return type, name, [(declaration, argument)]).
+
+    FMI 2.0's typedefs give types only (arguments are named ``a0``, ``a1``, ...), FMI 3.0's give names."""
+    text = re.sub(r"/\*.*?\*/", "", header, flags=re.S)
+    functions = []
+    for returns, name, parameters in _TYPEDEF.findall(text):
+        declared = []
+        parts = [" ".join(p.split()) for p in parameters.split(",")]
+        for k, part in enumerate(p for p in parts if p and p != "void"):
+            words = re.findall(r"\w+", part)
+            if _TYPE_WORDS.match(words[-1]):  # no name given: add one
+                argument = f"a{k}"
+                part = part.replace("[]", f" {argument}[]") if "[]" in part else f"{part} {argument}"
+            else:
+                argument = words[-1]
+            declared.append((part, argument))
+        functions.append((" ".join(returns.split()), name, declared))
+    return functions
+
+
+def _failure_value(returns: str, fmi_version: int) -> str:
+    if returns == "void":
+        return ""
+    if returns.endswith("Status"):
+        return f" fmi{fmi_version}Error"
+    return " NULL"
+
+
+#: What a getter with pointer outputs answers for an instance that is not live, besides its error: empty
+#: values (ecos 0.7.2 reads a String output of an instance whose instantiation failed, ignoring the error).
+_POINTER_OUTPUTS = {
+    "fmi2GetString": "for (size_t k = 0; a3 && k < a2; ++k) a3[k] = \"\";",
+    "fmi3GetString": "for (size_t k = 0; values && k < nValues; ++k) values[k] = \"\";",
+    "fmi3GetBinary": "for (size_t k = 0; values && valueSizes && k < nValues; ++k) { values[k] = NULL; valueSizes[k] = 0; }",
+}
+
+
+def forwarders_source(functions, exported: set[str], fmi_version: int) -> str:
+    """C source (``nfal_forwarders.h``) of the loader's function table and one exported forwarder per
+    function of ``functions`` (:func:`fmi_functions`) that the runtime exports (``exported``)."""
+    chosen = [f for f in functions if f[1] in exported]
+    lines = ["/* Generated by fmus/export_runtime.py (forwarders_source) from the FMI headers: do not edit. */",
+             "static struct {"]
+    lines += [f"    {name}TYPE *{name};" for _, name, _ in chosen]
+    lines += ["} nfal_table;", "", "static void nfal_fill_table(void)", "{"]
+    lines += [f'    nfal_table.{name} = ({name}TYPE *)nfal_runtime_symbol("{name}");' for _, name, _ in chosen]
+    lines += ["}", ""]
+    constants = {"fmi2GetVersion": "fmi2Version", "fmi2GetTypesPlatform": "fmi2TypesPlatform",
+                 "fmi3GetVersion": "fmi3Version"}
+    for returns, name, parameters in chosen:
+        declaration = ", ".join(d for d, _ in parameters) or "void"
+        arguments = ", ".join(a for _, a in parameters)
+        fail = _failure_value(returns, fmi_version)
+        lines += [f"{returns} {name}({declaration})", "{"]
+        if name in constants:  # answered without Python
+            lines += [f"    return {constants[name]};", "}", ""]
+            continue
+        first = parameters[0][1] if parameters else None
+        if "Instantiate" in name:
+            if fmi_version == 2:
+                failure = "nfal_log_failure(a0, a4, message);"
+            else:
+                failure = "nfal_log_failure(instanceName, instanceEnvironment, logMessage, message);"
+            lines += ["    char message[NFAL_MESSAGE_SIZE];",
+                      "    if (!nfal_load(message, sizeof message)) {", f"        {failure}", "        return NULL;",
+                      "    }", f"    if (!nfal_table.{name}) return NULL;",
+                      f"    {returns} instance = nfal_table.{name}({arguments});",
+                      "    if (instance) nfal_live_add(instance);", "    return instance;", "}", ""]
+            continue
+        if "FreeInstance" in name:
+            lines += [f"    if (nfal_live_remove({first})) nfal_table.{name}({first});", "}", ""]
+            continue
+        guard = f"nfal_live_has({first})" if first in ("a0", "instance") else "nfal_runtime_handle"
+        if name in _POINTER_OUTPUTS:  # hosts that ignore the error status (ecos) must not read garbage pointers
+            lines += [f"    if (!{guard}) {{", f"        {_POINTER_OUTPUTS[name]}", f"        return{fail};", "    }"]
+        else:
+            lines += [f"    if (!{guard}) return{fail};"]
+        lines += [f"    return nfal_table.{name}({arguments});", "}", ""]
+    return "\n".join(lines)
 
 
 def _digest(runtime: Runtime) -> str:
     """Hash of the sources and of the Python they are built for (the cache key)."""
     digest = hashlib.sha256(sysconfig.get_paths()["include"].encode())
     for path in runtime.source_files():
-        digest.update(str(path.relative_to(runtime.sources)).encode())
+        if path == LOADER_SOURCE:  # the loader has its own key (loader_library)
+            continue
+        digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 
@@ -79,14 +250,45 @@ def _cache_dir(runtime: Runtime) -> Path:
     return root / "nfal" / runtime.cache_name / _digest(runtime)
 
 
+def exported_functions(library: Path) -> set[str]:
+    """The FMI functions ``library`` exports (``nm -D``)."""
+    if shutil.which("nm") is None:
+        raise RuntimeBuildError("building the FMU loader needs nm: apt-get install binutils")
+    done = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True, check=True)
+    return {fields[-1] for fields in (line.split() for line in done.stdout.splitlines())
+            if len(fields) >= 3 and fields[-2] == "T" and fields[-1].startswith("fmi")}
+
+
+def _build_loader(runtime: Runtime, library: Path, target: Path, build: Path) -> None:
+    """Compile fmus/loader/loader.c for ``runtime`` (forwarding what ``library`` exports) into ``target``."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        raise RuntimeBuildError("building the FMU loader needs a C compiler: apt-get install gcc")
+    functions = fmi_functions(runtime.function_types.read_text(encoding="latin-1"))
+    exported = exported_functions(library)
+    missing = exported - {name for _, name, _ in functions}
+    if missing:
+        raise RuntimeBuildError(f"the runtime exports FMI functions the headers do not declare: {sorted(missing)}")
+    (build / "nfal_forwarders.h").write_text(forwarders_source(functions, exported, runtime.fmi_version),
+                                             encoding="utf-8")
+    (build / "nfal_python_info.h").write_text(f"#define NFAL_PYTHON_INFO {json.dumps(PYTHON_INFO)}\n",
+                                              encoding="utf-8")
+    command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation", "-fvisibility=hidden",
+               f"-DNFAL_FMI_VERSION={runtime.fmi_version}", f"-I{build}", f"-I{runtime.function_types.parent}",
+               "-o", str(target), str(LOADER_SOURCE), "-ldl", "-lpthread"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+    if done.returncode != 0:
+        raise RuntimeBuildError(f"compiling the FMU loader failed:\n{(done.stdout + done.stderr)[-3000:]}")
+
+
 def runtime_library(fmi_version: int = 2) -> Path:
     """The patched ``libpythonfmu-export.so`` of ``fmi_version`` (2 or 3) for this Python, built with
-    CMake on first use.
+    CMake on first use (cached by the hash of the sources, :func:`loader_library`'s included).
 
     Raises
     ------
     RuntimeBuildError
-        Not on Linux, or CMake, a C++17 compiler or the Python headers are missing (the message
+        Not on Linux, or CMake, a C/C++ compiler or the Python headers are missing (the message
         names the Debian packages).
     """
     runtime = RUNTIMES[fmi_version]
@@ -109,4 +311,17 @@ def runtime_library(fmi_version: int = 2) -> Path:
                 raise RuntimeBuildError(f"{' '.join(command[:2])} failed for the FMU runtime in {runtime.sources}:\n"
                                         f"{(done.stdout + done.stderr)[-2000:]}")
         os.replace(Path(build) / runtime.platform / LIBRARY_NAME, target)
+    return target
+
+
+def loader_library(fmi_version: int = 2) -> Path:
+    """The loader (``fmus/loader/loader.c``) that forwards to :func:`runtime_library`'s runtime: the binary
+    a host loads from an FMU (built with the runtime, on first use)."""
+    library = runtime_library(fmi_version)
+    key = hashlib.sha256(LOADER_SOURCE.read_bytes() + PYTHON_INFO.encode() + _GENERATOR_VERSION).hexdigest()[:12]
+    target = library.parent / f"{Path(LOADER_NAME).stem}-{key}.so"
+    if not target.is_file():
+        with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
+            _build_loader(RUNTIMES[fmi_version], library, Path(build) / LOADER_NAME, Path(build))
+            os.replace(Path(build) / LOADER_NAME, target)
     return target

@@ -4,9 +4,9 @@ Two hosts nobody here wrote the runtime for: a minimal C host (``fmus/hosts/fmi2
 FMI Compliance Checker does: dlopen, instantiate, set up, step, terminate, free, dlclose, exit; and
 ``fmus/hosts/fmi3_host.c``, the same for FMI 3.0),
 compiled with the system's C compiler, and the ``ecos`` command line that comes with the ``ecospy``
-wheel (needs Debian's ``libtbb12``). Both load the FMUs' binaries with libpython preloaded and the
-running Python's packages on ``PYTHONPATH`` (:func:`host_environment`, as the README shows). A run
-counts as a crash when its exit code is not 0, whatever it printed.
+wheel (needs Debian's ``libtbb12``). Both run with nothing set up, as ``env -i PATH=/usr/bin:/bin
+HOME=$HOME`` would run them (:func:`bare_environment`): the FMU's loader finds its Python itself
+(fmus/loader/loader.c). A run counts as a crash when its exit code is not 0, whatever it printed.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import os
 import shutil
 import stat
 import subprocess
-import sysconfig
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -27,7 +26,6 @@ from fmpy import read_model_description
 from nfal.errors import HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import RUNTIMES
-from nfal.orchestration.libcosim import preload_environment
 
 #: The C hosts' sources, per FMI version.
 C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
@@ -43,19 +41,24 @@ class HostRuns:
     outputs: list[dict[str, float]] = field(default_factory=list)
     #: stdout + stderr of the first failed run ("" when none failed).
     first_failure: str = ""
+    #: stdout and stderr of each run.
+    texts: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def crashes(self) -> int:
         """Runs whose exit code was not 0 (a signal shows as a negative code)."""
         return sum(code != 0 for code in self.exit_codes)
 
+    @property
+    def signals(self) -> int:
+        """Runs killed by a signal (a segmentation fault, an abort): crashes whatever the run was meant to do."""
+        return sum(code < 0 for code in self.exit_codes)
 
-def host_environment() -> dict[str, str]:
-    """This environment plus libpython in ``LD_PRELOAD`` and this Python's packages first on ``PYTHONPATH``."""
-    env = preload_environment()
-    packages = sysconfig.get_paths()["purelib"]
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (packages, env.get("PYTHONPATH", "")) if p)
-    return env
+
+def bare_environment(**extra: str) -> dict[str, str]:
+    """Nothing set up: ``PATH=/usr/bin:/bin`` and ``HOME`` only (as ``env -i``), plus ``extra`` (e.g.
+    ``NFAL_FMU_PYTHON``, or a ``PATH`` with another Python first)."""
+    return {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), **extra}
 
 
 def compile_c_host(out_dir: Path, fmi_version: int = 2) -> Path:
@@ -93,20 +96,23 @@ def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[
     return [str(host), str(binary), description.guid, resources], outputs, settings
 
 
-def _run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(command, cwd=cwd, env=host_environment(), capture_output=True, text=True,
-                          timeout=HOST_TIMEOUT_S)
+def _run(command: list[str], cwd: Path, env: dict[str, str] | None) -> subprocess.CompletedProcess:
+    return subprocess.run(command, cwd=cwd, env=bare_environment() if env is None else env, capture_output=True,
+                          text=True, timeout=HOST_TIMEOUT_S)
 
 
 def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time: float = 0.01,
                   step_size: float = 5e-4, workers: int = 2, runtime: Path | None = None,
-                  strings: dict[str, str] | None = None) -> HostRuns:
+                  strings: dict[str, str] | None = None, env: dict[str, str] | None = None,
+                  cwd: Path | None = None) -> HostRuns:
     """Run ``fmu`` ``runs`` times in the C host of its FMI version (:func:`compile_c_host`) from its default
     start values; read every Real (Float64) output.
 
     ``runtime``: a library to run in place of the FMU's binary (e.g. pythonfmu's stock one, to compare);
     ``strings``: String parameters to set first, by name (FMI 2.0), e.g. ``{"port": ...}`` for the HardwareProxy;
-    ``workers``: runs at a time after the first (1 for an FMU that holds a device).
+    ``workers``: runs at a time after the first (1 for an FMU that holds a device);
+    ``env``: the host's environment (default :func:`bare_environment`); ``cwd``: its working directory
+    (default: the extracted FMU's folder).
     """
     folder = Path(work_dir) / fmu.stem
     with zipfile.ZipFile(fmu) as archive:
@@ -115,12 +121,14 @@ def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time
     if runtime is not None:
         shutil.copy2(runtime, command[1])
     command += [repr(stop_time), repr(step_size), *outputs, *settings]
-    first = _run(command, folder)  # alone: it fills numba's on-disk cache (models/numba_cache.py)
+    where = folder if cwd is None else cwd
+    first = _run(command, where, env)  # alone: it fills numba's on-disk cache (models/numba_cache.py)
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        done = [first, *pool.map(lambda _: _run(command, folder), range(runs - 1))]
+        done = [first, *pool.map(lambda _: _run(command, where, env), range(runs - 1))]
     result = HostRuns()
     for run in done:
         result.exit_codes.append(run.returncode)
+        result.texts.append((run.stdout, run.stderr))
         if run.returncode == 0:
             pairs = (line.split("=", 1) for line in run.stdout.splitlines() if "=" in line and line[0].isdigit())
             result.outputs.append({outputs[vr]: float(value) for vr, value in pairs})
@@ -148,16 +156,17 @@ def ecos_executable(cache_dir: Path) -> Path:
 
 
 def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: float,
-                step_size: float = 5e-4) -> HostRuns:
-    """Simulate ``ssp`` (an SSP archive, or one FMU alone: FMI 2.0 or 3.0) ``runs`` times with ``ecos simulate``;
-    ``outputs`` holds each run's CSV columns."""
+                step_size: float = 5e-4, env: dict[str, str] | None = None) -> HostRuns:
+    """Simulate ``ssp`` (an SSP archive, or one FMU alone: FMI 2.0 or 3.0) ``runs`` times with ``ecos simulate``
+    (in ``env``, default :func:`bare_environment`); ``outputs`` holds each run's CSV columns."""
     result = HostRuns()
     for k in range(runs):
         folder = Path(work_dir) / f"ecos_{k}"
         folder.mkdir(parents=True)
         run = _run([str(ecos), "simulate", "--path", str(ssp), "--stopTime", repr(stop_time), "--stepSize",
-                    repr(step_size)], folder)
+                    repr(step_size)], folder, env)
         result.exit_codes.append(run.returncode)
+        result.texts.append((run.stdout, run.stderr))
         if run.returncode == 0:
             result.outputs.append(read_ecos_csv(folder / f"{ssp.stem}.csv"))
         elif not result.first_failure:

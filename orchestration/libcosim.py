@@ -19,7 +19,8 @@ What libcosim does differently from SSP 1.0, and how :func:`run_ssp` compensates
 
 pythonfmu FMUs load in this process without ``LD_PRELOAD``: the Python executable has already
 loaded ``libpython``, whose symbols the FMU binary needs. Non-Python hosts (``cosim`` CLI, a
-C++ program) need :func:`preload_environment`.
+C++ program) load nfal's FMUs as they are (their loader starts the Python they recorded,
+docs/cosimulation.md, "The loader"); other pythonfmu FMUs need :func:`preload_environment`.
 
 ``libcosimpy`` is imported lazily; without it, :class:`LibcosimUnavailableError` says how to get it.
 """
@@ -115,8 +116,8 @@ def libpython_path() -> Path | None:
 def preload_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
     """A copy of ``environ`` (default ``os.environ``) with this interpreter's libpython first in ``LD_PRELOAD``.
 
-    What a non-Python FMI host (libcosim's ``cosim`` CLI, a C++ program) needs to load pythonfmu
-    FMUs: their binary uses libpython's symbols but does not link it. Raises
+    What a non-Python FMI host (libcosim's ``cosim`` CLI, a C++ program) needs to load stock pythonfmu
+    FMUs: their binary uses libpython's symbols but does not link it (nfal's FMUs need nothing). Raises
     :class:`LibcosimUnavailableError` for a statically linked interpreter (no libpython to preload).
     """
     env = dict(os.environ if environ is None else environ)

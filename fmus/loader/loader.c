@@ -1,0 +1,392 @@
+/* The binary a host loads from an nfal FMU: a small loader with no Python symbols (docs/cosimulation.md,
+ * "The loader: FMUs that need nothing from the environment").
+ *
+ * binaries/<platform>/<Model>.so is this file, compiled once per FMI version (NFAL_FMI_VERSION 2 or 3)
+ * by fmus/export_runtime.py together with the generated forwarders (nfal_forwarders.h: one exported
+ * function per FMI function the runtime exports). At the first fmi2Instantiate / fmi3Instantiate* it
+ *
+ *   1. reads resources/python.cfg, written by the build: the Python the FMU was built with (executable,
+ *      version, prefix, libpython, site-packages);
+ *   2. takes another Python if the environment variable NFAL_FMU_PYTHON or the file's "override=" names
+ *      one (its settings are asked from that Python itself);
+ *   3. uses the libpython already in the process (FMPy, libcosimpy: Py_IsInitialized is found globally),
+ *      or dlopen()s the recorded one with RTLD_GLOBAL (extension modules such as numpy's need its symbols
+ *      globally) and initialises it as the recorded executable would start (program name = that
+ *      executable, so a venv's pyvenv.cfg is found and its site-packages used), without signal handlers,
+ *      then adds the recorded site-packages to sys.path;
+ *   4. dlopen()s the real runtime, binaries/<platform>/<Model>_runtime.so (the patched pythonfmu or
+ *      pythonfmu3 runtime), and forwards every call to it.
+ *
+ * Anything missing makes the instantiate call return NULL with one line through the host's logger that
+ * names what is missing and the override (also written to stderr: ecos shows FMU messages only at its
+ * debug level); nothing here crashes a host. The interpreter is never
+ * finalised (see PyState.hpp in the runtimes), and neither library is ever closed.
+ *
+ * The loader also keeps the set of live instances: a call with an instance that is not live (freed
+ * already, never created, NULL) returns an error, and a second FreeInstance does nothing.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <errno.h>
+#include <limits.h>
+#include <pthread.h>
+#include <spawn.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <unistd.h>
+#include <wchar.h>
+
+#if NFAL_FMI_VERSION == 2
+#include "fmi2Functions.h"
+#else
+#include "fmi3Functions.h"
+#endif
+#include "nfal_python_info.h" /* generated: NFAL_PYTHON_INFO, the script that prints a Python's settings */
+
+#define NFAL_MESSAGE_SIZE 2048
+#define NFAL_VALUE_SIZE 4096
+#define NFAL_OVERRIDE_ENV "NFAL_FMU_PYTHON"
+#define NFAL_CONFIG_FILE "python.cfg"
+
+extern char **environ;
+
+/* What resources/python.cfg (or the override's Python) says. */
+typedef struct {
+    char override[NFAL_VALUE_SIZE];
+    char executable[NFAL_VALUE_SIZE];
+    char version[64];
+    char libpython[NFAL_VALUE_SIZE];
+    char site[4 * NFAL_VALUE_SIZE];
+} nfal_python;
+
+static char nfal_self[PATH_MAX];     /* this library's own path */
+static char nfal_model[256];         /* its model identifier (the file name without .so) */
+static void *nfal_runtime_handle;    /* the real runtime, once loaded */
+static pthread_mutex_t nfal_lock = PTHREAD_MUTEX_INITIALIZER;
+
+static void *nfal_runtime_symbol(const char *name);
+static void nfal_fill_table(void); /* generated: nfal_forwarders.h */
+
+__attribute__((constructor)) static void nfal_find_self(void)
+{
+    Dl_info info;
+    if (dladdr((void *)&nfal_find_self, &info) && info.dli_fname) {
+        if (!realpath(info.dli_fname, nfal_self)) snprintf(nfal_self, sizeof nfal_self, "%s", info.dli_fname);
+    }
+    const char *base = strrchr(nfal_self, '/');
+    base = base ? base + 1 : nfal_self;
+    snprintf(nfal_model, sizeof nfal_model, "%s", base);
+    char *dot = strstr(nfal_model, ".so");
+    if (dot) *dot = '\0';
+}
+
+/* dirname of nfal_self, up ``levels`` folders, into out. */
+static void nfal_folder(char *out, size_t size, int levels)
+{
+    snprintf(out, size, "%s", nfal_self);
+    for (int k = 0; k <= levels; ++k) {
+        char *slash = strrchr(out, '/');
+        if (slash) *slash = '\0';
+    }
+}
+
+static void nfal_trim(char *text)
+{
+    size_t n = strlen(text);
+    while (n > 0 && (text[n - 1] == '\n' || text[n - 1] == '\r' || text[n - 1] == ' ' || text[n - 1] == '\t')) {
+        text[--n] = '\0';
+    }
+    size_t start = strspn(text, " \t");
+    if (start) memmove(text, text + start, n - start + 1);
+}
+
+/* One "key=value" line into the settings (unknown keys and comments are ignored). */
+static void nfal_setting(nfal_python *python, char *line)
+{
+    if (line[0] == '#') return;
+    char *equals = strchr(line, '=');
+    if (!equals) return;
+    *equals = '\0';
+    char *key = line, *value = equals + 1;
+    nfal_trim(key);
+    nfal_trim(value);
+    struct { const char *key; char *target; size_t size; } fields[] = {
+        {"override", python->override, sizeof python->override},
+        {"executable", python->executable, sizeof python->executable},
+        {"version", python->version, sizeof python->version},
+        {"libpython", python->libpython, sizeof python->libpython},
+        {"site", python->site, sizeof python->site},
+    };
+    for (size_t k = 0; k < sizeof fields / sizeof fields[0]; ++k) {
+        if (strcmp(key, fields[k].key) == 0) snprintf(fields[k].target, fields[k].size, "%s", value);
+    }
+}
+
+static void nfal_settings(nfal_python *python, FILE *source)
+{
+    char line[4 * NFAL_VALUE_SIZE + 64];
+    while (fgets(line, sizeof line, source)) nfal_setting(python, line);
+}
+
+/* Ask ``executable`` for its settings (the build's script, NFAL_PYTHON_INFO); 0 with a message on failure. */
+static int nfal_ask_python(nfal_python *python, const char *executable, char *message, size_t size)
+{
+    int pipe_fds[2];
+    if (pipe(pipe_fds) != 0) {
+        snprintf(message, size, "cannot ask the Python %s for its settings: pipe: %s", executable, strerror(errno));
+        return 0;
+    }
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_adddup2(&actions, pipe_fds[1], STDOUT_FILENO);
+    posix_spawn_file_actions_addclose(&actions, pipe_fds[0]);
+    char *argv[] = {(char *)executable, "-c", (char *)NFAL_PYTHON_INFO, NULL};
+    pid_t child;
+    int spawned = posix_spawn(&child, executable, &actions, NULL, argv, environ);
+    posix_spawn_file_actions_destroy(&actions);
+    close(pipe_fds[1]);
+    if (spawned != 0) {
+        close(pipe_fds[0]);
+        snprintf(message, size, "cannot run the Python %s: %s", executable, strerror(spawned));
+        return 0;
+    }
+    FILE *output = fdopen(pipe_fds[0], "r");
+    if (output) {
+        nfal_settings(python, output);
+        fclose(output);
+    } else {
+        close(pipe_fds[0]);
+    }
+    int status = 0;
+    while (waitpid(child, &status, 0) < 0 && errno == EINTR) {}
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !python->executable[0]) {
+        snprintf(message, size, "the Python %s did not tell its settings (is it Python 3.8 or newer?)", executable);
+        return 0;
+    }
+    return 1;
+}
+
+typedef int (*nfal_int_void)(void);
+
+/* The Python of the process if one is initialised there already (a Python host). */
+static int nfal_python_in_process(void)
+{
+    nfal_int_void is_initialized = (nfal_int_void)dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    return is_initialized && is_initialized();
+}
+
+/* Python source text for a string literal holding ``text`` (backslashes and quotes escaped). */
+static void nfal_python_literal(char *out, size_t size, const char *text)
+{
+    size_t n = 0;
+    if (n < size) out[n++] = '\'';
+    for (const char *c = text; *c && n + 3 < size; ++c) {
+        if (*c == '\\' || *c == '\'') out[n++] = '\\';
+        out[n++] = *c;
+    }
+    if (n < size) out[n++] = '\'';
+    out[n < size ? n : size - 1] = '\0';
+}
+
+/* dlopen libpython globally and start it as ``python->executable`` would start; 0 with a message on failure. */
+static int nfal_start_python(const nfal_python *python, const char *fix, char *message, size_t size)
+{
+    void *library = dlopen(python->libpython, RTLD_NOW | RTLD_GLOBAL);
+    if (!library) {
+        snprintf(message, size, "cannot load libpython %s of the Python %s (%s): %s", python->libpython,
+                 python->executable, dlerror(), fix);
+        return 0;
+    }
+    nfal_int_void is_initialized = (nfal_int_void)dlsym(library, "Py_IsInitialized");
+    void (*initialize)(int) = (void (*)(int))dlsym(library, "Py_InitializeEx");
+    int (*run)(const char *) = (int (*)(const char *))dlsym(library, "PyRun_SimpleString");
+    void *(*save_thread)(void) = (void *(*)(void))dlsym(library, "PyEval_SaveThread");
+    wchar_t *(*decode)(const char *, size_t *) = (wchar_t * (*)(const char *, size_t *))dlsym(library, "Py_DecodeLocale");
+    void (*set_program_name)(const wchar_t *) = (void (*)(const wchar_t *))dlsym(library, "Py_SetProgramName");
+    if (!is_initialized || !initialize || !run || !save_thread || !decode) {
+        snprintf(message, size, "%s is not a libpython this FMU can use (Python 3.8 or newer): %s",
+                 python->libpython, fix);
+        return 0;
+    }
+    if (is_initialized()) return 1;  /* loaded and started by someone else meanwhile */
+    if (set_program_name) {
+        /* the program name decides sys.prefix, a venv's pyvenv.cfg and sys.executable; kept for the
+           interpreter's lifetime, which is the process's (never freed) */
+        wchar_t *name = decode(python->executable, NULL);
+        if (name) set_program_name(name);
+    }
+    initialize(0);  /* no signal handlers: the host owns SIGINT */
+    char literal[4 * NFAL_VALUE_SIZE + 16], executable[NFAL_VALUE_SIZE + 16];
+    nfal_python_literal(literal, sizeof literal, python->site);
+    nfal_python_literal(executable, sizeof executable, python->executable);
+    char code[sizeof literal + sizeof executable + 512];
+    snprintf(code, sizeof code,
+             "import os, site, sys\n"
+             "sys.executable = %s\n"
+             "for _p in %s.split(os.pathsep):\n"
+             "    if _p and _p not in sys.path and os.path.isdir(_p):\n"
+             "        site.addsitedir(_p)\n"
+             "del _p\n",
+             executable, literal);
+    run(code);
+    save_thread();  /* the runtime takes the GIL per call (PyGILState_Ensure) */
+    return 1;
+}
+
+/* Make the runtime callable: 1, or 0 with one line in ``message`` naming what is missing and the fix. */
+static int nfal_load(char *message, size_t size)
+{
+    pthread_mutex_lock(&nfal_lock);
+    if (nfal_runtime_handle) {
+        pthread_mutex_unlock(&nfal_lock);
+        return 1;
+    }
+    char resources[PATH_MAX], binaries[PATH_MAX], config[PATH_MAX + 32], runtime[PATH_MAX + 300];
+    nfal_folder(resources, sizeof resources, 2);
+    strncat(resources, "/resources", sizeof resources - strlen(resources) - 1);
+    nfal_folder(binaries, sizeof binaries, 0);
+    snprintf(config, sizeof config, "%s/%s", resources, NFAL_CONFIG_FILE);
+    snprintf(runtime, sizeof runtime, "%s/%s_runtime.so", binaries, nfal_model);
+
+    int ok = 1;
+    nfal_python python;
+    memset(&python, 0, sizeof python);
+    if (!nfal_python_in_process()) {
+        FILE *file = fopen(config, "r");
+        if (file) {
+            nfal_settings(&python, file);
+            fclose(file);
+        }
+        const char *from_env = getenv(NFAL_OVERRIDE_ENV);
+        char fix[1024];
+        snprintf(fix, sizeof fix, "set the environment variable " NFAL_OVERRIDE_ENV
+                 " (or override= in the FMU's resources/" NFAL_CONFIG_FILE ") to a Python executable with a shared "
+                 "libpython and this FMU's packages");
+        if (from_env && from_env[0]) {
+            char chosen[NFAL_VALUE_SIZE];
+            snprintf(chosen, sizeof chosen, "%s", from_env);
+            memset(&python, 0, sizeof python);
+            if (access(chosen, X_OK) != 0) {
+                snprintf(message, size, "the Python %s named by " NFAL_OVERRIDE_ENV " does not exist or cannot run "
+                         "(%s): %s, or unset it to use the Python the FMU was built with",
+                         chosen, strerror(errno), fix);
+                ok = 0;
+            } else {
+                ok = nfal_ask_python(&python, chosen, message, size);
+            }
+        } else if (python.override[0]) {
+            char chosen[NFAL_VALUE_SIZE];
+            snprintf(chosen, sizeof chosen, "%s", python.override);
+            memset(&python, 0, sizeof python);
+            if (access(chosen, X_OK) != 0) {
+                snprintf(message, size, "the Python %s named by override= in %s does not exist or cannot run (%s): "
+                         "%s, or empty override= to use the Python the FMU was built with", chosen, config,
+                         strerror(errno), fix);
+                ok = 0;
+            } else {
+                ok = nfal_ask_python(&python, chosen, message, size);
+            }
+        } else if (!python.executable[0]) {
+            snprintf(message, size, "the FMU does not say which Python runs it (%s is missing or has no "
+                     "executable=): %s", config, fix);
+            ok = 0;
+        } else if (access(python.executable, X_OK) != 0) {
+            snprintf(message, size, "the Python %s this FMU was built with does not exist or cannot run (%s): "
+                     "install it there, or %s", python.executable, strerror(errno), fix);
+            ok = 0;
+        }
+        if (ok && !python.libpython[0]) {
+            snprintf(message, size, "the Python %s has no shared libpython (built without --enable-shared; check "
+                     "with: %s -c \"import sysconfig; print(sysconfig.get_config_var('Py_ENABLE_SHARED'))\"): %s",
+                     python.executable, python.executable, fix);
+            ok = 0;
+        }
+        if (ok) ok = nfal_start_python(&python, fix, message, size);
+    }
+    if (ok) {
+        nfal_runtime_handle = dlopen(runtime, RTLD_NOW | RTLD_LOCAL);
+        if (!nfal_runtime_handle) {
+            snprintf(message, size, "cannot load the FMU's runtime %s: %s", runtime, dlerror());
+            ok = 0;
+        } else {
+            nfal_fill_table();
+        }
+    }
+    pthread_mutex_unlock(&nfal_lock);
+    return ok;
+}
+
+static void *nfal_runtime_symbol(const char *name)
+{
+    return dlsym(nfal_runtime_handle, name);
+}
+
+/* The live instances (a handful at most: a linear list). */
+static void **nfal_live;
+static size_t nfal_live_count, nfal_live_capacity;
+static pthread_mutex_t nfal_live_lock = PTHREAD_MUTEX_INITIALIZER;
+
+static void nfal_live_add(void *instance)
+{
+    pthread_mutex_lock(&nfal_live_lock);
+    if (nfal_live_count == nfal_live_capacity) {
+        size_t capacity = nfal_live_capacity ? 2 * nfal_live_capacity : 16;
+        void **grown = realloc(nfal_live, capacity * sizeof *grown);
+        if (grown) {
+            nfal_live = grown;
+            nfal_live_capacity = capacity;
+        }
+    }
+    if (nfal_live_count < nfal_live_capacity) nfal_live[nfal_live_count++] = instance;
+    pthread_mutex_unlock(&nfal_live_lock);
+}
+
+static int nfal_live_has(void *instance)
+{
+    int found = 0;
+    pthread_mutex_lock(&nfal_live_lock);
+    for (size_t k = 0; k < nfal_live_count && !found; ++k) found = nfal_live[k] == instance;
+    pthread_mutex_unlock(&nfal_live_lock);
+    return instance && found;
+}
+
+/* 1 if ``instance`` was live (and is no longer), 0 otherwise. */
+static int nfal_live_remove(void *instance)
+{
+    int found = 0;
+    pthread_mutex_lock(&nfal_live_lock);
+    for (size_t k = 0; k < nfal_live_count; ++k) {
+        if (nfal_live[k] == instance) {
+            nfal_live[k] = nfal_live[--nfal_live_count];
+            found = 1;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&nfal_live_lock);
+    return instance && found;
+}
+
+/* The one line a failed instantiate logs, through the host's logger, and the same line on stderr: some hosts
+   show FMU messages only at a debug level (ecos 0.7.2) and go on with the instance they did not get. */
+#if NFAL_FMI_VERSION == 2
+static void nfal_log_failure(fmi2String instance, const fmi2CallbackFunctions *functions, const char *message)
+{
+    if (functions && functions->logger) {
+        functions->logger(functions->componentEnvironment, instance ? instance : nfal_model, fmi2Error,
+                          "logStatusError", "%s", message);
+    }
+    fprintf(stderr, "%s (%s FMU): %s\n", instance ? instance : nfal_model, nfal_model, message);
+}
+#else
+static void nfal_log_failure(fmi3String instance, fmi3InstanceEnvironment environment, fmi3LogMessageCallback logger,
+                             const char *message)
+{
+    if (logger) logger(environment, fmi3Error, "logStatusError", message);
+    fprintf(stderr, "%s (%s FMU): %s\n", instance ? instance : nfal_model, nfal_model, message);
+}
+#endif
+
+#include "nfal_forwarders.h" /* generated: the function table and one exported forwarder per FMI function */

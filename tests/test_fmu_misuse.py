@@ -1,0 +1,119 @@
+"""Every FMI 3.0 FMU survives misuse as its FMI 2.0 twin does (issue 24, item 4).
+
+Each case is one sequence of calls a careless host makes (a second free, a step before initialisation, a
+call on a freed instance, bad values), run in its own FMPy process on the FMI 2.0 and on the FMI 3.0
+build of the same slave. Both must end the process cleanly (exit code 0: no crash at the call or at exit)
+and answer every call alike: ok where the twin says ok, an error where it says error. The guard against a
+call on an instance that is not live (freed, or never made) is the loader's (fmus/loader/loader.c), the
+same for both versions; everything else reaches the slave, whose errors are fmi2Error / fmi3Error.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from nfal.fmus import build
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the loader is built for Linux only")]
+
+SCRIPT = r'''
+import json, math, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+spec = json.loads(sys.argv[1])
+md = read_model_description(spec["fmu"])
+fmi3 = md.fmiVersion.startswith("3")
+if fmi3:
+    from fmpy.fmi3 import FMU3Slave as Slave
+else:
+    from fmpy.fmi2 import FMU2Slave as Slave
+refs = {v.name: v.valueReference for v in md.modelVariables}
+fmu = Slave(guid=md.guid, unzipDirectory=extract(spec["fmu"]), modelIdentifier=md.coSimulation.modelIdentifier,
+            instanceName="misuse")
+t = 0.0
+def handle():
+    return fmu.component
+def get(name):
+    return (fmu.getFloat64 if fmi3 else fmu.getReal)([refs[name]])
+def set_(name, value):
+    (fmu.setFloat64 if fmi3 else fmu.setReal)([refs[name]], [value])
+def init():
+    if fmi3:
+        fmu.enterInitializationMode(startTime=0.0)
+    else:
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+def step(size):
+    global t
+    fmu.doStep(currentCommunicationPoint=t, communicationStepSize=size)
+    t += size
+def free():
+    (fmu.fmi3FreeInstance if fmi3 else fmu.fmi2FreeInstance)(handle())
+operations = {
+    "instantiate": lambda: fmu.instantiate(),
+    "init": init,
+    "step": lambda: step(5e-4),
+    "step_nan": lambda: step(float("nan")),
+    "step_negative": lambda: step(-5e-4),
+    "get": lambda: get("height"),
+    "terminate": lambda: fmu.terminate(),
+    "free": free,
+}
+answers = []
+for operation in spec["calls"]:
+    name, _, argument = operation.partition(":")
+    try:
+        if name == "set":
+            variable, value = argument.split("=")
+            set_(variable, float(value))
+        else:
+            operations[name]()
+        answers.append("ok")
+    except FMICallException:
+        answers.append("error")
+print(json.dumps(answers))
+'''
+
+#: Case -> the calls (``set:<variable>=<value>`` sets a Float64/Real variable).
+CASES = {
+    "free-twice": ["instantiate", "init", "step", "terminate", "free", "free"],
+    "step-before-initialisation": ["instantiate", "step", "get", "free"],
+    "calls-on-a-freed-instance": ["instantiate", "init", "free", "get", "step", "terminate", "free"],
+    "initialise-twice": ["instantiate", "init", "init", "step", "free"],
+    "step-after-terminate": ["instantiate", "init", "step", "terminate", "step", "terminate", "free"],
+    "parameter-nan": ["instantiate", "set:mass=nan", "init", "step", "free"],
+    "parameter-negative": ["instantiate", "set:mass=-1", "init", "step", "free"],
+    "parameter-after-initialisation": ["instantiate", "init", "set:mass=2", "step", "get", "free"],
+    "input-huge": ["instantiate", "init", "set:excitation_amplitude=1e200", "step", "get", "free"],
+    "input-nan": ["instantiate", "init", "set:drive_frequency=nan", "step", "get", "free"],
+    "step-nan": ["instantiate", "init", "step_nan", "step", "free"],
+    "step-negative": ["instantiate", "init", "step_negative", "step", "free"],
+}
+
+
+@pytest.fixture(scope="module")
+def twins(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("twins")
+    return {version: build.build_fmu("SlowPlant", folder / f"fmi{version}", fmi_version=version) for version in (2, 3)}
+
+
+def answers(fmu, calls) -> list[str]:
+    done = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps({"fmu": str(fmu), "calls": calls})],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, f"{fmu.parent.name}: exit code {done.returncode}\n{done.stdout}\n{done.stderr[-3000:]}"
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_fmi3_survives_misuse_as_its_fmi2_twin(case, twins):
+    fmi2, fmi3 = answers(twins[2], CASES[case]), answers(twins[3], CASES[case])
+    assert fmi3 == fmi2
+    if case in ("free-twice", "calls-on-a-freed-instance"):  # the loader's guard: nothing reaches a freed instance
+        assert fmi2[CASES[case].index("free") + 1:] == ["ok" if c == "free" else "error"
+                                                        for c in CASES[case][CASES[case].index("free") + 1:]]
