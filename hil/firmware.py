@@ -31,7 +31,7 @@ class RigTiming:
     """The rig's announced timing and limits (HELLO_ACK), SI."""
 
     sample_period_s: float = 5e-4
-    watchdog_timeout_s: float = 0.02
+    watchdog_timeout_s: float = 0.1
     ramp_down_s: float = 0.05
     max_drive_voltage: float = 150.0
     heartbeat_period_s: float = 0.1

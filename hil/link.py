@@ -61,6 +61,9 @@ RESTART_SILENCE_S = 0.3
 READ_ERRORS = (serial.SerialException, OSError, TypeError, AttributeError)
 #: Pause between two polls while an owner that polls waits for the rig [s] (not a busy spin).
 WAIT_PAUSE_S = 2e-4
+#: The longest gap between DRIVE commands that costs the object nothing worth a mention [s]: a drive held 5 ms at the
+#: worst moment of a step adds at most 2.6 points of overshoot, 10 ms up to 133 (bench/watchdog_hold.py, docs/hil.md).
+DRIVE_GAP_BUDGET_S = 5e-3
 #: The longest the link waits for anything: a connection, a HELLO_ACK, a reconnection attempt [s].
 LONGEST_WAIT_S = 60.0
 

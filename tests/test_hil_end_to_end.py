@@ -99,7 +99,7 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
 
     The host runs under SCHED_FIFO where the system allows it, as the rig does (this test is about the loop's
     agreement with its simulation, not about the scheduler: the real-time tests below run the host at normal
-    priority); the rig's default 20 ms watchdog, one run, judged as it comes: a stall of either process during the
+    priority); the rig's default watchdog, one run, judged as it comes: a stall of either process during the
     step (:func:`_kept_up`) is a failure of the real-time discipline (docs/hil.md), not something to retry."""
     priority = None if realtime_priority_refusal(RT_PRIORITY) else RT_PRIORITY
     rig = emulator("--param", "SensorChain.noise_peak=0")

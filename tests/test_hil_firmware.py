@@ -145,7 +145,7 @@ def ramp(v0: float, then: int = 2) -> list[float]:
 # --- HELLO -----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("timing, ack", [
-    (RigTiming(), HelloAck(1, 500, 20_000, 50_000, 150.0)),
+    (RigTiming(), HelloAck(1, 500, 100_000, 50_000, 150.0)),
     (FAST, HelloAck(1, 1000, 5000, 4000, 150.0)),
     (RigTiming(2.5e-4, 0.01, 0.125, 80.5, 0.05), HelloAck(1, 250, 10_000, 125_000, 80.5)),
 ], ids=["emulator", "fast", "other"])

@@ -1,7 +1,7 @@
 """``nfal identify`` against ``nfal rig-emulator`` on a pty: a short identification recovers the default truth and the
 design on it lifts the object off and tracks steps on the rig, and a link pulled mid-experiment stops it with the
 reason, the data kept; a stop signal ramps the drive down and says STOP; a second host is refused. The emulator (the
-rig) has its default 20 ms watchdog and the host runs at normal priority: the real-time discipline (nfal.realtime,
+rig) has its default watchdog (100 ms) and the host runs at normal priority: the real-time discipline (nfal.realtime,
 docs/hil.md) is what keeps the host within it, and a trip stops an identification (tests/test_identification.py)."""
 
 from __future__ import annotations

@@ -286,6 +286,12 @@ def _print_summary(summary: dict, out: Path) -> None:
         if "drive_gap_max_s" in link:
             print(f"gaps between DRIVE commands: p50 {link['drive_gap_p50_s'] * 1e3:.2f} ms, p99 "
                   f"{link['drive_gap_p99_s'] * 1e3:.2f} ms, max {link['drive_gap_max_s'] * 1e3:.2f} ms")
+            from nfal.hil.link import DRIVE_GAP_BUDGET_S  # on use, as the other HIL names
+
+            if link["drive_gap_max_s"] > DRIVE_GAP_BUDGET_S:
+                print(f"warning: the longest gap between DRIVE commands is beyond the {DRIVE_GAP_BUDGET_S * 1e3:g} ms a held "
+                      "drive costs nothing in (docs/hil.md, \"Real time that holds\"): a step under way then may have "
+                      "overshot")
     realtime = summary.get("realtime")
     if realtime:
         print(f"real time: {realtime.get('overruns')} overruns in {realtime.get('steps')} steps; step-start jitter "

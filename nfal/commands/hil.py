@@ -118,7 +118,7 @@ def run_emulator(args: argparse.Namespace) -> int:
         if args.firmware == "python":
             port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
         else:
-            from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess
+            from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess  # on use: C firmware only
 
             process = stack.enter_context(FirmwareProcess(args.firmware, serial=True))
             firmware = ExternalFirmware(process, timing, tunnel=False)

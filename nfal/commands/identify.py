@@ -15,11 +15,11 @@ from nfal import __version__
 from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
 from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_duration,
                          require_finite, require_positive)
-from nfal.hil.link import LONGEST_WAIT_S  # light: the link's module imports pyserial only
+from nfal.hil.link import DRIVE_GAP_BUDGET_S, LONGEST_WAIT_S  # light: the link's module imports pyserial only
 from nfal.models.table2 import WORK_RANGE_M  # light: constants only
 from nfal.models.transducer import METRES_PER_VOLT  # light: the transducer's constants
 
-#: The longest --max-silence [s]: the rig's watchdog ramps the drive down after 20 ms without DRIVE anyway.
+#: The longest --max-silence [s]: the rig's watchdog ramps the drive down after 0.1 s without DRIVE anyway.
 LONGEST_SILENCE_S = 10.0
 
 # The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
@@ -134,6 +134,7 @@ def run_identify(args: argparse.Namespace) -> int:
     # the samples reach the disk through a thread (nfal.realtime.BackgroundWriter): the loop never waits for it
     with (contextlib.closing(BackgroundWriter(stream)) as writer, deferred_interrupts() as stop_request,
           realtime_section() as collector):
+        recorder = SampleRecorder(writer, recorder_capacity(plan))  # at 2 kHz (it grows for a faster rig)
         try:
             link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
         except BaseException:
@@ -142,7 +143,6 @@ def run_identify(args: argparse.Namespace) -> int:
             raise
         link.safe_point = collector.safe_point
         hello, max_voltage = link.hello, min(args.max_voltage, link.hello.max_drive_voltage)
-        recorder = SampleRecorder(writer, recorder_capacity(plan, hello.sample_period_us * 1e-6))
         with progress_bar(plan.holds(), "identify") as bar:
             experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
                                       law=move_law(plan, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
@@ -227,6 +227,10 @@ def _report(result, recorder, out: Path, raw: Path, timing: dict, as_json: bool)
     print(f"identified in {recorder.duration_s:.1f} s of rig time ({recorder.count} samples): {out}, {raw}, "
           f"{out.with_suffix('.png')}")
     print(f"real time: {_margin(timing)} (the rig's watchdog: {timing['rig_watchdog_s'] * 1e3:g} ms)")
+    if timing["drive_gaps"]["max_s"] > DRIVE_GAP_BUDGET_S:
+        print(f"warning: the longest gap between DRIVE commands, {timing['drive_gaps']['max_s'] * 1e3:.1f} ms, is beyond the "
+              f"{DRIVE_GAP_BUDGET_S * 1e3:g} ms a held drive costs nothing in (docs/hil.md, \"Real time that holds\"): the "
+              "machine paused the host; a step that was under way then may have overshot")
     print(f"K(sigma) from {len(result.equilibria)} equilibria (eq. 16), quartic as eq. (17): coefficients "
           f"{', '.join(f'{c:.6g}' for c in report['coefficients'])}; residual rms {report['residual_rms']:.3g}")
     print("damping over eq. (6), mean and 95 % interval:")
