@@ -95,6 +95,7 @@ def run_identify(args, folder: Path) -> list[dict]:
                 row["error"] = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
             print(json.dumps(row), flush=True)
             rows.append(row)
+            save(args, rows)  # after each run: an interrupted bench keeps what it measured
     return rows
 
 
@@ -129,6 +130,7 @@ def run_hil(args, folder: Path) -> list[dict]:
            "rss_mb_first_last_max": [round(memory[0]), round(memory[-1]), round(max(memory))] if memory else None,
            "error": summary.get("error")}
     print(json.dumps(row), flush=True)
+    save(args, [row])
     return [row]
 
 
@@ -145,7 +147,20 @@ def run_tests(args, folder: Path) -> list[dict]:
                "wall_s": round(time.perf_counter() - started, 1)}
         print(json.dumps(row), flush=True)
         rows.append(row)
+        save(args, rows)
     return rows
+
+
+def save(args, rows: list[dict]) -> Path:
+    """bench/results/realtime-<kind>[-neighbour].json: the machine, the command and every run so far."""
+    name = f"realtime-{args.kind}" + ("-neighbour" if args.neighbour and args.kind != "tests" else "")
+    RESULTS.mkdir(exist_ok=True)
+    result = {"bench": name, "machine": describe(), "command": "python bench/realtime.py " + " ".join(sys.argv[1:]),
+              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_average": os.getloadavg(),
+              "runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)}
+    path = RESULTS / f"{name}.json"
+    path.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    return path
 
 
 def main() -> None:
@@ -162,13 +177,8 @@ def main() -> None:
     runner = {"identify": run_identify, "hil": run_hil, "tests": run_tests}[args.kind]
     with neighbour(args.neighbour and args.kind != "tests"):
         rows = runner(args, folder)
-    name = f"realtime-{args.kind}" + ("-neighbour" if args.neighbour and args.kind != "tests" else "")
-    RESULTS.mkdir(exist_ok=True)
-    result = {"bench": name, "machine": describe(), "command": "python bench/realtime.py " + " ".join(sys.argv[1:]),
-              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_average": os.getloadavg(),
-              "runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)}
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
-    print(f"{result['completed']} of {result['of']} completed; {RESULTS / (name + '.json')}", flush=True)
+    path = save(args, rows)
+    print(f"{sum(1 for r in rows if r.get('exit') == 0)} of {len(rows)} completed; {path}", flush=True)
 
 
 if __name__ == "__main__":

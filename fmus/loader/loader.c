@@ -324,6 +324,18 @@ static void *nfal_runtime_symbol(const char *name)
     return dlsym(nfal_runtime_handle, name);
 }
 
+/* When the host unloads this loader (FMPy's freeLibrary: dlclose), unload the runtime with it, so that its static
+ * destructors run then, while the host's Python still lives, as they did when the host loaded the runtime itself;
+ * left to the end of the process they ran after FMPy's interpreter had finalised and corrupted the heap (SIGABRT
+ * at exit in 1 of 10 FMI 3.0 runs, measured). A host that never unloads gets the same order as before: at exit. */
+__attribute__((destructor)) static void nfal_unload(void)
+{
+    if (nfal_runtime_handle) {
+        dlclose(nfal_runtime_handle);
+        nfal_runtime_handle = NULL;
+    }
+}
+
 /* The live instances (a handful at most: a linear list). */
 static void **nfal_live;
 static size_t nfal_live_count, nfal_live_capacity;
