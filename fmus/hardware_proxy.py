@@ -99,7 +99,7 @@ class HardwareProxy(NfalSlave):
         self._seen = 0
         self._steps = 0
         self._realtime = contextlib.ExitStack()
-        self._collector, self._settled = None, False
+        self._collector = None
 
     # --- the session ------------------------------------------------------------------------------
     def setup(self) -> None:
@@ -127,7 +127,7 @@ class HardwareProxy(NfalSlave):
             raise
         self._link, self._settings = link, settings
         # the real-time discipline (nfal.realtime) from here to the end of the session, whatever master steps the proxy
-        self._collector, self._settled = self._realtime.enter_context(realtime_section()), False
+        self._collector = self._realtime.enter_context(realtime_section())
         self._publish(link.latest(), fresh=True)
         self.samples_missed = 0
 
@@ -161,9 +161,6 @@ class HardwareProxy(NfalSlave):
         voltage = float(self.drive_voltage)
         if not voltage >= 0.0:
             raise InvalidParameterError("drive_voltage", voltage, "a voltage >= 0 V")
-        if not self._settled:  # before the first DRIVE arms the rig's watchdog: whatever the master set up, frozen
-            self._collector.settle()
-            self._settled = True
         link.send_drive(voltage)
         self._collector.safe_point()  # right after the DRIVE left: the most slack before the next one
         link.poll()  # what has arrived, without waiting

@@ -210,8 +210,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         summary = _opening_summary(path, system, master, algorithm, start, step, steps, started_at, inputs,
                                    parameters, rt_priority)
         summary_path = write_summary(out / SUMMARY_JSON, summary)
-        writer = CsvWriter(out / RESULTS_CSV, master.columns, flush_interval_s=flush_interval_s,
-                           background=bool(speed))  # a paced step never waits for the disk
+        writer = CsvWriter(out / RESULTS_CSV, master.columns, flush_interval_s=flush_interval_s)
         pacer = RealTimePacer(step, speed=speed) if speed else None
         show = progress if progress is not None else sys.stderr.isatty()
         with tqdm(total=steps, disable=not show, file=sys.stderr, unit="step", desc=system.name, leave=False,
