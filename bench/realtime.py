@@ -171,7 +171,7 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=600.0, help="hil: seconds of the run (default 600)")
     parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests: every other run)")
     args = parser.parse_args()
-    folder = Path("runs") / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")
+    folder = HERE.parent / "runs" / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")  # runs/ is ignored
     folder.mkdir(parents=True)
     print(describe(), flush=True)
     runner = {"identify": run_identify, "hil": run_hil, "tests": run_tests}[args.kind]

@@ -125,6 +125,7 @@ class _Slave:
     """One FMI 2.0 FMU instance: the fmpy object, its callbacks and what became of it."""
 
     fmi = 2
+    CALLS = _FMI2_CALLS  #: variable type -> (suffix of its get/set functions, C value type)
 
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
         self.element, self.name = element, element.name
@@ -161,10 +162,12 @@ class _Slave:
 
     def calls(self, type_: str) -> tuple[str, type]:
         """The suffix of the get/set functions of variables of ``type_`` and their C value type."""
-        return _FMI2_CALLS[type_]
+        if type_ not in self.CALLS:
+            raise UnsupportedFeatureError(f"element {self.name!r}: {type_} variables cannot be exchanged")
+        return self.CALLS[type_]
 
     def set_start(self, variable, value) -> None:
-        suffix = "String" if variable.type == "String" else _FMI2_CALLS.get(variable.type, (None,))[0]
+        suffix = "String" if variable.type == "String" else self.CALLS.get(variable.type, (None,))[0]
         if suffix is None:
             raise UnsupportedFeatureError(f"{self.name}.{variable.name}: cannot set a {variable.type} variable")
         getattr(self.fmu, f"set{suffix}")([variable.valueReference], [value])
@@ -183,6 +186,7 @@ class _Slave3(_Slave):
     """One FMI 3.0 co-simulation FMU instance (fmpy's FMU3Slave): as :class:`_Slave`, with FMI 3.0's calls."""
 
     fmi = 3
+    CALLS = _FMI3_CALLS
 
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
         self.element, self.name = element, element.name
@@ -213,17 +217,6 @@ class _Slave3(_Slave):
                                [*self.messages, str(exc)]) from None
         self.component = self.fmu.component
         self.state = "instantiated"
-
-    def calls(self, type_: str) -> tuple[str, type]:
-        if type_ not in _FMI3_CALLS:
-            raise UnsupportedFeatureError(f"element {self.name!r}: {type_} variables cannot be exchanged")
-        return _FMI3_CALLS[type_]
-
-    def set_start(self, variable, value) -> None:
-        suffix = "String" if variable.type == "String" else _FMI3_CALLS.get(variable.type, (None,))[0]
-        if suffix is None:
-            raise UnsupportedFeatureError(f"{self.name}.{variable.name}: cannot set a {variable.type} variable")
-        getattr(self.fmu, f"set{suffix}")([variable.valueReference], [value])
 
     def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
         self._experiment = (start_time, stop_time)  # FMI 3.0 has no setupExperiment: they go with the next call
