@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from nfal.errors import DataFormatError, InvalidParameterError, ResultsWriteError
-from nfal.realtime import BackgroundWriter
 
 logger = logging.getLogger(__name__)
 
@@ -53,25 +52,19 @@ class CsvWriter:
         The first is the time.
     flush_interval_s : float
         Longest wall time [s] between flushes (0: flush every row).
-    background : bool
-        Leave the disk to a thread (:class:`~nfal.realtime.BackgroundWriter`), so that a row never waits for it (a
-        paced run); a refused write is then reported by a later row or by :meth:`close`.
     """
 
-    def __init__(self, path: str | os.PathLike, columns: Sequence[Column], *, flush_interval_s: float = 0.25,
-                 background: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike, columns: Sequence[Column], *, flush_interval_s: float = 0.25) -> None:
         self.path = Path(path)
         self.columns = tuple(columns)
         self.flush_interval_s = float(flush_interval_s)
         self.rows = 0  #: rows written (after a refused write: the rows on disk)
-        file = open(self.path, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed by close()
+        self._file = file = open(self.path, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed by close()
         header = io.StringIO()
         csv.writer(header, lineterminator="\n").writerow([c.header for c in self.columns])
         file.write(header.getvalue())
         file.flush()
-        self._file = BackgroundWriter(file) if background else file
         self._last_flush = time.monotonic()
-        self._closed = False
 
     def write(self, row: Sequence[float | int | bool]) -> None:
         """Append one row (as many values as columns); :class:`ResultsWriteError` if the disk refuses it."""
@@ -87,9 +80,8 @@ class CsvWriter:
 
     def close(self) -> None:
         """Flush and close; :class:`ResultsWriteError` if the last rows cannot be written (the file is closed)."""
-        if self._closed:
+        if self._file.closed:
             return
-        self._closed = True
         try:
             self._file.flush()
         except OSError as exc:
@@ -97,7 +89,7 @@ class CsvWriter:
         else:
             error = None
         try:
-            self._file.close()  # a background writer's: what is queued reaches the disk first
+            self._file.close()
         except OSError as exc:
             error = error or exc
         if error is not None:

@@ -46,16 +46,6 @@ def test_csv_round_trip_is_exact(rows):
         np.testing.assert_array_equal(read_results(path).data, np.array(rows))
 
 
-def test_a_background_writer_writes_every_row_by_close(tmp_path):
-    """A paced run's CsvWriter (background=True): the rows reach the disk through a thread, all of them, in order."""
-    rows = [[k * 5e-4, 6e-5, 6e-5 + k * 1e-9, k % 2, k] for k in range(5000)]
-    writer = CsvWriter(tmp_path / "r.csv", COLUMNS, flush_interval_s=0.0, background=True)
-    for row in rows:
-        writer.write(row)
-    writer.close()
-    np.testing.assert_array_equal(read_results(tmp_path / "r.csv").data, np.array(rows, dtype=float))
-
-
 def test_header_only_and_bad_files(tmp_path):
     CsvWriter(tmp_path / "empty.csv", COLUMNS).close()
     assert read_results(tmp_path / "empty.csv").data.shape == (0, 5)
