@@ -274,8 +274,6 @@ def coerce_value(variable: ModelVariable, value: object, where: str, *, strict_t
     if kind == "String":
         if isinstance(value, str):
             return value
-        if strict_type is None and isinstance(value, (int, float)) and not isinstance(value, bool):
-            return repr(value)  # a command line's number (--param X.levels=60e-6) for a String: its text
         raise bad
     raise UnsupportedFeatureError(f"{where}: variables of type {kind} are not supported")
 

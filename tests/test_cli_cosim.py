@@ -61,13 +61,13 @@ def test_bad_input_is_a_clear_error(capsys, tmp_path, monkeypatch, fig7_archives
     assert message in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("text, expected", [("A.b=1e-6", ("A.b", 1e-6)), ("A.flag=true", ("A.flag", True)),
+@pytest.mark.parametrize("text, expected", [("A.b=1e-6", ("A.b", "1e-6")), ("A.flag= true", ("A.flag", "true")),
                                             ("A.design=fixed", ("A.design", "fixed"))])
 def test_parse_parameter(text, expected):
     assert parse_parameter(text) == expected
 
 
-@pytest.mark.parametrize("text", ["A=1", "A.b", "A.b="])
+@pytest.mark.parametrize("text", ["A=1", "A.b", "A.b=", "A.b= "])
 def test_parse_parameter_rejects(text):
     with pytest.raises(InvalidParameterError):
         parse_parameter(text)

@@ -103,18 +103,13 @@ def run_build(args: argparse.Namespace) -> int:
     return 0
 
 
-def parse_parameter(text: str) -> tuple[str, object]:
-    """``Element.var=value`` -> (name, value): true/false as Boolean, numbers as float, else the string."""
+def parse_parameter(text: str) -> tuple[str, str]:
+    """``Element.var=value`` -> (name, value text): the variable's type parses the text when the structure is
+    resolved (:func:`~nfal.orchestration.resolve.coerce_value`), so ``60e-6`` stays ``60e-6`` for a String."""
     name, sep, value = text.partition("=")
-    if not sep or "." not in name.strip(".") or not value:
+    if not sep or "." not in name.strip(".") or not value.strip():
         raise InvalidParameterError("--param", text, "ELEMENT.VAR=VALUE")
-    lowered = value.strip().lower()
-    if lowered in ("true", "false"):
-        return name.strip(), lowered == "true"
-    try:
-        return name.strip(), float(value)
-    except ValueError:
-        return name.strip(), value
+    return name.strip(), value.strip()
 
 
 def parse_input(text: str) -> tuple[str, object]:
