@@ -21,8 +21,6 @@ import hashlib
 import logging
 import math
 import os
-import tempfile
-from pathlib import Path
 
 import numba
 import numpy as np
@@ -31,6 +29,7 @@ from scipy import interpolate
 from nfal.errors import InvalidParameterError
 
 from . import numba_cache
+from .disk_cache import cached_array
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure
@@ -215,19 +214,7 @@ def cache_key(shape: ExcitationShape, **settings) -> str:
 def cached_table(shape: ExcitationShape, cache_dir: str | os.PathLike | None = None, **settings) -> FilmForceTable:
     """:class:`FilmForceTable` (``settings`` its keyword arguments), its values kept in ``cache_dir``
     (default ``$NFAL_CACHE_DIR`` or ``~/.cache/nfal``, folder ``film_tables``) so that a second build with
-    the same shape and settings skips the solves. A cache that cannot be read or written is bypassed."""
-    folder = Path(cache_dir or numba_cache.cache_root()) / "film_tables"
-    path = folder / f"{cache_key(shape, **settings)}.npy"
-    try:
-        return FilmForceTable(shape, **settings, values=np.load(path))
-    except (OSError, ValueError, InvalidParameterError):
-        pass
-    table = FilmForceTable(shape, **settings)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=folder, suffix=".npy", delete=False) as handle:
-            np.save(handle, table.values)
-        os.replace(handle.name, path)
-    except OSError as exc:
-        logger.debug("film-force table not cached in %s: %s", folder, exc)
-    return table
+    the same shape and settings skips the solves (:func:`~nfal.models.disk_cache.cached_array`)."""
+    values = cached_array("film_tables", cache_key(shape, **settings), lambda: FilmForceTable(shape, **settings).values,
+                          cache_dir, check=lambda stored: FilmForceTable(shape, **settings, values=stored))
+    return FilmForceTable(shape, **settings, values=values)

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
 from nfal.errors import InvalidParameterError
@@ -28,6 +28,9 @@ from nfal.errors import InvalidParameterError
 from .calibration import CalibrationFunction, paper_calibration
 from .plant import DampingModel, SimplifiedPlant
 from .rig import RigParameters
+
+if TYPE_CHECKING:  # python-control is imported where it is used (1.4 s: not in the Controller FMU's set-up)
+    import control
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +92,8 @@ class LPVCoefficients:
         d hbar / d|a| in SI (``units="si"``, s in rad/s; the two differ only in the time scale)."""
         if np.ndim(self.alpha0) != 0:
             raise InvalidParameterError("LPVCoefficients", "an array", "one equilibrium (use .at(i))")
+        import control
+
         if units == "nondimensional":
             return control.tf([float(self.beta0)], [1.0, float(self.alpha1), float(self.alpha0)])
         if units == "si":

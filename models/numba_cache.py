@@ -13,17 +13,13 @@ written, numba's own locators take over.
 from __future__ import annotations
 
 import hashlib
-import os
 from pathlib import Path
 
 from numba.core import caching
 
+from .disk_cache import cache_root
+
 PACKAGE_DIR = Path(__file__).resolve().parent
-
-
-def cache_root() -> Path:
-    """The user-wide cache folder (shared with :func:`~nfal.models.film_force_table.cached_table`)."""
-    return Path(os.environ.get("NFAL_CACHE_DIR") or Path.home() / ".cache" / "nfal")
 
 
 class ContentKeyedCacheLocator(caching.InTreeCacheLocator):

@@ -25,8 +25,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 from scipy import interpolate, optimize
 
@@ -36,9 +36,14 @@ from .calibration import CalibrationFunction, paper_calibration
 from .lpv import LPVCoefficients, lpv_coefficients
 from .plant import DampingModel
 from .rig import RigParameters
+from . import sampled_design
+from .disk_cache import cached_array, digest, source_digest
 from .sampled_design import SampledLoop
 from .scalar_spline import ScalarSpline
 from .table2 import CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, WORK_RANGE_M
+
+if TYPE_CHECKING:  # python-control costs 1.4 s to import: the Controller FMU's design does not use it
+    import control
 
 logger = logging.getLogger(__name__)
 
@@ -169,6 +174,8 @@ class PIDDesign:
         with k_p + k_i / s + k_d omega_L s / (s + omega_L), unity feedback. The derivative acting on the
         height rather than the error changes the zeros of eq. (23), not its poles; this check is
         independent of eq. (24)'s algebra."""
+        import control
+
         scale = _time_scale(self.lpv, units)
         plant = _rescale(self.lpv.transfer_function("nondimensional"), scale)
         s = control.tf("s")
@@ -186,6 +193,8 @@ def characteristic_polynomial(lpv: LPVCoefficients, kp, ki, kd, omega_lpf: float
 
 def closed_loop_transfer_function(lpv: LPVCoefficients, kp, ki, kd, omega_lpf: float) -> control.TransferFunction:
     """Eq. (23), non-dimensional."""
+    import control
+
     b0 = float(lpv.beta0)
     numerator = b0 * np.array([kp, omega_lpf * kp + ki, omega_lpf * ki])
     return control.tf(numerator, characteristic_polynomial(lpv, kp, ki, kd, omega_lpf))
@@ -410,9 +419,34 @@ def design_schedule(heights_m=None, rig: RigParameters | None = None, calibratio
     rig, calibration, spec = rig or RigParameters(), calibration or paper_calibration(), spec or DesignSpec()
     heights = np.sort(np.asarray(heights_m, dtype=float).ravel())
     lpv = lpv_coefficients(heights, rig, calibration, derivative=derivative, damping=damping)
-    designs = [design_at(lpv.at(i), spec, rig) for i in range(heights.size)]
-    logger.info("designed %d PIDs over %.1f-%.1f um", heights.size, heights[0] * 1e6, heights[-1] * 1e6)
-    return GainSchedule(designs)
+    return GainSchedule(_designs_at(lpv, spec, rig))
+
+
+#: What a design is beyond its inputs, as :func:`_designs_at` keeps it: (k_p, k_i, k_d, p1, p2, bandwidth).
+_DESIGN_NUMBERS = ("kp", "ki", "kd", "slow_pole", "fast_pole", "bandwidth")
+
+
+def _designs_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> list[PIDDesign]:
+    """:func:`design_at` at every equilibrium of ``lpv``, kept in the user-wide cache: a design is a pure function
+    of the equilibrium, the spec, the rig and this code (2 s for Table 2's 31 heights; an FMU designs at each set-up)."""
+    points = [lpv.at(i) for i in range(np.size(lpv.height_m))]
+
+    def design() -> np.ndarray:
+        designs = [design_at(point, spec, rig) for point in points]
+        logger.info("designed %d PIDs over %.1f-%.1f um", len(designs), designs[0].lpv.height_m * 1e6,
+                    designs[-1].lpv.height_m * 1e6)
+        return np.array([[getattr(d, name) for name in _DESIGN_NUMBERS] for d in designs], dtype=float)
+
+    def check(stored: np.ndarray) -> None:
+        if stored.shape != (len(points), len(_DESIGN_NUMBERS)) or not np.all(np.isfinite(stored)):
+            raise ValueError(f"a stored design of shape {stored.shape}")
+
+    key = digest("pid-design", source_digest(__file__, sampled_design.__file__), dataclasses.astuple(spec),
+                 dataclasses.astuple(rig), *(np.asarray(getattr(lpv, name), dtype=float)
+                                             for name in ("height_m", "excitation_m", "alpha0", "alpha1", "beta0")))
+    numbers = cached_array("pid_designs", key, design, check=check)
+    step = None if spec.sample_rate_hz is None else rig.omega / spec.sample_rate_hz
+    return [PIDDesign(point, spec.omega_lpf(rig), *(float(v) for v in row), step) for point, row in zip(points, numbers)]
 
 
 def fixed_design(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
@@ -432,6 +466,8 @@ def _time_scale(lpv: LPVCoefficients, units: str) -> float:
 
 def _rescale(system: control.TransferFunction, scale: float) -> control.TransferFunction:
     """G(s / scale): the same system with time measured in units 1 / scale shorter."""
+    import control
+
     num, den = (np.atleast_1d(np.squeeze(p)) for p in control.tfdata(system))
     n, d = len(num) - 1, len(den) - 1
     num = num * scale ** (d - n + np.arange(n + 1))

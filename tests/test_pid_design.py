@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
+from nfal.models.rig import RigParameters
 from nfal.models.pid_design import DesignSpec, FixedGains, design_pid, design_schedule, fixed_design
 
 SCHEDULE = design_schedule()  # 50-200 um every 5 um
@@ -91,3 +92,23 @@ def test_unreachable_cutoff_raises():
 def test_unknown_keyword_raises():
     with pytest.raises(TypeError):
         design_pid(100e-6, cutoff=10)
+
+
+def test_a_schedule_is_kept_across_processes_and_keyed_by_what_it_depends_on(tmp_path, monkeypatch):
+    """The cached schedule equals the designed one field for field; another spec or rig is another entry; an entry
+    that does not fit (a corrupt or foreign file) is designed again."""
+    import nfal.models.pid_design as pid_design
+
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path))
+    spec, heights = DesignSpec(sample_rate_hz=2000.0, reference_zero=1.0), np.linspace(60e-6, 180e-6, 4)
+    designed = design_schedule(heights, spec=spec)
+    with monkeypatch.context() as patch:  # the same inputs must not design again
+        patch.setattr(pid_design, "design_at", lambda *args: pytest.fail("the cache was not read"))
+        assert design_schedule(heights, spec=spec).designs == designed.designs
+    design_schedule(heights, spec=DesignSpec(sample_rate_hz=2000.0))
+    design_schedule(heights, rig=RigParameters(mass=0.15), spec=spec)
+    files = list((tmp_path / "pid_designs").glob("*.npy"))
+    assert len(files) == 3
+    for file in files:
+        np.save(file, np.zeros((2, 2)))
+    assert design_schedule(heights, spec=spec).designs == designed.designs
