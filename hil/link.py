@@ -385,10 +385,10 @@ class RigLink:
         if self._stopping.is_set() or port is not self._port:
             return  # closing, or already handled (a write and a read failed on the same port)
         self.last_error = self._lost_reason = reason
-        self.counters.disconnects += 1
-        logger.warning("%s: link lost: %s", self.url, reason)
         self._port = None
         self._acknowledged.clear()
+        self.counters.disconnects += 1  # after the state: a thread that sees the count sees the link down
+        logger.warning("%s: link lost: %s", self.url, reason)
         if port is not None:
             try:
                 port.close()

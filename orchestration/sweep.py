@@ -232,9 +232,12 @@ def _client(scheduler: str | None, workers: int | None):
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address (no port, unknown protocol)
             raise SweepError(f"cannot reach the Dask scheduler at {scheduler!r} (expected tcp://host:port): {exc}") from None
-    n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+    if workers == 0:  # in this process, one thread: no cluster to start (tests, a debugger's breakpoints)
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    else:
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -252,7 +255,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:port``); default: a local cluster.
     workers : int, optional
-        Worker processes of the local cluster (default: this machine's cores). Ignored with ``scheduler``.
+        Worker processes of the local cluster (default: this machine's cores); 0: one worker thread in this
+        process (no processes to start: tests, a debugger). Ignored with ``scheduler``.
     archives : mapping, optional
         Built-in structure name -> ``.ssp`` path (the CLI builds them); other ``structure`` values are paths.
     progress : bool, optional

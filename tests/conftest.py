@@ -1,9 +1,34 @@
+"""Shared fixtures, and the rule that lets the suite run on both cores (pytest-xdist) without flaking: a test
+marked ``realtime`` (it meets the rig emulator on the wall clock) runs alone, every other test beside another."""
+
+import fcntl
+import os
+import tempfile
+from pathlib import Path
+
 import matplotlib
 
 matplotlib.use("Agg")
 
 
 import pytest  # noqa: E402
+
+#: Where the workers of one run meet (pytest-xdist gives them a common run id; a plain run has one process).
+_LOCKS = Path(tempfile.gettempdir()) / f"nfal-tests-{os.environ.get('PYTEST_XDIST_TESTRUNUID', os.getpid())}"
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """A readers-writer lock over the workers, held from a test's set-up (its module's fixtures too) to its
+    teardown: a ``realtime`` test holds it exclusively, any other test shared. The turnstile, taken before either,
+    keeps a waiting real-time test from being overtaken by the next shared ones."""
+    _LOCKS.mkdir(exist_ok=True)
+    alone = item.get_closest_marker("realtime") is not None
+    with open(_LOCKS / "turnstile", "a") as turnstile, open(_LOCKS / "tests", "a") as tests:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(tests, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        yield
 
 
 @pytest.fixture(scope="session")

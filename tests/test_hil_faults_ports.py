@@ -13,6 +13,8 @@ from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.ports import PtyPort, UrlPort
 from nfal.hil.protocol import RIG_TO_HOST, FrameDecoder, FrameEncoder, Measurement, Received
 
+pytestmark = pytest.mark.realtime  # on the wall clock: runs alone when the suite runs on both cores (conftest.py)
+
 
 def measurements(n: int) -> tuple[list[Measurement], list[bytes]]:
     """``n`` MEASUREMENTs (every field different per frame; reals as binary32, as they come off the wire) and

@@ -14,10 +14,10 @@ import time
 
 import numpy as np
 import pytest
-from test_hil_end_to_end import Emulator
+from test_hil_end_to_end import JUDGED_RATE, Emulator, _hil, simulate_the_truth
 
 from nfal.cli import main
-from nfal.fig7 import HARDWARE, loop_metrics
+from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.calibration import calibration_from_dict, paper_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
@@ -43,9 +43,9 @@ def emulator(fig7_archives):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="the identification passes; the HIL run after it lifts off to 69.0 um (limit 66) since "
-                   "2026-11-25 20:00 UTC: the paced HIL loop overruns ~45 % of its steps on this machine now, with and "
-                   "without this session's changes (issue 23's note)", strict=False)
+@pytest.mark.xfail(reason="the identification passes; the HIL run after it lifts off to 69-71 um (limit 66) at 2 kHz "
+                   "and at 1 kHz on this machine since 2026-11-25 20:00 UTC, when it became ~2x slower (bench_rig_truth: "
+                   "tick 97 -> 200 us; the emulator's tick now 450 us of 500 with a host): issue 23's note", strict=False)
 def test_identify_recovers_the_emulators_truth_and_its_design_holds_the_rig(fig7_archives, emulator, tmp_path):
     rig = emulator()
     out = tmp_path / "rig.json"
@@ -64,16 +64,19 @@ def test_identify_recovers_the_emulators_truth_and_its_design_holds_the_rig(fig7
     log = rig.stop()
     assert "STOP: session ended" in log and "watchdog:" not in log  # the host ramped down and said STOP
     # the loop on the rig with the identified design, from rest (a fresh emulator: each plays at most 60 s)
-    rig = emulator("--param", "SensorChain.noise_peak=0")
+    rig = emulator("--param", "SensorChain.noise_peak=0", "--sample-rate", str(JUDGED_RATE))
     reference = Staircase((60e-6, 140e-6, 180e-6), hold_s=0.4, lead_s=1.0)
-    result = run_structure(fig7_archives["fig7_hil"], stop_time=reference.duration_s, realtime=True, plot=False,
-                           inputs={"Controller.reference": reference}, out_dir=tmp_path / "hil",
-                           parameters={"proxy.port": rig.port, "proxy.max_missed_samples": 200,
-                                       "Controller.calibration": str(out)})
+    result = _hil(fig7_archives, rig.port, tmp_path / "hil", reference=reference, rate=JUDGED_RATE,
+                  **{"proxy.max_missed_samples": 200, "Controller.calibration": str(out)})
     lift_off = np.asarray(result[HARDWARE.measured])[result.table().time < reference.lead_s]
     assert lift_off.max() <= 66e-6  # the paper's law: 104-110 um (docs/hil.md)
-    steps = loop_metrics(result.table(), reference, HARDWARE)["steps"]
-    assert max(step["overshoot_percent"] for step in steps) < 10.0  # measured 0.0, 0.0 (60.0 um lift-off); the paper's law's 140 -> 180: 40 %
+    # each step as the same design does on the truth in simulation (at 1 kHz: measured 16.4 % on one step; the paper's law
+    # at 2 kHz overshoots 40 % from 140 to 180 um), within 3 points: the identified design holds the rig as it holds the truth
+    simulated = simulate_the_truth(fig7_archives, reference, tmp_path / "sim", **{"Controller.calibration": str(out)})
+    on_rig, expected = (loop_metrics(run.table(), reference, columns)["steps"]
+                        for run, columns in ((result, HARDWARE), (simulated, SIMULATED)))
+    for step, twin in zip(on_rig, expected):
+        assert step["overshoot_percent"] == pytest.approx(twin["overshoot_percent"], abs=3.0), (on_rig, expected)
 
 
 @pytest.mark.slow

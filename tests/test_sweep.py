@@ -180,6 +180,7 @@ def small_spec():
 
 @pytest.fixture(scope="module")
 def local_sweep(small_spec, fig7_archives, tmp_path_factory):
+    """The one sweep on a local cluster of worker processes; the other tests run in this process (workers=0)."""
     return run_sweep(small_spec, tmp_path_factory.mktemp("local"), workers=2, archives=fig7_archives)
 
 
@@ -220,17 +221,17 @@ def test_interrupted_sweep_resumes_without_repeating(small_spec, fig7_archives, 
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(small_spec, tmp_path, workers=1, archives=fig7_archives, on_row=interrupt_after_two, plot=False)
+        run_sweep(small_spec, tmp_path, workers=0, archives=fig7_archives, on_row=interrupt_after_two, plot=False)
     assert [r["run_id"] for r in read_table(tmp_path / "results.csv")] == sorted(
         first, key=lambda rid: next(r.index for r in small_spec.runs() if r.run_id == rid))
     second: list[str] = []
-    result = run_sweep(small_spec, tmp_path, workers=2, archives=fig7_archives, on_row=lambda r: second.append(r["run_id"]))
+    result = run_sweep(small_spec, tmp_path, workers=0, archives=fig7_archives, on_row=lambda r: second.append(r["run_id"]))
     assert result.summary["skipped"] == 2 and result.summary["new"] == 4
     assert not set(first) & set(second)
     rows = result.rows()
     assert sorted(r["run_id"] for r in rows) == sorted(r.run_id for r in small_spec.runs())
     _assert_same_table(rows, local_sweep.rows())
-    third = run_sweep(small_spec, tmp_path, workers=1, archives=fig7_archives, plot=False)
+    third = run_sweep(small_spec, tmp_path, workers=0, archives=fig7_archives, plot=False)
     assert third.summary["new"] == 0 and len(third.rows()) == 6
 
 
@@ -335,7 +336,7 @@ def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7
         'step_size = 5e-4\nreference = {levels_m = [100e-6, 140e-6], hold_s = 0.1, lead_s = 0.05}\n'
         '[grid]\n"Plant.mass" = [0.1347, 0.16, -1.0]\n"SensorChain.seed" = [0, 1]\n')
     out = tmp_path / "out"
-    process = subprocess.Popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "1", "--out", str(out)],
+    process = subprocess.Popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "0", "--out", str(out)],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     csv_path = out / "results.csv"
     deadline = time.monotonic() + 60
@@ -352,7 +353,7 @@ def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7
     assert 2 <= len(before) < 6
     spec = load_spec(spec_path)
     again: list[str] = []
-    result = run_sweep(spec, out, workers=1, plot=False, on_row=lambda r: again.append(r["run_id"]))
+    result = run_sweep(spec, out, workers=0, plot=False, on_row=lambda r: again.append(r["run_id"]))
     assert not before & set(again)
     ids = [r["run_id"] for r in result.rows()]
     assert len(ids) == len(set(ids)) == 6 and set(ids) == {r.run_id for r in spec.runs()}
@@ -361,11 +362,11 @@ def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7
 def test_an_extended_spec_skips_its_old_runs_and_a_changed_one_keeps_their_rows(tmp_path):
     data = {"sweep": {"name": "k"}, "run": {"kind": "calibration", "sigma": [10.0], "points": 20},
             "grid": {"shape": ["piston"], "nodes": [51]}}
-    first = run_sweep(parse_spec(data), tmp_path, workers=1, plot=False)
+    first = run_sweep(parse_spec(data), tmp_path, workers=0, plot=False)
     data["grid"]["nodes"] = [51, 61]  # extended: the old run keeps its id and is skipped
-    extended = run_sweep(parse_spec(data), tmp_path, workers=1, plot=False)
+    extended = run_sweep(parse_spec(data), tmp_path, workers=0, plot=False)
     data["run"]["points"] = 30       # changed settings: new ids; the old rows belong to another spec
-    changed = run_sweep(parse_spec(data), tmp_path, workers=1, plot=False)
+    changed = run_sweep(parse_spec(data), tmp_path, workers=0, plot=False)
     assert first.summary["ok"] == 1
     assert (extended.summary["skipped"], extended.summary["new"], extended.summary["ok"]) == (1, 1, 2)
     assert (changed.summary["skipped"], changed.summary["other_rows"], changed.summary["ok"]) == (0, 2, 2)

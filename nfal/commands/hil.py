@@ -50,6 +50,9 @@ def register(commands) -> None:
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
                           help="reconnect the port this long after --disconnect-at (default 1.0)")
     emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
+    emulator.add_argument("--sample-rate", type=positive_float, default=1.0 / RigTiming.sample_period_s, metavar="HZ",
+                          help="the rig's tick and measurement rate (default %(default)g; a host's HardwareProxy and "
+                          "Controller take the same sample_rate; the C firmware runs at the default only)")
     emulator.add_argument("--watchdog", type=finite_float, default=RigTiming.watchdog_timeout_s, metavar="SECONDS",
                           help="no DRIVE for this long trips the watchdog (default %(default)s)")
     emulator.add_argument("--ramp-down", type=finite_float, default=RigTiming.ramp_down_s, metavar="SECONDS",
@@ -101,7 +104,10 @@ def run_emulator(args: argparse.Namespace) -> int:
     from nfal.rig_emulator import Disconnection, Emulator
     from nfal.rig_model import open_rig
 
-    timing = RigTiming(watchdog_timeout_s=args.watchdog, ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
+    if not 10.0 <= args.sample_rate <= 20_000.0:
+        raise InvalidParameterError("--sample-rate", args.sample_rate, "from 10 to 20000 Hz")
+    timing = RigTiming(sample_period_s=1.0 / args.sample_rate, watchdog_timeout_s=args.watchdog,
+                       ramp_down_s=args.ramp_down, max_drive_voltage=args.max_voltage)
     faults = FaultSettings(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate, delay_s=args.delay,
                            seed=args.seed)
     after = None if args.reconnect_after == "never" else _seconds(args.reconnect_after)
@@ -109,6 +115,9 @@ def run_emulator(args: argparse.Namespace) -> int:
     if args.link and args.port != "pty":
         raise InvalidParameterError("--link", args.link, "used with --port pty only")
     parameters = dict(parse_parameter(text) for text in args.param)
+    if args.sample_rate != 1.0 / RigTiming.sample_period_s:  # the rig's sensor and PLL sample at the rig's rate
+        parameters.setdefault("SensorChain.sample_rate", str(args.sample_rate))
+        parameters.setdefault("ResonanceTracker.pll_rate", str(args.sample_rate))
     if args.firmware != "python":
         _require_plain_link(args, faults, disconnection)
     require_realtime_priority(args.rt_priority)  # refused now, before anything is built or opened
@@ -158,6 +167,9 @@ def _require_plain_link(args: argparse.Namespace, faults, disconnection) -> None
     """--firmware c|qemu: the firmware owns its serial line, so nothing can be injected into it or unplugged."""
     if args.port != "pty":
         raise InvalidParameterError("--port", args.port, "pty with --firmware c or qemu (the firmware opens its own)")
+    if args.sample_rate != 1.0 / RigTiming.sample_period_s:
+        raise InvalidParameterError("--sample-rate", args.sample_rate, f"{1.0 / RigTiming.sample_period_s:g} with "
+                                    "--firmware c or qemu (the C firmware's tick is built in)")
     if faults.active or disconnection is not None:
         raise InvalidParameterError("--firmware", args.firmware, "python when faults are injected (--drop, --corrupt, "
                                     "--duplicate, --delay, --disconnect-at): the C firmware writes its own line")

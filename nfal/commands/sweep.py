@@ -26,7 +26,7 @@ def register(commands) -> None:
     sweep.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
                        "(default: a local cluster)")
     sweep.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster "
-                       "(default: this machine's cores)")
+                       "(default: this machine's cores); 0: one worker thread in this process (for debugging)")
     sweep.add_argument("--out", metavar="DIR", help="result folder (default runs/sweep-<spec name>); continued if it "
                        "holds the same spec's table")
     sweep.add_argument("--build-dir", default="build", metavar="DIR",
@@ -40,8 +40,8 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from nfal.orchestration.sweep import run_sweep
     from nfal.sweeps import load_spec
 
-    if args.workers is not None and args.workers < 1:
-        raise InvalidParameterError("--workers", args.workers, "a whole number >= 1")
+    if args.workers is not None and args.workers < 0:
+        raise InvalidParameterError("--workers", args.workers, "a whole number >= 0 (0: in this process)")
     spec = load_spec(args.spec)
     if not getattr(args, "verbose", False):  # Dask's scheduler and nanny log every connection at INFO
         import distributed  # noqa: F401 - configures its loggers on import; quiet them afterwards
