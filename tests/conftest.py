@@ -31,6 +31,13 @@ def pytest_runtest_protocol(item, nextitem):
         yield
 
 
+def pytest_collection_modifyitems(items):
+    """A ``realtime`` test is also ``slow``: the fast path (``-m "not slow"``) meets no wall clock."""
+    for item in items:
+        if item.get_closest_marker("realtime") is not None and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture(scope="session")
 def fig7_archives(tmp_path_factory):
     """The FMUs built and both Fig. 7 structures packed once per test session: {name: .ssp path}."""

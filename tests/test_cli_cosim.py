@@ -9,6 +9,7 @@ from nfal.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError
 
 
+@pytest.mark.slow  # whole runs of the loop
 def test_build_packs_every_structure(capsys, tmp_path):
     assert main(["build", "--out", str(tmp_path), "--json"]) == 0
     archives = json.loads(capsys.readouterr().out)
@@ -18,6 +19,7 @@ def test_build_packs_every_structure(capsys, tmp_path):
         "SensorChain.fmu", "SlowPlant.fmu"]
 
 
+@pytest.mark.slow  # whole runs of the loop
 def test_run_writes_results_summary_and_plot(capsys, tmp_path, fig7_archives):
     out = tmp_path / "run"
     assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.2", "--out", str(out), "--json",
@@ -30,6 +32,7 @@ def test_run_writes_results_summary_and_plot(capsys, tmp_path, fig7_archives):
     assert (out / "response.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # whole runs of the loop
 def test_run_from_a_reference_csv(capsys, tmp_path, fig7_archives):
     csv = tmp_path / "reference.csv"
     csv.write_text("# time_s,reference_m\n0,60e-6\n0.05,80e-6\n")
@@ -39,6 +42,7 @@ def test_run_from_a_reference_csv(capsys, tmp_path, fig7_archives):
     assert "0.3 s" in out and "IAE" not in out  # metrics only for the staircase
 
 
+@pytest.mark.slow  # whole runs of the loop
 def test_default_run_prints_the_step_metrics(capsys, tmp_path, monkeypatch, fig7_archives):
     """`nfal run` with no structure: builds into build/ (here reused from the session) and runs fig7_slow."""
     monkeypatch.chdir(tmp_path)
@@ -73,6 +77,7 @@ def test_parse_parameter_rejects(text):
         parse_parameter(text)
 
 
+@pytest.mark.slow  # whole runs of the loop
 @pytest.mark.parametrize("pll, settles_near", [("true", 28557.0), ("false", 28500.0)])
 def test_run_drives_a_resonance_drift_input(capsys, tmp_path, fig7_archives, pll, settles_near):
     """--input drives a second input: a 57 Hz (0.2 %) resonance step; the PLL follows it, a fixed drive does not."""

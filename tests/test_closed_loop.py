@@ -139,6 +139,7 @@ def test_metrics_of_a_known_first_order_response():
 
 
 # --- the comparison of Figs. 9-10 ------------------------------------------------------------------
+@pytest.mark.slow  # five closed-loop runs, clean and noisy
 def test_gain_scheduled_loop_has_zero_steady_state_error(runs):
     run = runs[False]["gs"]
     for start in REFERENCE.step_times_s + REFERENCE.hold_s:
@@ -146,12 +147,14 @@ def test_gain_scheduled_loop_has_zero_steady_state_error(runs):
         assert abs(run.height_m[k] - run.reference_m[k]) < 1e-9
 
 
+@pytest.mark.slow  # five closed-loop runs, clean and noisy
 @pytest.mark.parametrize("noisy", [False, True], ids=["clean", "noisy"])
 def test_gain_scheduled_loop_has_the_smallest_iae(runs, noisy):
     iae = {key: total_iae(run) for key, run in runs[noisy].items()}
     assert min(iae, key=iae.get) == "gs", iae
 
 
+@pytest.mark.slow  # five closed-loop runs, clean and noisy
 def test_low_versus_high_design_trade_off(runs):
     """Paper: low-height designs transient-good but noisy; high-height designs quiet but oscillatory low down."""
     low = step_metrics(runs[True]["80"], REFERENCE)

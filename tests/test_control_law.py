@@ -152,6 +152,7 @@ def _plant():
 SAMPLED = design_schedule(None, RigParameters(), paper_calibration(), DesignSpec(sample_rate_hz=2000.0))
 
 
+@pytest.mark.slow  # closed-loop runs from rest
 @pytest.mark.parametrize("lag_s", [0.0, 5.6e-3])
 def test_lift_off_from_rest_does_not_pass_the_first_level_by_more_than_ten_percent(lag_s):
     plant = _plant()

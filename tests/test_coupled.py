@@ -49,6 +49,7 @@ def table1_errors(plant):
     return errors
 
 
+@pytest.mark.slow  # the coupled model to equilibrium
 def test_case_a_settles_at_the_simplified_equilibrium(table1_errors):
     """Table 1 case a (|a| = 7 um, delta = 0.0696): paper 0.17 %; here (stand-in Fig. 3 shape) <= 0.4 %."""
     delta, error = table1_errors[7e-6]
@@ -56,6 +57,7 @@ def test_case_a_settles_at_the_simplified_equilibrium(table1_errors):
     assert error <= 4e-3
 
 
+@pytest.mark.slow  # the coupled model to equilibrium
 def test_case_b_settles_at_the_simplified_equilibrium(table1_errors):
     """Table 1 case b (|a| = 2.5 um, delta = 0.036): paper 0.078 %; here <= 0.1 %. (The error is not simply
     proportional to delta^2 across cases: the delta^2 coefficient of K depends on sigma, 96 vs 200 here.)"""

@@ -34,6 +34,8 @@ from nfal.commands.cosim import _stop_time
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.fig7 import DEFAULT_STAIRCASES, generated_reference
 
+pytestmark = pytest.mark.slow  # whole experiments in FMPy and ecos
+
 STEP = 5e-4
 ECOS_SSP_OUTPUTS = Path(__file__).parent / "hosts" / "ecos_ssp_outputs.py"
 

@@ -17,6 +17,8 @@ from nfal.models.rig import RigParameters
 from nfal.models.table2 import REFERENCE_ZERO_RATIO
 from nfal.orchestration import run_structure
 
+pytestmark = pytest.mark.slow  # closed loops of FMUs
+
 ONE_STEP = Staircase((60e-6, 100e-6), hold_s=0.6, lead_s=0.1)
 #: The FMU loop with the blocks the pure-Python loop leaves out made transparent.
 AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.analog_cutoff": 0.0,

@@ -18,6 +18,7 @@ def _pair(excess):
     return plant, FixedStepPlant(plant), FixedStepPlant(plant, near_surface="fast")
 
 
+@pytest.mark.slow  # the exact near-surface path: ~4 ms a step
 @pytest.mark.parametrize("excess", [None, ExcessDamping.rig_like()], ids=["eq6", "rig-like"])
 @pytest.mark.parametrize("hold_height", [60e-6, 120e-6])
 def test_lift_off_from_rest_follows_the_exact_path(excess, hold_height):
@@ -34,6 +35,7 @@ def test_lift_off_from_rest_follows_the_exact_path(excess, hold_height):
     assert worst < RELATIVE_TOLERANCE
 
 
+@pytest.mark.slow  # the exact near-surface path: ~4 ms a step
 @pytest.mark.parametrize("start", [12e-6, 30e-6])
 def test_a_fall_with_the_drive_off_follows_the_exact_path(start):
     """With the drive off the object sinks towards the surface (the film's damping ~ 1/h^3 slows it)."""

@@ -22,6 +22,8 @@ from fmpy.validation import validate_fmu
 from nfal.cli import main
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
 
+pytestmark = pytest.mark.slow  # the FMI 3.0 FMUs built, run in FMPy, ecos and a C host
+
 pytest.importorskip("pythonfmu3")
 
 #: Per FMU: start values (inputs held constant) and the run's stop time [s] (step 0.5 ms, the Controller's period).

@@ -341,6 +341,7 @@ def test_a_declined_step_is_discard_so_nfal_slaves_raise_instead(tmp_path):
     instance.free()
 
 
+@pytest.mark.slow  # FMUs in subprocesses
 def test_a_failed_instance_can_be_freed_again_and_again(scale_fmu):
     """pythonfmu 0.7.0's runtime dropped references on every exception; ours keeps them (no crash, no leak)."""
     for i in range(12):
@@ -441,6 +442,7 @@ SELF_CONTAINED = textwrap.dedent('''
 ''')
 
 
+@pytest.mark.slow  # FMUs in subprocesses
 def test_fmu_runs_where_nfal_is_not_installed(tmp_path_factory, tmp_path):
     """Only the copy of nfal inside the FMU can serve: the editable install is hidden from the subprocess."""
     fmu = build.build_fmus(tmp_path_factory.mktemp("contained"), ["SlowPlant"])["SlowPlant"]

@@ -35,6 +35,7 @@ ONE_AFTER_THE_OTHER = HIDE_EDITABLE_INSTALL + textwrap.dedent('''
 ''')
 
 
+@pytest.mark.slow  # two FMUs built and run
 def test_two_different_nfal_fmus_in_one_process(tmp_path_factory, tmp_path):
     """SlowPlant, then ReynoldsPlant (which reads its excitation-form CSV), then SlowPlant again."""
     fmus = build.build_fmus(tmp_path_factory.mktemp("pair"), ["SlowPlant", "ReynoldsPlant"])

@@ -106,6 +106,7 @@ def test_table_interpolates_the_direct_solution(tables, name):
         assert table.scalar(sigma, delta) == pytest.approx(float(table(sigma, delta)), abs=1e-14)
 
 
+@pytest.mark.slow  # the coupled model run
 @pytest.mark.parametrize("name, amplitude, release, duration, transient, whole",
                          [("paper", 7e-6, 100e-6, 0.05, 0.0, 5e-4), ("piston", 3e-6, 70e-6, 0.15, 0.1, 5e-3)])
 def test_averaged_plant_follows_the_coupled_model(tables, name, amplitude, release, duration, transient, whole):

@@ -117,7 +117,7 @@ def _kept_up(result, start: float, end: float, samples: int = 4) -> bool:
 def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emulator, tmp_path):
     """Noise off on both sides. The HIL loop has the link's delay (up to a sample or two) that the simulated loop
     has not, and lifts off from rest at a different phase, so the comparison starts after lift-off (0.5 s).
-    Tolerances (measured: 1.6 um, 0 um, 2 ms, 0.4 points): the step's transient within 5 um; the last half of
+    Tolerances (measured at 2 kHz: 1.6 um, 0 um, 2 ms, 0.4 points): the step's transient within 5 um; the last half of
     each hold within 0.05 um; rise time within 5 ms; overshoot within 3 percentage points.
 
     The host runs under SCHED_FIFO where the system allows it, as the rig does, with the rig's default watchdog. This
@@ -138,8 +138,12 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
         pytest.fail(f"the link did not keep real time during the step in any of 3 runs: {hil.summary['realtime']}")
     simulated = simulate_the_truth(fig7_archives, STEP, tmp_path / "sim")
     t = hil.table().time
-    difference = np.abs(np.asarray(hil[HARDWARE.measured]) - np.asarray(simulated[SIMULATED.measured]))
-    assert np.max(difference[(t >= TRANSIENT[0]) & (t < TRANSIENT[1])]) < 5e-6
+    measured, expected = np.asarray(hil[HARDWARE.measured]), np.asarray(simulated[SIMULATED.measured])
+    difference = np.abs(measured - expected)
+    transient = (t >= TRANSIENT[0]) & (t < TRANSIENT[1])
+    # the step's transient as the simulation's, up to the link's delay (0-2 samples): measured at 1 kHz, 2.4-3.7 um at
+    # the best delay in 3 runs that kept real time (3.7-4.8 um at none)
+    assert min(np.max(np.abs(measured - np.roll(expected, lag))[transient]) for lag in range(3)) < 5e-6
     for start, end in ((0.5, 1.0), (1.5, 2.0)):
         assert np.max(difference[(t >= start) & (t < end)]) < 0.05e-6
     [hil_step] = loop_metrics(hil.table(), STEP, HARDWARE)["steps"]

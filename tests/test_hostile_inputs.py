@@ -77,6 +77,7 @@ def test_hostile_input_in_process(case_id, build, tmp_path):
     assert outcome.outcome == _expected(case_id), outcome.detail
 
 
+@pytest.mark.slow  # a subprocess per case
 @pytest.mark.parametrize("case_id", _ids(OWN_PROCESS))
 def test_hostile_input_in_its_own_process(case_id, build, tmp_path):
     _skip_if_meaningless(case_id)

@@ -173,6 +173,7 @@ def _drifting(t: float) -> float:
     ({"gain": lambda t: 1.0 if t < 1.5 else 0.0}, "touched down"),
     ({"tripped_after_s": 1.5}, "watchdog tripped"),
 ])
+@pytest.mark.slow  # identifications against a simulated rig
 def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, match):
     plan = IdentificationPlan(SHORT_PLAN.equilibrium_heights_m, SHORT_PLAN.damping_heights_m, steps=2, max_hold_s=1.0)
     rig = SimulatedRig(TRUTH, **options)
@@ -188,6 +189,7 @@ def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, ma
         assert recorder.last(APPLIED) == 0.0 and recorder.count > kept
 
 
+@pytest.mark.slow  # identifications against a simulated rig
 def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path, capsys):
     rig = SimulatedRig(TRUTH, interrupt_at_s=1.0)
     recorder = SampleRecorder(io.StringIO())

@@ -32,6 +32,8 @@ from nfal.orchestration.libcosim import run_ssp  # noqa: E402
 from nfal.orchestration.ssp_archive import pack  # noqa: E402
 from nfal.orchestration.ssp_schema import libcosim_portability, validate  # noqa: E402
 
+pytestmark = pytest.mark.slow  # a third-party host (libcosim) running FMUs
+
 TOY_GAIN = '''
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
 

@@ -72,12 +72,14 @@ def test_with_the_reference_zero_the_cutoff_is_reached_through_the_filter(height
         assert design.slow_pole > 1.5 * blind.slow_pole  # measured 2.03x at 50 um, 1.72x at 65 um (eq. 6)
 
 
+@pytest.mark.slow  # stability maps
 def test_map_is_below_one_at_every_pair(grid):
     """The acceptance test of issue 14 item 3: any pair on 50-200 um reaching |z| = 1 fails."""
     assert grid.design_height_m[0] == 50e-6 and grid.design_height_m[-1] == 200e-6
     assert grid.max_pole_modulus.max() < 1.0
 
 
+@pytest.mark.slow  # stability maps
 @pytest.mark.parametrize("spec", [SAMPLED, WITH_ZERO], ids=["blind to the reference zero", "with it"])
 def test_margin_is_largest_on_the_diagonal(spec):
     """For the paper's model (eq. 6); with the rig-like damping it is not (docs/controller.md)."""

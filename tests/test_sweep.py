@@ -188,6 +188,7 @@ def _by_id(rows):
     return {r["run_id"]: r for r in rows}
 
 
+@pytest.mark.slow  # a Dask cluster of worker processes
 def test_local_sweep_writes_one_row_per_run(local_sweep, small_spec):
     rows = local_sweep.rows()
     assert [r["run_id"] for r in rows] == [r.run_id for r in small_spec.runs()]
@@ -200,18 +201,21 @@ def test_local_sweep_writes_one_row_per_run(local_sweep, small_spec):
     assert local_sweep.plot_path is not None and local_sweep.plot_path.stat().st_size > 0
 
 
+@pytest.mark.slow  # a Dask cluster of worker processes
 def test_a_run_that_raises_in_a_worker_is_a_row(local_sweep):
     failed = [r for r in local_sweep.rows() if r["status"] == "failed"]
     assert [r["param:Plant.mass"] for r in failed] == [-1.0, -1.0]
     assert all(r["error"] and r["iae_m_s"] is None for r in failed)
 
 
+@pytest.mark.slow  # a Dask cluster of worker processes
 def test_heavier_plant_rises_slower(local_sweep):
     rows = [r for r in local_sweep.rows() if r["status"] == "ok" and r["param:SensorChain.seed"] == 0]
     by_mass = sorted(rows, key=lambda r: r["param:Plant.mass"])
     assert by_mass[0]["rise_time_s"] < by_mass[1]["rise_time_s"]
 
 
+@pytest.mark.slow  # a Dask cluster of worker processes
 def test_interrupted_sweep_resumes_without_repeating(small_spec, fig7_archives, tmp_path, local_sweep):
     first: list[str] = []
 
@@ -297,6 +301,7 @@ def dask_cluster(tmp_path):
             log.close()
 
 
+@pytest.mark.slow  # a Dask cluster of worker processes
 def test_scheduler_sweep_gives_the_local_table(dask_cluster, small_spec, fig7_archives, local_sweep, tmp_path):
     result = run_sweep(small_spec, tmp_path / "remote", scheduler=dask_cluster, archives=fig7_archives, plot=False)
     assert result.summary["workers"] == 2 and result.summary["scheduler"] == dask_cluster
@@ -307,6 +312,7 @@ def test_scheduler_sweep_gives_the_local_table(dask_cluster, small_spec, fig7_ar
     _assert_same_table(rows, local_sweep.rows())
 
 
+@pytest.mark.slow  # a subprocess, or whole sweeps
 def test_cli_sweep_calibration(tmp_path, capsys):
     import json
 
@@ -325,6 +331,7 @@ def test_cli_sweep_calibration(tmp_path, capsys):
     assert main(["sweep", str(tmp_path / "missing.toml")]) == 2
 
 
+@pytest.mark.slow  # a subprocess, or whole sweeps
 def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7_archives, small_spec):
     """SIGKILL the whole ``nfal sweep`` process group once two rows are written, then run the spec again."""
     import os

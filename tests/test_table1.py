@@ -11,6 +11,7 @@ def results():
     return {case.name: run_case(case) for case in TABLE1}
 
 
+@pytest.mark.slow  # Table 1: eight Reynolds runs
 @pytest.mark.parametrize("case", TABLE1, ids=lambda c: c.name)
 def test_delta_column_within_2_percent(results, case):
     result = results[case.name]
@@ -18,17 +19,20 @@ def test_delta_column_within_2_percent(results, case):
     assert result.delta_full == pytest.approx(case.paper_delta, rel=0.02)
 
 
+@pytest.mark.slow  # Table 1: eight Reynolds runs
 @pytest.mark.parametrize("case", TABLE1, ids=lambda c: c.name)
 def test_steady_state_error_of_the_papers_order(results, case):
     assert case.paper_error_percent / 3 < results[case.name].error_percent < 3 * case.paper_error_percent
 
 
+@pytest.mark.slow  # Table 1: eight Reynolds runs
 def test_error_grows_with_delta(results):
     ordered = sorted(results.values(), key=lambda r: r.delta_full)
     errors = [r.error_percent for r in ordered]
     assert errors == sorted(errors)
 
 
+@pytest.mark.slow  # Table 1: eight Reynolds runs
 @pytest.mark.parametrize("case", TABLE1, ids=lambda c: c.name)
 def test_both_responses_settle(results, case):
     result = results[case.name]
