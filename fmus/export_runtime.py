@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from nfal.errors import RuntimeBuildError
+from nfal.models.disk_cache import cache_root
 
 
 @dataclass(frozen=True)
@@ -246,8 +247,7 @@ def _digest(runtime: Runtime) -> str:
 
 
 def _cache_dir(runtime: Runtime) -> Path:
-    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return root / "nfal" / runtime.cache_name / _digest(runtime)
+    return cache_root() / runtime.cache_name / _digest(runtime)
 
 
 def exported_functions(library: Path) -> set[str]:

@@ -1,4 +1,4 @@
-"""Arrays kept across processes in the user-wide cache folder (``$NFAL_CACHE_DIR`` or ``~/.cache/nfal``).
+"""Arrays kept across processes in the user-wide cache folder (:func:`cache_root`).
 
 What is kept is a pure function's result, named by a digest of everything it depends on (its inputs and,
 where the code may change, the source that computes it): a changed input or source finds no entry and
@@ -21,8 +21,11 @@ logger = logging.getLogger(__name__)
 
 
 def cache_root() -> Path:
-    """The user-wide cache folder (also numba's, :mod:`nfal.models.numba_cache`)."""
-    return Path(os.environ.get("NFAL_CACHE_DIR") or Path.home() / ".cache" / "nfal")
+    """The user-wide cache folder: ``$NFAL_CACHE_DIR``, else ``$XDG_CACHE_HOME/nfal``, else ``~/.cache/nfal`` (also
+    numba's, :mod:`nfal.models.numba_cache`, and the FMU runtimes', :mod:`nfal.fmus.export_runtime`)."""
+    if os.environ.get("NFAL_CACHE_DIR"):
+        return Path(os.environ["NFAL_CACHE_DIR"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nfal"
 
 
 def digest(*parts: object) -> str:

@@ -242,7 +242,7 @@ def test_the_emulator_refuses_what_the_c_firmware_cannot_do(options, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["c", "qemu"])
+@pytest.mark.parametrize("kind", ["c", QEMU_SERIAL])  # failed in 2 of 3 full-suite runs on 2026-11-25
 def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7_archives, tmp_path, kind):
     """`nfal rig-emulator --firmware c|qemu`: the first line is a port a RigLink opens; the truth answers (the
     height the host measures is the rig_slow sensor's, at rest); the exit summary counts the ticks."""
