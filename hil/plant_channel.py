@@ -23,6 +23,7 @@ exact tick by tick, for the conformance tests).
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import os
 import select
 import shutil
@@ -81,8 +82,12 @@ def build(target: str, build_dir: str | os.PathLike | None = None) -> Path:
         raise FirmwareBuildError(f"no firmware sources at {FIRMWARE_DIR} (an installed nfal without its source tree)")
     require_tools("host" if target == "test" else target)
     out = Path(build_dir) if build_dir is not None else FIRMWARE_DIR / "build"
-    done = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), f"BUILD={out.resolve()}", target],
-                          capture_output=True, text=True)
+    out.mkdir(parents=True, exist_ok=True)
+    # one make at a time per folder: two emulators (or test workers) starting together must not write one ELF at once
+    with open(out / ".build.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        done = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), f"BUILD={out.resolve()}", target],
+                              capture_output=True, text=True)
     if done.returncode != 0:
         text = done.stderr + done.stdout
         hint = " (is libnewlib-arm-none-eabi installed?)" if "nano.specs" in text or "newlib" in text else ""

@@ -76,7 +76,12 @@ void plat_plant_read(uint8_t *p, size_t n) {
             *p++ = plant_rx.b[plant_rx.tail++ % Q_SIZE(plant_rx)];
             n--;
         }
-        if (UART1->state & RX_FULL) uart1_rx_handler(); /* a byte the full queue left in the UART */
+        /* a byte the full queue left in the UART; with interrupts masked, as the TX path calls its handler: the RX
+         * interrupt taken between this check and the read would read the same byte, and QEMU's data register then
+         * hands it over twice (a duplicated byte shifted a configuration record's fields, seen under load) */
+        irq_disable();
+        if (UART1->state & RX_FULL) uart1_rx_handler();
+        irq_enable();
     }
 }
 
