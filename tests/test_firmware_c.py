@@ -142,10 +142,10 @@ class Ticker:
         self._thread.join()
 
 
-#: QEMU on its serial line: 2 of 4 runs of this file failed here (a host without HELLO_ACK within 10 s, or dead before
-#: 'driving'), with and without the link's port lock; the qemu conformance in tunnel mode (test_hil_firmware.py) holds.
-QEMU_SERIAL = pytest.param("qemu", marks=pytest.mark.xfail(reason="QEMU's serial line here drops a session now and then "
-                                                           "(issue 27's note)", strict=False))
+#: QEMU on its serial line. It failed in 2 of 4 runs of this file and in 2 of 3 full-suite runs until the mps2 firmware
+#: read its plant channel's UART with the RX interrupt unmasked (a duplicated byte; firmware/mps2/main_mps2.c); after:
+#: 16 of 16 serial-line cases passed in 4 runs beside a CPU-bound process.
+QEMU_SERIAL = "qemu"
 
 
 @pytest.fixture(params=["c", QEMU_SERIAL])
@@ -242,7 +242,7 @@ def test_the_emulator_refuses_what_the_c_firmware_cannot_do(options, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["c", QEMU_SERIAL])  # failed in 2 of 3 full-suite runs on 2026-11-25
+@pytest.mark.parametrize("kind", ["c", QEMU_SERIAL])
 def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7_archives, tmp_path, kind):
     """`nfal rig-emulator --firmware c|qemu`: the first line is a port a RigLink opens; the truth answers (the
     height the host measures is the rig_slow sensor's, at rest); the exit summary counts the ticks."""
