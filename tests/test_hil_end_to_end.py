@@ -114,6 +114,9 @@ def _kept_up(result, start: float, end: float, samples: int = 4) -> bool:
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(reason="on this machine since 2026-11-25 20:00 UTC (about 2x slower) the rig emulator's tick costs "
+                   "~860 us of its 1 ms at 1 kHz with a host: in 1 of 3 full-suite runs no attempt kept real time during "
+                   "the step (issue 23's note: a compiled plant for the emulator, a compiled 2 kHz host path)", strict=False)
 def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emulator, tmp_path):
     """Noise off on both sides. The HIL loop has the link's delay (up to a sample or two) that the simulated loop
     has not, and lifts off from rest at a different phase, so the comparison starts after lift-off (0.5 s).
