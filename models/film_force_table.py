@@ -215,6 +215,14 @@ def cached_table(shape: ExcitationShape, cache_dir: str | os.PathLike | None = N
     """:class:`FilmForceTable` (``settings`` its keyword arguments), its values kept in ``cache_dir``
     (default ``$NFAL_CACHE_DIR`` or ``~/.cache/nfal``, folder ``film_tables``) so that a second build with
     the same shape and settings skips the solves (:func:`~nfal.models.disk_cache.cached_array`)."""
-    values = cached_array("film_tables", cache_key(shape, **settings), lambda: FilmForceTable(shape, **settings).values,
-                          cache_dir, check=lambda stored: FilmForceTable(shape, **settings, values=stored))
-    return FilmForceTable(shape, **settings, values=values)
+    table = {}  # the one table built: from the stored values (the check) or by the solves
+
+    def solve() -> np.ndarray:
+        table["built"] = FilmForceTable(shape, **settings)
+        return table["built"].values
+
+    def load(stored: np.ndarray) -> None:
+        table["built"] = FilmForceTable(shape, **settings, values=stored)
+
+    cached_array("film_tables", cache_key(shape, **settings), solve, cache_dir, check=load)
+    return table["built"]

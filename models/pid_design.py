@@ -23,6 +23,7 @@ schedules also give the gains in SI: k_p [m/m], k_i [1/s], k_d [s].
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from typing import TYPE_CHECKING
@@ -422,6 +423,12 @@ def design_schedule(heights_m=None, rig: RigParameters | None = None, calibratio
     return GainSchedule(_designs_at(lpv, spec, rig))
 
 
+@functools.cache
+def _design_source() -> bytes:
+    """The code a cached design depends on (read once a process)."""
+    return source_digest(__file__, sampled_design.__file__)
+
+
 #: What a design is beyond its inputs, as :func:`_designs_at` keeps it: (k_p, k_i, k_d, p1, p2, bandwidth).
 _DESIGN_NUMBERS = ("kp", "ki", "kd", "slow_pole", "fast_pole", "bandwidth")
 
@@ -441,7 +448,7 @@ def _designs_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> l
         if stored.shape != (len(points), len(_DESIGN_NUMBERS)) or not np.all(np.isfinite(stored)):
             raise ValueError(f"a stored design of shape {stored.shape}")
 
-    key = digest("pid-design", source_digest(__file__, sampled_design.__file__), dataclasses.astuple(spec),
+    key = digest("pid-design", _design_source(), dataclasses.astuple(spec),
                  dataclasses.astuple(rig), *(np.asarray(getattr(lpv, name), dtype=float)
                                              for name in ("height_m", "excitation_m", "alpha0", "alpha1", "beta0")))
     numbers = cached_array("pid_designs", key, design, check=check)
