@@ -35,9 +35,10 @@ TRANSIENT = (1.0, 1.2)
 RT_PRIORITY = 50
 #: The host's missed-sample limit where a lost link is the point of the test: 50 ms.
 MISSED = 100
-#: The rate of the tests that judge the loop's response on the wall clock [Hz]. The host's 2 kHz step costs 570-680 us
-#: of CPU on this 2-core machine on a slow day (a Python host: bench/realtime.py hil measures 2 kHz), so those tests run
-#: host and rig at 1 kHz, with the filter scaled to keep the sampled loop's dynamics; the others run at Table 2's 2 kHz.
+#: The rate of the tests that judge the loop's response on the wall clock [Hz]. At 2 kHz the rig emulator's tick takes
+#: 420-500 us of its 500 with a host on this 2-core machine on a slow day, and the loop overran 45-75 % of its steps
+#: (docs/hil.md, "Tests"; bench/realtime.py hil measures 2 kHz), so those tests run host and rig at 1 kHz, with the
+#: filter scaled to keep the sampled loop's dynamics; the others run at Table 2's 2 kHz.
 JUDGED_RATE = 1000.0
 
 
