@@ -303,7 +303,10 @@ def runtime_library(fmi_version: int = 2) -> Path:
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="nfal_runtime_", dir=target.parent) as build:
         commands = [["cmake", "-S", str(runtime.sources), "-B", build, "-DCMAKE_BUILD_TYPE=Release",
-                     f"-DPython3_EXECUTABLE={sys.executable}"],
+                     f"-DPython3_EXECUTABLE={sys.executable}",
+                     # this interpreter's headers: with its venv not activated and pyenv's shims on PATH, CMake's
+                     # own search found none and the build failed on a cold cache (tests/test_fmu_loader.py)
+                     f"-DPython3_INCLUDE_DIR={sysconfig.get_paths()['include']}"],
                     ["cmake", "--build", build, "--parallel", "2"]]
         for command in commands:
             done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)

@@ -78,3 +78,21 @@ def test_settings_of_a_python_that_does_not_run_are_an_error(tmp_path):
     broken.chmod(0o755)
     with pytest.raises(RuntimeBuildError, match="broken"):
         python_settings(broken)
+
+
+@pytest.mark.slow  # CMake and a C++ build of the runtime: about 11 s
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_runtime_builds_from_a_cold_cache_with_this_pythons_headers(version, tmp_path, monkeypatch):
+    """A fresh machine has no cached runtime: it must build with the headers of the Python that runs the build, also
+    when its venv is not activated (`venv/bin/nfal build` run directly: with pyenv's shims on PATH, CMake's own
+    search missed the interpreter's headers and failed; the suite's warm cache had hidden it)."""
+    from nfal.fmus.export_runtime import exported_functions, runtime_library
+
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path))
+    # the venv not activated, the rest of PATH as it is (here: pyenv's shims, whose python3-config misled CMake)
+    monkeypatch.setenv("PATH", os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep)
+                                               if not p.startswith(sys.prefix)))
+    monkeypatch.delenv("VIRTUAL_ENV", raising=False)
+    library = runtime_library(version)
+    assert library.is_file() and tmp_path in library.parents
+    assert f"fmi{version}DoStep" in exported_functions(library)
