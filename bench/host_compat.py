@@ -39,14 +39,14 @@ from fmpy import simulate_fmu
 
 import pythonfmu3
 from nfal.build import structure_sources
-from nfal.fmus.build import build_fmus
+from nfal.fmus.build import SIMULATION_FMUS, build_fmus
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV
 from nfal.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.orchestration import run_structure
 from nfal.orchestration.libcosim import preload_environment
 from nfal.orchestration.ssp_archive import pack
 
-FIG7_FMUS = ["SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain"]
+FIG7_FMUS = list(SIMULATION_FMUS)
 #: The builders' own runtimes, per FMI version.
 STOCK_RUNTIMES = {2: Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64" / "libpythonfmu-export.so",
                   3: Path(pythonfmu3.__file__).parent / "resources" / "binaries" / "x86_64-linux" / "libpythonfmu-export.so"}

@@ -77,6 +77,8 @@ FMU_SCRIPTS: dict[str, str] = {
     "HardwareProxy": "hardware_proxy.py",
     "ReferenceGenerator": "reference_generator.py",
 }
+#: The FMUs the simulated Fig. 7 structures (fig7_slow, fig7_reynolds) use between them: all but the HardwareProxy.
+SIMULATION_FMUS = tuple(name for name in FMU_SCRIPTS if name != "HardwareProxy")
 #: What every FMU copies from fmus/ beside its script.
 FMUS_SUPPORT = ("__init__.py", "base.py", "fmi3.py")
 #: The slave module's loader (the module pythonfmu imports; fmus/bundle_loader.py).

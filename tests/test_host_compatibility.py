@@ -30,7 +30,7 @@ from nfal.orchestration.ssp_archive import pack
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the loader is built for Linux only")]
 
-FIG7_FMUS = ["SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain", "ReferenceGenerator"]
+FIG7_FMUS = list(build.SIMULATION_FMUS)
 RUNS = 10
 STOP_S, STEP_S = 0.01, 5e-4
 ECOS_STOP_S = 0.2

@@ -27,6 +27,7 @@ from nfal.errors import (  # noqa: E402
     UnknownConnectorError,
     UnknownElementError,
 )
+from nfal.fmus.build import SIMULATION_FMUS  # noqa: E402
 from nfal.orchestration import libcosim  # noqa: E402
 from nfal.orchestration.libcosim import run_ssp  # noqa: E402
 from nfal.orchestration.ssp_archive import pack  # noqa: E402
@@ -282,7 +283,7 @@ def test_a_non_python_host_needs_libpython_preloaded(toy_dir, tmp_path):
 
 # --- the Fig. 7 archive with the real FMUs ----------------------------------------------------------
 
-FIG7_FMUS = ["SlowPlant", "ReynoldsPlant", "Controller", "ResonanceTracker", "SensorChain", "ReferenceGenerator"]
+FIG7_FMUS = list(SIMULATION_FMUS)
 FIG7_STOP_S = 0.3  # the lead-in at 60 um and the first 0.2 s of the step to 100 um
 FIG7_OBSERVED = ["Plant.height", "SensorChain.measured_height", "Controller.drive_voltage",
                  "ResonanceTracker.excitation_amplitude", "ResonanceTracker.drive_frequency"]
