@@ -11,11 +11,11 @@ exit"). :data:`RUNTIMES` holds their sources, one folder each, with the fixes ma
 In both, the interpreter is never finalised (``PyState.hpp``); a Python exception is answered with an
 error status (not fatal) and its ``str()`` as the one logged line, and leaves the instance whole
 (``handle_py_exception``); errors reach the host's logger even when logging is off; each instance
-imports its own slave module. FMI 2.0 only: the slave module's borrowed ``__dict__`` is no longer
-released (``findClass``), ``%`` is escaped (the FMI 2.0 logger takes a printf format; FMI 3.0's does
-not), a second ``fmi2FreeInstance`` of an instance does nothing (``fmi2.cpp`` keeps the set of live
-instances), and the ``PyState`` pointer is never destroyed by ``exit()``, so the library's destructor does
-not release it a second time (a host aborted at exit, "corrupted double-linked list"). FMI 3.0 only: the log queue is read after the exception is taken (it was read with the exception
+imports its own slave module; the ``PyState`` pointer is never destroyed by ``exit()``, so the library's
+destructor does not release it a second time (a host aborted at exit, "corrupted double-linked list").
+FMI 2.0 only: the slave module's borrowed ``__dict__`` is no longer released (``findClass``), ``%`` is
+escaped (the FMI 2.0 logger takes a printf format; FMI 3.0's does not), and a second ``fmi2FreeInstance``
+of an instance does nothing (``fmi2.cpp`` keeps the set of live instances). FMI 3.0 only: the log queue is read after the exception is taken (it was read with the exception
 pending: SIGSEGV), an import failure is no longer printed away before it is reported, a NULL logger
 callback is allowed, two leaks are closed, and a failed reset leaves no dangling references.
 

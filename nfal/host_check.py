@@ -104,7 +104,7 @@ def _run(command: list[str], cwd: Path, env: dict[str, str] | None) -> subproces
 def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time: float = 0.01,
                   step_size: float = 5e-4, workers: int = 2, runtime: Path | None = None,
                   strings: dict[str, str] | None = None, env: dict[str, str] | None = None,
-                  cwd: Path | None = None) -> HostRuns:
+                  cwd: Path | None = None, wrapper: tuple[str, ...] = ()) -> HostRuns:
     """Run ``fmu`` ``runs`` times in the C host of its FMI version (:func:`compile_c_host`) from its default
     start values; read every Real (Float64) output.
 
@@ -112,7 +112,7 @@ def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time
     ``strings``: String parameters to set first, by name (FMI 2.0), e.g. ``{"port": ...}`` for the HardwareProxy;
     ``workers``: runs at a time after the first (1 for an FMU that holds a device);
     ``env``: the host's environment (default :func:`bare_environment`); ``cwd``: its working directory
-    (default: the extracted FMU's folder).
+    (default: the extracted FMU's folder); ``wrapper``: a command to run the host under (e.g. valgrind's).
     """
     folder = Path(work_dir) / fmu.stem
     with zipfile.ZipFile(fmu) as archive:
@@ -120,7 +120,7 @@ def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time
     command, outputs, settings = _c_host_command(Path(host), folder, strings or {})
     if runtime is not None:
         shutil.copy2(runtime, command[1])
-    command += [repr(stop_time), repr(step_size), *outputs, *settings]
+    command = [*wrapper, *command, repr(stop_time), repr(step_size), *outputs, *settings]
     where = folder if cwd is None else cwd
     first = _run(command, where, env)  # alone: it fills numba's on-disk cache (models/numba_cache.py)
     with ThreadPoolExecutor(max_workers=workers) as pool:

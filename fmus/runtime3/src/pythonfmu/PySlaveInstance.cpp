@@ -857,7 +857,11 @@ PySlaveInstance::~PySlaveInstance()
 
 namespace {
     std::mutex pyStateMutex{};
-    std::shared_ptr<pythonfmu::PyState> pyState{};
+    // nfal: a holder that is never destroyed. As a static shared_ptr its destructor ran among the exit handlers,
+    // and onLibraryUnload (a fini function, run after them) then assigned to the destroyed object: a double free,
+    // "corrupted double-linked list" at the exit of FMPy's process (valgrind: tests/test_fmu_misuse.py's script).
+    // onLibraryUnload alone releases the state.
+    std::shared_ptr<pythonfmu::PyState>& pyState = *new std::shared_ptr<pythonfmu::PyState>{};
 }
 
 std::unique_ptr<cppfmu::SlaveInstance> CppfmuInstantiateSlave(
