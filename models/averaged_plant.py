@@ -23,16 +23,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import numba_cache
 from .calibration import CalibrationFunction
-from .film_force_table import FilmForceTable, table_K
+from .film_force_table import FilmForceTable
 from .plant import DEFAULT_REST_GAP, SimplifiedPlant
 from .rig import RigParameters
-
-numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 
 class AveragedFilmPlant(SimplifiedPlant):
@@ -50,16 +46,12 @@ class AveragedFilmPlant(SimplifiedPlant):
     def __init__(self, rig: RigParameters, table: FilmForceTable, rest_gap: float = DEFAULT_REST_GAP) -> None:
         super().__init__(rig, _DeltaZeroView(table), rest_gap)
         self.table = table
-        # the compiled RK4's constants: the film force per mass over (|a|/h)^2 K, sigma h^2, c(h) h^3 / m, g, the table
-        self._constants = (rig.film_force_scale / rig.mass, float(rig.squeeze_number(1.0)),
-                           float(rig.squeeze_film_damping(1.0)) / rig.mass, rig.gravity, table.breaks, table.pieces,
-                           table.sigma_range[0], table.sigma_range[1], table.delta_max)
+        self._sigma_scale = float(rig.squeeze_number(1.0))  # sigma h^2
         # |zeta / delta| at the table's squeeze numbers, for oscillation()
         self._log_sigmas = np.log(table.sigmas)
         self._response = np.abs([table.response(sigma) for sigma in table.sigmas])
-        # numba loads (or compiles) the kernels at their first call, ~0.5 s: here, not in a real-time step (the
-        # table's own, used near the surface, cost 3 ms in the lift-off tick of the emulated rig when left lazy)
-        self.free_flight(rig.reference_clearance, 0.0, 0.0, 1e-6, 1, 0.0)
+        # numba loads (or compiles) the table's kernel at its first call, ~0.5 s: here, not in a real-time step
+        # (it cost 3 ms in the lift-off tick of the emulated rig when left lazy)
         table.scalar(float(rig.squeeze_number(rig.reference_clearance)), 0.0)
 
     def levitation_force(self, height, excitation):
@@ -68,18 +60,11 @@ class AveragedFilmPlant(SimplifiedPlant):
         delta = np.asarray(excitation, dtype=float) / height
         return self.rig.film_force_scale * delta**2 * self.table(self.rig.squeeze_number(height), delta)
 
-    def free_flight(self, height: float, velocity: float, excitation: float, step: float, substeps: int,
-                    floor: float) -> tuple[float, float] | None:
-        """Classical RK4 of the slow equation over ``step`` s in ``substeps`` (compiled): (h, v), or None when
-        the height falls to ``floor`` (near the surface: for the event-handling integrator)."""
-        h, v, ok = _rk4_free_flight(height, velocity, excitation, step, substeps, floor, *self._constants)
-        return (h, v) if ok else None
-
     def oscillation(self, height: float, excitation: float) -> float:
         """Amplitude chi [m] of the object's fast oscillation (eq. 1), to first order in delta:
         |zeta| hbar = |a| |zeta / delta| (:meth:`FilmForceTable.response`, interpolated linearly in log sigma
         between the table's points; 0 for a table without a rig)."""
-        log_sigma = math.log(self._constants[1] / (height * height))
+        log_sigma = math.log(self._sigma_scale / (height * height))
         return float(np.interp(log_sigma, self._log_sigmas, self._response)) * excitation
 
 
@@ -97,28 +82,3 @@ class _DeltaZeroView(CalibrationFunction):
     def _slope(self, sigma):
         step = 1e-6 * sigma
         return (self._table(sigma + step, 0.0) - self._table(sigma - step, 0.0)) / (2.0 * step)
-
-
-@numba.njit(cache=True)
-def _acceleration(h, v, a, force_per_mass, sigma_scale, damping_per_mass, gravity, breaks, pieces, low, high, delta_max):
-    ratio = a / h
-    K = table_K(breaks, pieces, low, high, delta_max, sigma_scale / (h * h), ratio)
-    return force_per_mass * ratio * ratio * K - damping_per_mass / (h * h * h) * v - gravity
-
-
-@numba.njit(cache=True)
-def _rk4_free_flight(h, v, a, step, substeps, floor, force_per_mass, sigma_scale, damping_per_mass, gravity,
-                     breaks, pieces, low, high, delta_max):
-    """RK4 of m h'' = F_film(h, a) - c(h) h' - m g (SI); returns (h, v, stayed above ``floor``)."""
-    dt = step / substeps
-    args = (force_per_mass, sigma_scale, damping_per_mass, gravity, breaks, pieces, low, high, delta_max)
-    for _ in range(substeps):
-        k1h, k1v = v, _acceleration(h, v, a, *args)
-        k2h, k2v = v + 0.5 * dt * k1v, _acceleration(h + 0.5 * dt * k1h, v + 0.5 * dt * k1v, a, *args)
-        k3h, k3v = v + 0.5 * dt * k2v, _acceleration(h + 0.5 * dt * k2h, v + 0.5 * dt * k2v, a, *args)
-        k4h, k4v = v + dt * k3v, _acceleration(h + dt * k3h, v + dt * k3v, a, *args)
-        h += dt / 6.0 * (k1h + 2.0 * k2h + 2.0 * k3h + k4h)
-        v += dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-        if not (h > floor and np.isfinite(v)):
-            return h, v, False
-    return h, v, True

@@ -87,6 +87,10 @@ class CalibrationFunction(abc.ABC):
         """A JSON-ready description that :func:`calibration_from_dict` reads back."""
         raise NotImplementedError
 
+    def curve(self) -> tuple:
+        """K as the piecewise polynomial of compiled code (:mod:`nfal.models.slow_kernels`)."""
+        raise NotImplementedError
+
     def save(self, path: str | os.PathLike) -> None:
         """Write the calibration as a calibration file (read back with :func:`load_calibration`)."""
         RigCalibration(self).save(path)
@@ -110,6 +114,9 @@ class PolynomialK(CalibrationFunction):
         for c in self._horner:
             value = value * sigma + c
         return value
+
+    def curve(self) -> tuple:
+        return False, np.array([0.0, 1.0]), np.array(self._horner).reshape(1, 1, -1), *self.sigma_range, 0.0
 
     def _value(self, sigma):
         return np.polynomial.polynomial.polyval(sigma, self.coefficients)
@@ -139,6 +146,10 @@ class TabulatedK(CalibrationFunction):
 
     def scalar(self, sigma: float) -> float:
         return self._scalar_spline(math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1])))
+
+    def curve(self) -> tuple:
+        pieces = np.ascontiguousarray(self._spline.c.T[:, np.newaxis, :])
+        return True, np.ascontiguousarray(self._spline.x), pieces, *self.sigma_range, 0.0
 
     def _value(self, sigma):
         return self._spline(np.log(sigma))

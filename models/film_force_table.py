@@ -22,20 +22,18 @@ import logging
 import math
 import os
 
-import numba
 import numpy as np
 from scipy import interpolate
 
 from nfal.errors import InvalidParameterError
 
-from . import numba_cache
 from .disk_cache import cached_array
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure
 from .rig import RigParameters
+from .slow_kernels import curve_value
 
-numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
 
@@ -109,7 +107,7 @@ class FilmForceTable:
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
         coefficients = np.linalg.solve(powers, self.values.T).T  # K = sum_p c_p delta^(2p)
         self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
-        #: the same spline as arrays for compiled code (:func:`table_K`): breaks in log sigma, and per interval,
+        #: the same spline as arrays for compiled code (:func:`~nfal.models.slow_kernels.curve_value`): breaks in log sigma, and per interval,
         #: power of delta^2 and cubic coefficient (highest first)
         self.breaks = np.ascontiguousarray(self._spline.x)
         self.pieces = np.ascontiguousarray(self._spline.c.transpose(1, 2, 0))
@@ -169,9 +167,13 @@ class FilmForceTable:
             value = c[..., power] + squared * value
         return value
 
+    def curve(self) -> tuple:
+        """K(sigma, delta) as the piecewise polynomial of compiled code (:mod:`nfal.models.slow_kernels`)."""
+        return True, self.breaks, self.pieces, *self.sigma_range, self.delta_max
+
     def scalar(self, sigma: float, delta: float) -> float:
-        """:meth:`__call__` for one (sigma, delta), compiled (:func:`table_K`; ~30x faster than the array path)."""
-        return table_K(self.breaks, self.pieces, self.sigma_range[0], self.sigma_range[1], self.delta_max, sigma, delta)
+        """:meth:`__call__` for one (sigma, delta), compiled (~30x faster than the array path)."""
+        return curve_value(*self.curve(), sigma, delta)
 
     def check(self, points: int = 6) -> float:
         """Largest |K_table - K_direct| over ``points`` sigmas midway between table points, at delta
@@ -180,20 +182,6 @@ class FilmForceTable:
         chosen = middles[np.linspace(0, middles.size - 1, points).astype(int)]
         deltas = np.concatenate(([0.1 * self.delta_max], 0.5 * (self.deltas[:-1] + self.deltas[1:])))
         return max(abs(float(self(sigma, delta)) - self.direct(sigma, delta)) for sigma in chosen for delta in deltas)
-
-
-@numba.njit(cache=True)
-def table_K(breaks, pieces, sigma_low, sigma_high, delta_max, sigma, delta):
-    """K(sigma, delta) from a :class:`FilmForceTable`'s ``breaks`` and ``pieces`` (held at its edges)."""
-    x = math.log(min(max(sigma, sigma_low), sigma_high))
-    interval = min(max(np.searchsorted(breaks, x, side="right") - 1, 0), breaks.shape[0] - 2)
-    t = x - breaks[interval]
-    squared = min(abs(delta), delta_max) ** 2
-    value = 0.0
-    for power in range(pieces.shape[1] - 1, -1, -1):  # Horner in delta^2 over cubic pieces in log sigma
-        c = pieces[interval, power]
-        value = value * squared + (((c[0] * t + c[1]) * t + c[2]) * t + c[3])
-    return value
 
 
 #: Bump when the table's numbers would change for the same settings (the scheme, the δ points, ...).

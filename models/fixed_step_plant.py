@@ -2,7 +2,7 @@
 
 Classical RK4 on eq. (13) in SI over one zero-order-hold interval, with the number of sub-steps set by
 the stiffest rate in play, the squeeze-film damping c(h) / m = 3 pi mu r0^4 / (2 m h^3): sub-steps of at
-most ``STIFFNESS_STEP / (c / m)`` (RK4's stability limit is 2.79). Near the surface (below
+most ``slow_kernels.STIFFNESS_STEP / (c / m)`` (RK4's stability limit is 2.79). Near the surface (below
 ``FALLBACK_FACTOR`` rest gaps), when resting, or when the sub-step count would exceed ``MAX_SUBSTEPS``,
 it hands over to :meth:`SimplifiedPlant.advance`, which handles touchdown and lift-off. With the plant's
 ``excess_damping`` (Sec. 3.3) the damping and the stiffest rate are c(h) factor(h) / m, the rate taken
@@ -10,9 +10,12 @@ at the lower and the upper end of the step's reach (it may grow with h); without
 
 ``near_surface="fast"`` replaces that hand-over (too slow for a real-time rig emulator: about 4 ms per
 0.5 ms step at lift-off) by exponential Euler with the clearance frozen over sub-steps that move it by at
-most ``FAST_HEIGHT_FRACTION``: exact for the damping term at any stiffness, first order in the
+most ``slow_kernels.FAST_HEIGHT_FRACTION``: exact for the damping term at any stiffness, first order in the
 clearance's change; touchdown is the first sub-step that reaches the rest gap. It follows the exact
 path within 1 % of the clearance through a lift-off (tests/test_fixed_step_plant_fast.py).
+
+The right-hand side, RK4 and the fast near-surface integrator are compiled (:mod:`nfal.models.slow_kernels`)
+for every K (a calibration or a film table) and damping correction this package has.
 
 About 10x faster than the adaptive LSODA path for the closed-loop runs of Figs. 9-10, and equal to it
 within 1e-10 m per 0.5 ms step (|v| <= 5 mm/s, 40-200 um) and over a closed-loop run
@@ -21,17 +24,16 @@ within 1e-10 m per 0.5 ms step (|v| <= 5 mm/s, 40-200 um) and over a closed-loop
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
 
 from nfal.errors import InvalidParameterError, require_positive
 
-from .plant import PlantState, SimplifiedPlant
+from . import slow_kernels
+from .damping import DampingCorrection
+from .plant import ExcessDamping, PlantState, SimplifiedPlant
 
-#: Largest (damping rate x sub-step) taken.
-STIFFNESS_STEP = 0.25
 #: Below this many rest gaps the exact (event-handling) integrator takes over.
 FALLBACK_FACTOR = 3.0
 MAX_SUBSTEPS = 400
@@ -39,10 +41,19 @@ MAX_SUBSTEPS = 400
 MIN_SUBSTEPS = 4
 #: ``near_surface`` choices: the exact event-handling integrator, or the fast exponential one.
 NEAR_SURFACE = ("exact", "fast")
-#: Largest relative change of the clearance in one sub-step of the fast near-surface integrator.
-FAST_HEIGHT_FRACTION = 0.005
-#: Most sub-steps of the fast near-surface integrator per step.
-FAST_MAX_SUBSTEPS = 2000
+_NO_CURVE = (False, np.array([0.0, 1.0]), np.zeros((1, 1, 1)), 0.0, 1.0, 0.0)  # a curve's types, unused
+
+
+def damping_correction(model: ExcessDamping | DampingCorrection | None) -> tuple:
+    """A plant's ``excess_damping`` as compiled code's damping correction (:mod:`nfal.models.slow_kernels`)."""
+    if model is None:
+        return slow_kernels.NO_CORRECTION, 1.0, 1.0, _NO_CURVE
+    if isinstance(model, ExcessDamping):
+        return slow_kernels.POWER_CORRECTION, model.height, model.exponent, _NO_CURVE
+    spline = model._log_factor  # PCHIP of log f in h
+    pieces = np.ascontiguousarray(spline.c.T[:, np.newaxis, :])
+    curve = (False, np.ascontiguousarray(spline.x), pieces, *model.height_range_m, 0.0)
+    return slow_kernels.CURVE_CORRECTION, 1.0, 1.0, curve
 
 
 class FixedStepPlant:
@@ -57,76 +68,34 @@ class FixedStepPlant:
         self._hand_over = plant.advance if near_surface == "exact" else self._exponential_advance
         rig = plant.rig
         self.plant = plant
-        self._force_per_mass = rig.film_force_scale / rig.mass          # (a/h)^2 K -> m/s^2
-        self._sigma_scale = float(rig.squeeze_number(1.0))              # sigma = this / h^2
-        self._damping_per_mass = float(rig.squeeze_film_damping(1.0)) / rig.mass  # c(h)/m = this / h^3
-        self._gravity = rig.gravity
         self._floor = FALLBACK_FACTOR * plant.rest_gap
-        self._free_flight = self._rk4
         table = getattr(plant, "table", None)  # an AveragedFilmPlant: K(sigma, delta) of the full film
-        if table is not None:
-            self._K = table.scalar
-            if plant.excess_damping is None:  # the same RK4, compiled
-                self._free_flight = functools.partial(plant.free_flight, floor=self._floor)
-        else:
-            scalar = plant.calibration.scalar
-            self._K = lambda sigma, delta: scalar(sigma)
-        excess = plant.excess_damping
-        if excess is not None:  # chosen here, so that the plain path stays as fast as without the option
-            self._factor = excess.factor_scalar
-            self._acceleration = self._corrected_acceleration
-            self._substeps = self._corrected_substeps
+        K = table.curve() if table is not None else plant.calibration.curve()
+        #: eq. (13) as compiled code's data (:mod:`nfal.models.slow_kernels`)
+        self.model = (rig.film_force_scale / rig.mass, float(rig.squeeze_number(1.0)),
+                      float(rig.squeeze_film_damping(1.0)) / rig.mass, rig.gravity, K,
+                      damping_correction(plant.excess_damping))
+        # numba loads (or compiles) the kernels at their first call: here, not in a real-time step
+        slow_kernels.free_flight(self.model, rig.reference_clearance, 0.0, 0.0, 1e-6, 1, 0.0)
+        slow_kernels.exponential_advance(self.model, rig.reference_clearance, 0.0, 0.0, 1e-9, 0.0)
+        slow_kernels.substeps(self.model, 1e-6, rig.reference_clearance, rig.reference_clearance)
 
-    def _acceleration(self, h: float, v: float, a: float) -> float:
-        ratio = a / h
-        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio)
-                - self._damping_per_mass / (h * h * h) * v - self._gravity)
+    def acceleration(self, h: float, v: float, a: float) -> float:
+        """Eq. (13) in SI [m/s^2], as the integrators evaluate it."""
+        return slow_kernels.acceleration(self.model, h, v, a)
 
-    def _corrected_acceleration(self, h: float, v: float, a: float) -> float:
-        ratio = a / h
-        factor = self._factor(h)
-        return (self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio)
-                - self._damping_per_mass / (h * h * h) * factor * v - self._gravity)
-
-    def _damping_rate(self, h: float) -> float:
-        """c(h) / m [1/s], with the excess factor if the plant has one."""
-        rate = self._damping_per_mass / (h * h * h)
-        excess = self.plant.excess_damping
-        return rate if excess is None else rate * excess.factor_scalar(h)
+    def _substeps(self, step: float, lowest: float, highest: float) -> int:
+        return slow_kernels.substeps(self.model, step, lowest, highest)
 
     def _exponential_advance(self, state: PlantState, excitation: float, step: float) -> PlantState:
         """Near the surface, fast: see the module docstring (``near_surface="fast"``)."""
-        plant = self.plant
-        rest = plant.rest_gap
+        rest = self.plant.rest_gap
         if state.resting or (state.height <= rest and state.velocity <= 0):
             h, v = rest, 0.0  # lifts off from the rest gap (the caller has checked that it does not rest)
         else:
             h, v = float(state.height), float(state.velocity)
-        shortest = step / FAST_MAX_SUBSTEPS
-        elapsed = 0.0
-        while elapsed < step:
-            rate = self._damping_rate(h)
-            ratio = excitation / h
-            drift = self._force_per_mass * ratio * ratio * self._K(self._sigma_scale / (h * h), ratio) - self._gravity
-            dt = min(step - elapsed, max(shortest, FAST_HEIGHT_FRACTION * h / max(abs(v), 1e-12)))
-            decay = math.exp(-rate * dt)
-            terminal = drift / rate  # the velocity at which damping balances the other forces
-            h += terminal * dt + (v - terminal) * (1.0 - decay) / rate
-            v = terminal + (v - terminal) * decay
-            elapsed += dt
-            if h <= rest:
-                return PlantState(rest, 0.0, True)
-        return PlantState(h, v, False)
-
-    def _substeps(self, step: float, lowest: float, highest: float) -> int:
-        return math.ceil(step * self._damping_per_mass / lowest**3 / STIFFNESS_STEP)
-
-    def _corrected_substeps(self, step: float, lowest: float, highest: float) -> int:
-        # c(h) f(h) / m: for ExcessDamping, k (h^-3 + h^(n-3) / H^n) falls and then rises with h, so its largest
-        # value over [lowest, highest] is at one end; a table's PCHIP pieces vary little over one step's reach
-        # (RK4's limit is 11x STIFFNESS_STEP)
-        rate = max(self._damping_per_mass / h**3 * self._factor(h) for h in (lowest, highest))
-        return math.ceil(step * rate / STIFFNESS_STEP)
+        h, v, landed = slow_kernels.exponential_advance(self.model, h, v, float(excitation), step, rest)
+        return PlantState(h, v, landed)
 
     def advance(self, state: PlantState, excitation: float, step: float) -> PlantState:
         """The state ``step`` seconds later under a constant |a| = ``excitation`` [m] (zero-order hold)."""
@@ -144,22 +113,7 @@ class FixedStepPlant:
         substeps = max(MIN_SUBSTEPS, self._substeps(step, lowest, h + max(v, 0.0) * step))
         if substeps > MAX_SUBSTEPS:
             return self._hand_over(state, excitation, step)
-        moved = self._free_flight(h, v, excitation, step, substeps)
-        if moved is None:  # left free flight (near the surface, or not finite)
+        h, v, stayed = slow_kernels.free_flight(self.model, h, v, float(excitation), step, substeps, self._floor)
+        if not stayed:  # left free flight (near the surface, or not finite)
             return self._hand_over(state, excitation, step)
-        return PlantState(moved[0], moved[1], False)
-
-    def _rk4(self, h: float, v: float, excitation: float, step: float, substeps: int) -> tuple[float, float] | None:
-        """RK4 over ``step`` in ``substeps``: (h, v), or None when the height falls to the floor."""
-        dt = step / substeps
-        f = self._acceleration
-        for _ in range(substeps):
-            k1h, k1v = v, f(h, v, excitation)
-            k2h, k2v = v + 0.5 * dt * k1v, f(h + 0.5 * dt * k1h, v + 0.5 * dt * k1v, excitation)
-            k3h, k3v = v + 0.5 * dt * k2v, f(h + 0.5 * dt * k2h, v + 0.5 * dt * k2v, excitation)
-            k4h, k4v = v + dt * k3v, f(h + dt * k3h, v + dt * k3v, excitation)
-            h += dt / 6.0 * (k1h + 2.0 * k2h + 2.0 * k3h + k4h)
-            v += dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-            if not (h > self._floor and np.isfinite(v)):
-                return None
-        return h, v
+        return PlantState(h, v, False)

@@ -3,17 +3,17 @@
 import shutil
 from pathlib import Path
 
-from nfal.models import film_force_table, numba_cache
+from nfal.models import numba_cache, slow_kernels
 from nfal.models.numba_cache import ContentKeyedCacheLocator
 
 
 def test_the_kernels_use_the_content_keyed_locator():
-    assert isinstance(film_force_table.table_K._cache._impl.locator, ContentKeyedCacheLocator)
+    assert isinstance(slow_kernels.curve_value._cache._impl.locator, ContentKeyedCacheLocator)
 
 
 def test_the_cache_folder_follows_the_content_not_the_place(tmp_path, monkeypatch):
     monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path / "cache"))
-    kernel, source = film_force_table.table_K.py_func, Path(film_force_table.__file__)
+    kernel, source = slow_kernels.curve_value.py_func, Path(slow_kernels.__file__)
     copy = tmp_path / "unpacked" / "nfal" / "models" / source.name  # where a host unpacks an FMU's copy
     copy.parent.mkdir(parents=True)
     shutil.copy(source, copy)
@@ -26,10 +26,10 @@ def test_the_cache_folder_follows_the_content_not_the_place(tmp_path, monkeypatc
 
 
 def test_only_this_package_s_sources_are_located(tmp_path):
-    kernel = film_force_table.table_K.py_func
-    elsewhere = tmp_path / "film_force_table.py"
-    shutil.copy(film_force_table.__file__, elsewhere)
+    kernel = slow_kernels.curve_value.py_func
+    elsewhere = tmp_path / "slow_kernels.py"
+    shutil.copy(slow_kernels.__file__, elsewhere)
     assert ContentKeyedCacheLocator.from_function(kernel, str(elsewhere)) is None  # numba's own locators take it
-    assert ContentKeyedCacheLocator.from_function(kernel, film_force_table.__file__) is not None
+    assert ContentKeyedCacheLocator.from_function(kernel, slow_kernels.__file__) is not None
     numba_cache.install()  # idempotent
     assert numba_cache.caching.CacheImpl._locator_classes.count(ContentKeyedCacheLocator) == 1
