@@ -28,6 +28,7 @@ from scipy import interpolate
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.csvdata import read_user_text
 
+from . import piecewise
 from .damping import DampingCorrection
 from .excitation import ExcitationShape
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
@@ -116,7 +117,7 @@ class PolynomialK(CalibrationFunction):
         return value
 
     def curve(self) -> tuple:
-        return False, np.array([0.0, 1.0]), np.array(self._horner).reshape(1, 1, -1), *self.sigma_range, 0.0
+        return piecewise.curve(False, [0.0, 1.0], np.reshape(self._horner, (1, 1, -1)), *self.sigma_range, 0.0)
 
     def _value(self, sigma):
         return np.polynomial.polynomial.polyval(sigma, self.coefficients)
@@ -148,8 +149,7 @@ class TabulatedK(CalibrationFunction):
         return self._scalar_spline(math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1])))
 
     def curve(self) -> tuple:
-        pieces = np.ascontiguousarray(self._spline.c.T[:, np.newaxis, :])
-        return True, np.ascontiguousarray(self._spline.x), pieces, *self.sigma_range, 0.0
+        return piecewise.curve(True, self._spline.x, self._spline.c.T[:, np.newaxis, :], *self.sigma_range, 0.0)
 
     def _value(self, sigma):
         return self._spline(np.log(sigma))

@@ -27,12 +27,12 @@ from scipy import interpolate
 
 from nfal.errors import InvalidParameterError
 
+from . import piecewise, slow_kernels
 from .disk_cache import cached_array
 from .excitation import ExcitationShape, PistonShape
 from .harmonic_balance import HarmonicBalanceFilm
 from .perturbation import first_order_pressure
 from .rig import RigParameters
-from .slow_kernels import curve_value
 
 
 logger = logging.getLogger(__name__)
@@ -107,10 +107,11 @@ class FilmForceTable:
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
         coefficients = np.linalg.solve(powers, self.values.T).T  # K = sum_p c_p delta^(2p)
         self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
-        #: the same spline as arrays for compiled code (:func:`~nfal.models.slow_kernels.curve_value`): breaks in log sigma, and per interval,
+        #: the same spline as arrays for compiled code (:mod:`nfal.models.piecewise`): breaks in log sigma, and per interval,
         #: power of delta^2 and cubic coefficient (highest first)
         self.breaks = np.ascontiguousarray(self._spline.x)
         self.pieces = np.ascontiguousarray(self._spline.c.transpose(1, 2, 0))
+        self._curve = piecewise.curve(True, self.breaks, self.pieces, low, high, self.delta_max)
 
     def _solve_all(self, film: HarmonicBalanceFilm) -> np.ndarray:
         """K at every (sigma, delta) of the table on ``film``'s grid."""
@@ -169,11 +170,11 @@ class FilmForceTable:
 
     def curve(self) -> tuple:
         """K(sigma, delta) as the piecewise polynomial of compiled code (:mod:`nfal.models.slow_kernels`)."""
-        return True, self.breaks, self.pieces, *self.sigma_range, self.delta_max
+        return self._curve
 
     def scalar(self, sigma: float, delta: float) -> float:
         """:meth:`__call__` for one (sigma, delta), compiled (~30x faster than the array path)."""
-        return curve_value(*self.curve(), sigma, delta)
+        return slow_kernels.curve_value(*self._curve, sigma, delta)
 
     def check(self, points: int = 6) -> float:
         """Largest |K_table - K_direct| over ``points`` sigmas midway between table points, at delta

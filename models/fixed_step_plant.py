@@ -30,7 +30,7 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError, require_positive
 
-from . import slow_kernels
+from . import piecewise, slow_kernels
 from .damping import DampingCorrection
 from .plant import ExcessDamping, PlantState, SimplifiedPlant
 
@@ -41,19 +41,17 @@ MAX_SUBSTEPS = 400
 MIN_SUBSTEPS = 4
 #: ``near_surface`` choices: the exact event-handling integrator, or the fast exponential one.
 NEAR_SURFACE = ("exact", "fast")
-_NO_CURVE = (False, np.array([0.0, 1.0]), np.zeros((1, 1, 1)), 0.0, 1.0, 0.0)  # a curve's types, unused
 
 
 def damping_correction(model: ExcessDamping | DampingCorrection | None) -> tuple:
     """A plant's ``excess_damping`` as compiled code's damping correction (:mod:`nfal.models.slow_kernels`)."""
     if model is None:
-        return slow_kernels.NO_CORRECTION, 1.0, 1.0, _NO_CURVE
+        return slow_kernels.NO_CORRECTION, 1.0, 1.0, piecewise.NO_CURVE
     if isinstance(model, ExcessDamping):
-        return slow_kernels.POWER_CORRECTION, model.height, model.exponent, _NO_CURVE
+        return slow_kernels.POWER_CORRECTION, float(model.height), float(model.exponent), piecewise.NO_CURVE
     spline = model._log_factor  # PCHIP of log f in h
-    pieces = np.ascontiguousarray(spline.c.T[:, np.newaxis, :])
-    curve = (False, np.ascontiguousarray(spline.x), pieces, *model.height_range_m, 0.0)
-    return slow_kernels.CURVE_CORRECTION, 1.0, 1.0, curve
+    return slow_kernels.CURVE_CORRECTION, 1.0, 1.0, piecewise.curve(False, spline.x, spline.c.T[:, np.newaxis, :],
+                                                                       *model.height_range_m, 0.0)
 
 
 class FixedStepPlant:
@@ -72,13 +70,10 @@ class FixedStepPlant:
         table = getattr(plant, "table", None)  # an AveragedFilmPlant: K(sigma, delta) of the full film
         K = table.curve() if table is not None else plant.calibration.curve()
         #: eq. (13) as compiled code's data (:mod:`nfal.models.slow_kernels`)
-        self.model = (rig.film_force_scale / rig.mass, float(rig.squeeze_number(1.0)),
-                      float(rig.squeeze_film_damping(1.0)) / rig.mass, rig.gravity, K,
+        self.model = (float(rig.film_force_scale / rig.mass), float(rig.squeeze_number(1.0)),
+                      float(rig.squeeze_film_damping(1.0)) / rig.mass, float(rig.gravity), K,
                       damping_correction(plant.excess_damping))
-        # numba loads (or compiles) the kernels at their first call: here, not in a real-time step
-        slow_kernels.free_flight(self.model, rig.reference_clearance, 0.0, 0.0, 1e-6, 1, 0.0)
-        slow_kernels.exponential_advance(self.model, rig.reference_clearance, 0.0, 0.0, 1e-9, 0.0)
-        slow_kernels.substeps(self.model, 1e-6, rig.reference_clearance, rig.reference_clearance)
+        slow_kernels.load(self.model)  # loaded at import for these types; a call here costs microseconds
 
     def acceleration(self, h: float, v: float, a: float) -> float:
         """Eq. (13) in SI [m/s^2], as the integrators evaluate it."""

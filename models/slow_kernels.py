@@ -16,6 +16,11 @@ correction is ``(kind, height, exponent, curve)``: kind 0 none, 1 the factor 1 +
 c(h) h^3 / m, g, K curve, damping correction)``.
 
 In plain Python the slow truth's RK4 cost the rig emulator ~105 us of its 500 us tick (bench/bench_rig_truth.py).
+
+Every curve and model has the same numba types (float64 C arrays, floats, an int kind: curves are made by
+:func:`nfal.models.piecewise.curve`), so one compiled specialisation serves all; :func:`load` loads it at import. Loading later, from numba's cache, re-imports this
+module by name (numba rebuilds the kernels' environment so): inside an FMU, after its bundle loader has set
+its copy of nfal aside (fmus/bundle_loader.py), that import would put a second copy into the host's process.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import math
 import numba
 import numpy as np
 
-from . import numba_cache
+from . import numba_cache, piecewise
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
@@ -130,3 +135,16 @@ def exponential_advance(model, h, v, a, step, rest):
         if h <= rest:
             return rest, 0.0, True
     return h, v, False
+
+
+def load(model: tuple) -> None:
+    """Load (or compile) every kernel for ``model``'s types: before a real-time loop, or a bundle's import ends."""
+    h = 100e-6
+    free_flight(model, h, 0.0, 0.0, 1e-6, 1, 0.0)
+    exponential_advance(model, h, 0.0, 0.0, 1e-9, 0.0)
+    substeps(model, 1e-6, h, h)
+    acceleration(model, h, 0.0, 0.0)
+    curve_value(*model[4], 1.0, 0.0)
+
+
+load((1.0, 1.0, 1.0, 9.81, piecewise.NO_CURVE, (NO_CORRECTION, 1.0, 1.0, piecewise.NO_CURVE)))
