@@ -3,28 +3,31 @@
 from __future__ import annotations
 
 import matplotlib
+import numpy as np
+from matplotlib import colors, ticker
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib import colors  # noqa: E402
+from nfal.figures import save
 
-
-def _save(figure, path) -> None:
-    figure.tight_layout()
-    figure.savefig(path, dpi=130)
-    plt.close(figure)
+#: Fig. 8's colours: green below |z| = 1 (stable), red above; the two halves meet at |z| = 1.
+STABILITY_COLOURS = "RdYlGn_r"
 
 
 def plot_stability_map(path, grid) -> None:
+    """Write :func:`stability_map_figure` to ``path``."""
+    save(stability_map_figure(grid), path)
+
+
+def stability_map_figure(grid) -> Figure:
     """Fig. 8: max |z| over (operating height, design height), with the |z| = 1 contour and the diagonal."""
     design, operating = grid.design_height_m * 1e6, grid.operating_height_m * 1e6
     moduli = grid.max_pole_modulus
-    figure, axis = plt.subplots(figsize=(7.2, 5.6))
+    figure = Figure(figsize=(7.2, 5.6), layout="constrained")
+    axis = figure.subplots()
     low, high = float(moduli.min()), float(moduli.max())
-    norm = colors.TwoSlopeNorm(vcenter=1.0, vmin=min(low, 0.999), vmax=max(high, 1.001))
-    mesh = axis.pcolormesh(operating, design, moduli, shading="nearest", cmap="RdYlGn_r", norm=norm)
-    bar = figure.colorbar(mesh, ax=axis)
+    cmap, norm, ticks = _stability_colours(low, high)
+    mesh = axis.pcolormesh(operating, design, moduli, shading="nearest", cmap=cmap, norm=norm)
+    bar = figure.colorbar(mesh, ax=axis, ticks=ticks, format="%g")
     bar.set_label("max |z| of the discrete closed loop [-]")
     if low < 1.0 < high:
         contour = axis.contour(operating, design, moduli, levels=[1.0], colors="black", linewidths=1.5)
@@ -43,12 +46,35 @@ def plot_stability_map(path, grid) -> None:
     axis.set_title(f"Fig. 8: closed-loop pole nearest |z| = 1, {grid.placement} placement\n"
                    f"({method}, {grid.sample_rate_hz:g} Hz)", fontsize=10)
     axis.legend(loc="lower right", fontsize=8)
-    _save(figure, path)
+    return figure
+
+
+def _stability_colours(low: float, high: float):
+    """(colour map, norm, colour-bar ticks) for max |z| from ``low`` to ``high``.
+
+    Each side of |z| = 1 gets half the bar and its own ticks: the stable side spans hundredths, the unstable
+    one up to tens, and one set of ticks over both leaves the stable half bare. A map on one side of 1 takes
+    that half of the colours alone.
+    """
+    full = matplotlib.colormaps[STABILITY_COLOURS]
+    stable = [t for t in ticker.MaxNLocator(5).tick_values(low, 1.0) if low <= t <= 1.0]
+    unstable = [t for t in ticker.MaxNLocator(4).tick_values(1.0, high) if 1.0 < t <= high]
+    if high <= 1.0:
+        return _half(full, 0.0), colors.Normalize(min(low, 0.999), 1.0), stable
+    if low >= 1.0:
+        return _half(full, 0.5), colors.Normalize(1.0, max(high, 1.001)), [1.0, *unstable]
+    return full, colors.TwoSlopeNorm(vcenter=1.0, vmin=low, vmax=high), stable + unstable
+
+
+def _half(cmap, start: float):
+    """The half of ``cmap`` from ``start`` (0 or 0.5)."""
+    return colors.ListedColormap(cmap(np.linspace(start, start + 0.5, 128)), name=f"{cmap.name}_{start:g}")
 
 
 def plot_comparison(path, runs: dict) -> None:
     """Figs. 9-10: each controller's clearance (true and measured) against the reference, one panel each."""
-    figure, axes = plt.subplots(len(runs), 1, figsize=(8, 2.3 * len(runs) + 0.6), sharex=True, squeeze=False)
+    figure = Figure(figsize=(8, 2.3 * len(runs) + 0.6), layout="constrained")
+    axes = figure.subplots(len(runs), 1, sharex=True, squeeze=False)
     for axis, (key, run) in zip(axes[:, 0], runs.items()):
         axis.plot(run.time_s, run.measured_m * 1e6, color="0.55", lw=0.4, alpha=0.7, label="measured (with noise)")
         axis.plot(run.time_s, run.height_m * 1e6, color="tab:blue" if key == "gs" else "tab:orange", lw=1.2,
@@ -62,4 +88,4 @@ def plot_comparison(path, runs: dict) -> None:
     axes[0, 0].legend(loc="upper left", fontsize=8, ncol=3)
     axes[-1, 0].set_xlabel("time [s]")
     figure.suptitle("Closed-loop responses to the reference (Figs. 9-10 analogue)", fontsize=11)
-    _save(figure, path)
+    save(figure, path)
