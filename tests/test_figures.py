@@ -1,10 +1,15 @@
 """The figures the commands write, as a reader sees them: checked on the matplotlib Figure (panels, artists,
 ticks), not on pixels."""
 
+import dataclasses
+
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from nfal.figures.control import stability_map_figure
+from nfal.figures.control import comparison_figure, stability_map_figure
+from nfal.models.closed_loop import ClosedLoopRun
+from nfal.models.measurement_noise import coloured_noise
 from nfal.models.stability import StabilityMap
 
 
@@ -29,3 +34,41 @@ def test_stability_map_colour_bar_ticks_both_sides_of_one(low, high):
         assert np.count_nonzero(shown > 1.0) >= 2, shown
     if low < 1.0 < high:
         assert 1.0 in shown
+
+
+def _closed_loop_run(name: str, noise_peak_m: float = 2e-6) -> ClosedLoopRun:
+    """A staircase 60-180-60 um at 2 kHz, the clearance following it, the measurement with coloured noise."""
+    time = np.arange(0, 1.2, 5e-4)
+    reference = np.select([time < 0.3, time < 0.6, time < 0.9], [60e-6, 120e-6, 180e-6], 60e-6)
+    height = np.convolve(reference, np.full(40, 1 / 40), mode="full")[:time.size]
+    height[:40] = reference[:40]
+    noise = coloured_noise(time.size, sample_rate_hz=2000.0, cutoff_hz=300.0, peak_m=noise_peak_m, seed=1)
+    return ClosedLoopRun(name, time, reference, height, height + noise, np.zeros_like(time))
+
+
+def _line(axis, label: str):
+    return next(line for line in axis.get_lines() if line.get_label() == label)
+
+
+def test_comparison_shows_the_measured_noise_above_the_clearance_line_width():
+    runs = {"gs": _closed_loop_run("gain-scheduled"), "80": _closed_loop_run("linear at 80 um")}
+    figure = comparison_figure(runs)
+    FigureCanvasAgg(figure).draw()
+    assert len(figure.axes) == 2 * len(runs)
+    for zoom in figure.axes[1::2]:
+        measured, clearance = _line(zoom, "measured (with noise)"), _line(zoom, "clearance")
+        assert measured.get_visible() and (measured.get_alpha() is None or measured.get_alpha() >= 0.8)
+        assert measured.get_linewidth() >= 0.5 and measured.get_zorder() < clearance.get_zorder()
+        values = np.asarray(measured.get_ydata())
+        assert values.size > 100 and np.all(np.isfinite(values))
+        # the noise, in pixels, is wider than the clearance's line that would hide it
+        pixels = zoom.transData.transform(np.column_stack([measured.get_xdata(), values]))[:, 1]
+        line_pixels = clearance.get_linewidth() * figure.dpi / 72
+        assert np.std(pixels - zoom.transData.transform(np.column_stack(clearance.get_data()))[:, 1]) > line_pixels
+
+
+def test_comparison_of_a_rig_run_draws_the_measured_height_once():
+    run = _closed_loop_run("on the rig")
+    run = dataclasses.replace(run, height_m=run.measured_m)
+    figure = comparison_figure({"gs": run})
+    assert [line.get_label() for line in figure.axes[1].get_lines()] == ["clearance", "reference"]
