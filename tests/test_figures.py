@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+from nfal.fig7 import EXCITATION_COMMAND, SIMULATED, response_panels
 from nfal.figures.control import comparison_figure, stability_map_figure
 from nfal.models.closed_loop import ClosedLoopRun
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.stability import StabilityMap
+from nfal.orchestration.results import ResultTable, response_figure
 
 
 def _stability_map(low: float, high: float) -> StabilityMap:
@@ -72,3 +74,27 @@ def test_comparison_of_a_rig_run_draws_the_measured_height_once():
     run = dataclasses.replace(run, height_m=run.measured_m)
     figure = comparison_figure({"gs": run})
     assert [line.get_label() for line in figure.axes[1].get_lines()] == ["clearance", "reference"]
+
+
+def _loop_table(frequency_hz: np.ndarray) -> ResultTable:
+    """A Fig. 7 result table (fig7_slow's columns) with the given drive frequency."""
+    columns = {"time": np.arange(frequency_hz.size) * 5e-4, SIMULATED.reference: np.full(frequency_hz.size, 1e-4),
+               SIMULATED.measured: np.full(frequency_hz.size, 1e-4), SIMULATED.height: np.full(frequency_hz.size, 1e-4),
+               EXCITATION_COMMAND: np.full(frequency_hz.size, 3e-6), SIMULATED.excitation: np.full(frequency_hz.size, 3e-6),
+               SIMULATED.frequency: frequency_hz}
+    units = ("s", "m", "m", "m", "m", "m", "Hz")
+    return ResultTable(tuple(columns), units, np.column_stack(list(columns.values())))
+
+
+def test_response_leaves_out_a_drive_frequency_nothing_moves():
+    figure = response_figure(_loop_table(np.full(400, 28500.0)), response_panels(), title="fig7_slow")
+    assert [axis.get_ylabel() for axis in figure.axes] == ["height [um]", "|a| [um]"]
+    assert "ResonanceTracker.drive_frequency constant at 28500 Hz" in figure.get_suptitle()
+
+
+def test_response_keeps_a_drive_frequency_that_moves():
+    frequency = 28500.0 + np.r_[np.zeros(200), np.linspace(0.0, 57.0, 200)]
+    figure = response_figure(_loop_table(frequency), response_panels(), title="fig7_slow")
+    assert figure.axes[-1].get_ylabel() == "drive frequency change [Hz]"
+    assert np.ptp(figure.axes[-1].get_lines()[0].get_ydata()) == pytest.approx(57.0)
+    assert figure.get_suptitle() == "fig7_slow"
