@@ -13,6 +13,8 @@ from nfal.models.closed_loop import ClosedLoopRun
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.stability import StabilityMap
 from nfal.orchestration.results import ResultTable, response_figure
+from nfal.orchestration.sweep_plot import sweep_figure
+from nfal.sweeps import TABLE1_METRICS, parse_spec
 
 
 def _stability_map(low: float, high: float) -> StabilityMap:
@@ -98,3 +100,45 @@ def test_response_keeps_a_drive_frequency_that_moves():
     assert figure.axes[-1].get_ylabel() == "drive frequency change [Hz]"
     assert np.ptp(figure.axes[-1].get_lines()[0].get_ydata()) == pytest.approx(57.0)
     assert figure.get_suptitle() == "fig7_slow"
+
+
+TABLE1_SWEEP = {"sweep": {"name": "t"}, "run": {"kind": "table1"},
+                "grid": {"case": ["a", "c"], "excitation": [2e-6, 4e-6, 7e-6]},
+                "random": {"draws": 2, "seed": 1, "mass": {"distribution": "uniform", "low": 0.1, "high": 0.2}}}
+
+
+def _sweep_rows(spec) -> list[dict]:
+    """One ok row per run, each metric a different function of the parameters."""
+    rows = []
+    for run in spec.runs():
+        p = {**spec.settings, **run.parameters}
+        row = {"status": "ok", **{f"param:{k}": v for k, v in run.parameters.items()}}
+        row.update(delta_simplified=p["excitation"] * 1e4, delta_full=p["mass"] or 0.15, error_percent=1.0 + (p["case"] == "c"))
+        rows.append(row)
+    return rows
+
+
+def test_sweep_of_three_parameters_plots_each_metric_over_each():
+    spec = parse_spec(TABLE1_SWEEP)
+    rows = _sweep_rows(spec)
+    figure = sweep_figure(spec, rows, list(TABLE1_METRICS))
+    axes = [axis for axis in figure.axes if axis.get_visible()]
+    assert len(axes) == len(TABLE1_METRICS) * 3
+    assert [axis.get_xlabel() for axis in axes[:3]] == ["case", "excitation", "mass"]
+    for axis in axes:
+        dots = axis.get_lines()[0]
+        x = np.asarray(dots.get_xdata(), dtype=float)
+        if axis.get_xlabel() == "case":
+            assert sorted({label.get_text() for label in axis.get_xticklabels()}) == ["a", "c"]
+        else:
+            np.testing.assert_allclose(x, [r[f"param:{axis.get_xlabel()}"] for r in rows])
+    assert axes[-3].get_ylabel() == "error [%]"
+
+
+def test_sweep_of_one_parameter_joins_its_runs():
+    spec = parse_spec({**TABLE1_SWEEP, "grid": {"excitation": [2e-6, 4e-6, 7e-6]}, "random": {}})
+    rows = _sweep_rows(spec)
+    figure = sweep_figure(spec, rows, list(TABLE1_METRICS))
+    axes = [axis for axis in figure.axes if axis.get_visible()]
+    assert len(axes) == len(TABLE1_METRICS) and {axis.get_xlabel() for axis in axes} == {"excitation"}
+    np.testing.assert_allclose(axes[0].get_lines()[1].get_xdata(), [2e-6, 4e-6, 7e-6])  # the line, in order
