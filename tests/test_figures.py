@@ -9,6 +9,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from nfal.fig7 import EXCITATION_COMMAND, SIMULATED, response_panels
 from nfal.figures.control import comparison_figure, stability_map_figure
+from nfal.figures.physics import calibration_figure
+from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import ClosedLoopRun
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.stability import StabilityMap
@@ -142,3 +144,15 @@ def test_sweep_of_one_parameter_joins_its_runs():
     axes = [axis for axis in figure.axes if axis.get_visible()]
     assert len(axes) == len(TABLE1_METRICS) and {axis.get_xlabel() for axis in axes} == {"excitation"}
     np.testing.assert_allclose(axes[0].get_lines()[1].get_xdata(), [2e-6, 4e-6, 7e-6])  # the line, in order
+
+
+def test_calibration_legend_clear_of_the_data_and_eq17_smooth_on_a_coarse_grid():
+    sigma = np.linspace(5.0, 500.0, 8)  # a time-marching run's few points
+    K = np.tanh(sigma / 200.0) * 2.5 - 0.1  # below zero at small sigma, as the Fig. 3 form's K
+    figure = calibration_figure(sigma, K, "time-marching", reference=paper_calibration())
+    FigureCanvasAgg(figure).draw()
+    axis = figure.axes[0]
+    legend = figure.legends[0].get_window_extent()
+    assert not legend.overlaps(axis.get_window_extent())
+    eq17 = _line(axis, "measured fit, paper eq. (17)")
+    assert len(eq17.get_xdata()) >= 100 and min(eq17.get_xdata()) < sigma[1]
