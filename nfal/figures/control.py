@@ -99,7 +99,8 @@ def comparison_figure(runs: dict) -> Figure:
                   zorder=3, label="reference")
         for axis in (full, zoom):
             axis.grid(alpha=0.3)
-    axes[0, 1].set_title(f"zoom: end of the {run.reference_m.max() * 1e6:g} µm hold", fontsize=10)
+    top_level = max(run.reference_m.max() for run in runs.values())
+    axes[0, 1].set_title(f"zoom: end of the {top_level * 1e6:g} µm hold", fontsize=10)
     handles = {line.get_label(): line for line in (*axes[0, 1].get_lines(), *axes[0, 0].get_lines())}
     figure.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3, fontsize=8)
     for axis in axes[-1]:
