@@ -248,6 +248,14 @@ def default_panels(table: ResultTable, *, max_panels: int = 4) -> list[PlotPanel
 def plot_response(table: ResultTable, path: str | os.PathLike, panels: Sequence[PlotPanel] | None = None, *,
                   title: str | None = None) -> Path:
     """Plot ``panels`` (default :func:`default_panels`) of ``table`` over time into a PNG at ``path``."""
+    path = Path(path)
+    response_figure(table, panels, title=title).savefig(path, dpi=120)
+    return path
+
+
+def response_figure(table: ResultTable, panels: Sequence[PlotPanel] | None = None, *, title: str | None = None):
+    """The figure of :func:`plot_response`. A ``from_start`` panel whose columns never change (a drive
+    frequency nothing moves) is left out, and the title says at which value they stayed."""
     from matplotlib.figure import Figure  # on use (0.3 s); no pyplot: no global state, no display needed
 
     panels = list(panels) if panels is not None else default_panels(table)
@@ -255,7 +263,10 @@ def plot_response(table: ResultTable, path: str | os.PathLike, panels: Sequence[
         for name in panel.columns:
             if name not in table:
                 raise InvalidParameterError("plot column", name, f"one of {', '.join(table.names[1:])}")
-    path = Path(path)
+    constant = [p for p in panels if p.from_start and all(_unchanging(table[n]) for n in p.columns)]
+    panels = [p for p in panels if p not in constant] or panels[:1]
+    notes = [f"{name} constant at {table[name][0]:g}{' ' + table.unit(name) if table.unit(name) else ''}"
+             for panel in constant for name in panel.columns if len(table)]
     figure = Figure(figsize=(8, 2.4 * max(1, len(panels)) + 0.6), layout="constrained")
     axes = figure.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)[:, 0]
     for axis, panel in zip(axes, panels):
@@ -269,7 +280,12 @@ def plot_response(table: ResultTable, path: str | os.PathLike, panels: Sequence[
         axis.grid(True, alpha=0.3)
         axis.legend(loc="best", fontsize="small")
     axes[-1].set_xlabel("time [s]")
-    if title:
-        figure.suptitle(title)
-    figure.savefig(path, dpi=120)
-    return path
+    if title or notes:
+        figure.suptitle("\n".join(filter(None, [title, *notes])))
+    return figure
+
+
+def _unchanging(values) -> bool:
+    """True when ``values`` never move beyond rounding (a change of 1e-9 of their size)."""
+    values = np.asarray(values, dtype=float)
+    return not values.size or float(np.ptp(values)) <= 1e-9 * float(np.max(np.abs(values)))

@@ -10,7 +10,7 @@ which later tasks reuse (they check the hash of the bytes they hold, and the cac
 Every finished run is appended to ``results.csv`` at once (flushed), as one row: run id, status, error,
 wall time, the swept parameters and the kind's metrics. A run that raises is a row with status
 "failed" and its error; the sweep goes on. Written as well: ``spec.json`` (the expanded spec),
-``summary.json`` and ``sweep.png`` (each metric over the main swept parameter, else metric histograms).
+``summary.json`` and ``sweep.png`` (each metric over each swept parameter, :mod:`.sweep_plot`).
 
 What a run is comes from the spec's :class:`~.sweep_spec.SweepKind` (its task and metric columns):
 this engine knows no kind of its own (nfal's kinds: :mod:`nfal.sweeps`).
@@ -24,7 +24,6 @@ import hashlib
 import io
 import json
 import logging
-import math
 import os
 import shutil
 import socket
@@ -39,6 +38,7 @@ from tqdm import tqdm
 
 from nfal.errors import SweepError, SweepSpecError
 
+from .sweep_plot import plot_sweep
 from .sweep_spec import RunSpec, SweepSpec, canonical_json
 
 logger = logging.getLogger(__name__)
@@ -326,7 +326,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     plot_path = None
     if plot:
         try:
-            plot_path = plot_sweep(spec, rows, out / SWEEP_PNG)
+            plot_path = plot_sweep(spec, rows, list(metric_columns(spec)), out / SWEEP_PNG)
         except Exception as exc:  # a plot must not hide the sweep's outcome
             logger.warning("no sweep plot: %s", exc)
     return SweepResult(out, out / RESULTS_CSV, plot_path, summary)
@@ -366,57 +366,6 @@ def _close_summary(out: Path, summary: dict, runs: list[RunSpec]) -> list[dict]:
     summary["finished"] = len(rows)
     (out / SUMMARY_JSON).write_text(json.dumps(summary, indent=2, default=str) + "\n")
     return rows
-
-
-def plot_sweep(spec: SweepSpec, rows: list[dict], path: Path) -> Path | None:
-    """Each metric over the study's main parameter, else histograms of the metrics.
-
-    The main parameter is the first ``[grid]`` parameter with more than one value (or the only swept
-    one): numbers on the x axis (a line when it is the only swept parameter, else every run as a dot),
-    strings as categories. With only random draws over several parameters: histograms.
-    """
-    import matplotlib  # on use: plotting only
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # on use: plotting only
-
-    ok = [r for r in rows if r["status"] == "ok"]
-    metrics = [m for m in metric_columns(spec)
-               if any(isinstance(r.get(m), float) and math.isfinite(r[m]) for r in ok)]
-    if not ok or not metrics:
-        return None
-    names = spec.swept_names
-    main = next((n for n in spec.grid if len(spec.grid[n]) > 1), names[0] if len(names) == 1 else None)
-    key = f"param:{main}" if main else None
-    numeric = key is not None and all(isinstance(r.get(key), float) for r in ok)
-    categories = sorted({str(r.get(key)) for r in ok}) if key is not None and not numeric else []
-    cols = min(3, len(metrics))
-    rows_n = math.ceil(len(metrics) / cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(4.2 * cols, 3.2 * rows_n), squeeze=False)
-    for ax, metric in zip(axes.flat, metrics):
-        values = [(r.get(key), r[metric]) for r in ok if isinstance(r.get(metric), float)]
-        if key is None:
-            finite = [v[1] for v in values if math.isfinite(v[1])]
-            ax.hist(finite, bins=min(20, max(5, len(finite) // 2)))
-            ax.set_ylabel("runs")
-        else:
-            if numeric:
-                values.sort()
-                x = [v[0] for v in values]
-            else:
-                x = [categories.index(str(v[0])) for v in values]
-                ax.set_xticks(range(len(categories)), categories, rotation=30, fontsize=8)
-            ax.plot(x, [v[1] for v in values], "o-" if len(names) == 1 else "o", alpha=0.8)
-            ax.set_xlabel(main)
-        ax.set_title(metric, fontsize=9)
-    for ax in list(axes.flat)[len(metrics):]:
-        ax.set_visible(False)
-    failed = len(rows) - len(ok)
-    fig.suptitle(f"{spec.name}: {len(ok)} runs" + (f", {failed} failed" if failed else ""))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 __all__ = ["ResultsTable", "SweepError", "SweepResult", "SweepSpecError", "cached_structure", "columns",

@@ -54,7 +54,7 @@ def register(commands) -> None:
         "compare", help="gain-scheduled vs. linear controllers on a staircase reference (Figs. 9-10)",
         description="Simulate the sampled closed loop (simplified plant eq. (13), coloured sensor noise, the "
         "discrete PID with saturation and anti-windup) for each controller on the same reference and noise, "
-        "and report per step: rise time (10-90 %%), overshoot, 2 %% settling time, steady-state noise RMS, IAE. "
+        "and report per step: rise time (10-90 %), overshoot, 2 % settling time, steady-state noise RMS, IAE. "
         "With --port, run each controller on the rig instead (Figs. 11-12): the hardware-in-the-loop structure "
         "fig7_hil, paced in real time, one run per controller from rest (a 1 s first level for the lift-off); "
         "the rig's own sensor gives the noise, and every run's results.csv is kept under --runs-dir.")

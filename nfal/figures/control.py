@@ -3,28 +3,31 @@
 from __future__ import annotations
 
 import matplotlib
+import numpy as np
+from matplotlib import colors, ticker
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib import colors  # noqa: E402
+from nfal.figures import save
 
-
-def _save(figure, path) -> None:
-    figure.tight_layout()
-    figure.savefig(path, dpi=130)
-    plt.close(figure)
+#: Fig. 8's colours: green below |z| = 1 (stable), red above; the two halves meet at |z| = 1.
+STABILITY_COLOURS = "RdYlGn_r"
 
 
 def plot_stability_map(path, grid) -> None:
+    """Write :func:`stability_map_figure` to ``path``."""
+    save(stability_map_figure(grid), path)
+
+
+def stability_map_figure(grid) -> Figure:
     """Fig. 8: max |z| over (operating height, design height), with the |z| = 1 contour and the diagonal."""
     design, operating = grid.design_height_m * 1e6, grid.operating_height_m * 1e6
     moduli = grid.max_pole_modulus
-    figure, axis = plt.subplots(figsize=(7.2, 5.6))
+    figure = Figure(figsize=(7.2, 5.6), layout="constrained")
+    axis = figure.subplots()
     low, high = float(moduli.min()), float(moduli.max())
-    norm = colors.TwoSlopeNorm(vcenter=1.0, vmin=min(low, 0.999), vmax=max(high, 1.001))
-    mesh = axis.pcolormesh(operating, design, moduli, shading="nearest", cmap="RdYlGn_r", norm=norm)
-    bar = figure.colorbar(mesh, ax=axis)
+    cmap, norm, ticks = _stability_colours(low, high)
+    mesh = axis.pcolormesh(operating, design, moduli, shading="nearest", cmap=cmap, norm=norm)
+    bar = figure.colorbar(mesh, ax=axis, ticks=ticks, format="%g")
     bar.set_label("max |z| of the discrete closed loop [-]")
     if low < 1.0 < high:
         contour = axis.contour(operating, design, moduli, levels=[1.0], colors="black", linewidths=1.5)
@@ -43,23 +46,72 @@ def plot_stability_map(path, grid) -> None:
     axis.set_title(f"Fig. 8: closed-loop pole nearest |z| = 1, {grid.placement} placement\n"
                    f"({method}, {grid.sample_rate_hz:g} Hz)", fontsize=10)
     axis.legend(loc="lower right", fontsize=8)
-    _save(figure, path)
+    return figure
+
+
+def _stability_colours(low: float, high: float):
+    """(colour map, norm, colour-bar ticks) for max |z| from ``low`` to ``high``.
+
+    Each side of |z| = 1 gets half the bar and its own ticks: the stable side spans hundredths, the unstable
+    one up to tens, and one set of ticks over both leaves the stable half bare. A map on one side of 1 takes
+    that half of the colours alone.
+    """
+    full = matplotlib.colormaps[STABILITY_COLOURS]
+    stable = [t for t in ticker.MaxNLocator(5).tick_values(low, 1.0) if low <= t <= 1.0]
+    unstable = [t for t in ticker.MaxNLocator(4).tick_values(1.0, high) if 1.0 < t <= high]
+    if high <= 1.0:
+        return _half(full, 0.0), colors.Normalize(min(low, 0.999), 1.0), stable
+    if low >= 1.0:
+        return _half(full, 0.5), colors.Normalize(1.0, max(high, 1.001)), [1.0, *unstable]
+    return full, colors.TwoSlopeNorm(vcenter=1.0, vmin=low, vmax=high), stable + unstable
+
+
+def _half(cmap, start: float):
+    """The half of ``cmap`` from ``start`` (0 or 0.5)."""
+    return colors.ListedColormap(cmap(np.linspace(start, start + 0.5, 128)), name=f"{cmap.name}_{start:g}")
 
 
 def plot_comparison(path, runs: dict) -> None:
-    """Figs. 9-10: each controller's clearance (true and measured) against the reference, one panel each."""
-    figure, axes = plt.subplots(len(runs), 1, figsize=(8, 2.3 * len(runs) + 0.6), sharex=True, squeeze=False)
-    for axis, (key, run) in zip(axes[:, 0], runs.items()):
-        axis.plot(run.time_s, run.measured_m * 1e6, color="0.55", lw=0.4, alpha=0.7, label="measured (with noise)")
-        axis.plot(run.time_s, run.height_m * 1e6, color="tab:blue" if key == "gs" else "tab:orange", lw=1.2,
-                  label="clearance")
-        axis.step(run.time_s, run.reference_m * 1e6, where="post", color="black", ls="--", lw=1, label="reference")
-        axis.set_ylabel("clearance [µm]")
-        axis.set_title(run.controller if key == "gs" else f"linear controller designed at {key} µm", fontsize=10)
-        axis.grid(alpha=0.3)
+    """Write :func:`comparison_figure` to ``path``."""
+    save(comparison_figure(runs), path)
+
+
+def comparison_figure(runs: dict) -> Figure:
+    """Figs. 9-10: per controller, its clearance against the reference over the run (left) and, zoomed on the
+    second half of the highest level's last hold, with the measured height (right): the sensor's 2 um of noise
+    is a pixel or two on the full range's scale, hidden under the clearance's line."""
+    figure = Figure(figsize=(11, 2.3 * len(runs) + 0.9), layout="constrained")
+    axes = figure.subplots(len(runs), 2, sharex="col", sharey="col", squeeze=False, width_ratios=(3, 1))
+    for (full, zoom), (key, run) in zip(axes, runs.items()):
+        colour = "tab:blue" if key == "gs" else "tab:orange"
+        full.plot(run.time_s, run.height_m * 1e6, color=colour, lw=1.2, label="clearance")
+        full.step(run.time_s, run.reference_m * 1e6, where="post", color="black", ls="--", lw=1, label="reference")
+        full.set_ylabel("clearance [µm]")
+        full.set_title(run.controller if key == "gs" else f"linear controller designed at {key} µm", fontsize=10)
         low, high = run.reference_m.min() * 1e6, run.reference_m.max() * 1e6
-        axis.set_ylim(low - 0.35 * (high - low), high + 0.35 * (high - low))
-    axes[0, 0].legend(loc="upper left", fontsize=8, ncol=3)
-    axes[-1, 0].set_xlabel("time [s]")
+        full.set_ylim(low - 0.35 * (high - low), high + 0.35 * (high - low))
+        window = _top_hold_tail(run.reference_m)
+        if not np.array_equal(run.measured_m, run.height_m):  # on a rig the measured height is the clearance
+            zoom.plot(run.time_s[window], run.measured_m[window] * 1e6, color="0.5", lw=0.8, zorder=1,
+                      label="measured (with noise)")
+        zoom.plot(run.time_s[window], run.height_m[window] * 1e6, color=colour, lw=1.2, zorder=2, label="clearance")
+        zoom.step(run.time_s[window], run.reference_m[window] * 1e6, where="post", color="black", ls="--", lw=1,
+                  zorder=3, label="reference")
+        for axis in (full, zoom):
+            axis.grid(alpha=0.3)
+    top_level = max(run.reference_m.max() for run in runs.values())
+    axes[0, 1].set_title(f"zoom: end of the {top_level * 1e6:g} µm hold", fontsize=10)
+    handles = {line.get_label(): line for line in (*axes[0, 1].get_lines(), *axes[0, 0].get_lines())}
+    figure.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3, fontsize=8)
+    for axis in axes[-1]:
+        axis.set_xlabel("time [s]")
     figure.suptitle("Closed-loop responses to the reference (Figs. 9-10 analogue)", fontsize=11)
-    _save(figure, path)
+    return figure
+
+
+def _top_hold_tail(reference_m: np.ndarray) -> slice:
+    """The samples of the second half of the last hold at the reference's highest level."""
+    top = reference_m >= reference_m.max()
+    starts = np.flatnonzero(top & ~np.r_[False, top[:-1]])
+    end = np.flatnonzero(top)[-1] + 1
+    return slice((starts[-1] + end) // 2, end)
