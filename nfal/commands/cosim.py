@@ -38,7 +38,10 @@ def register(commands) -> None:
         "unless --start-time, --stop-time or --step is given; the reference's own length is the stop time only where "
         "the structure has none, and a run says so where the two differ. FMI 2.0 and FMI 3.0 co-simulation FMUs, "
         "mixed at will. An FMU that ends its own horizon (fmi2Discard, then fmi2Terminated; FMI 3.0: "
-        "terminateSimulation) ends the run there, with a note.",
+        "terminateSimulation) ends the run there, with a note. A Fig. 7 run is checked: an object that never leaves "
+        "the surface or reaches no level of its reference fails the run (exit 2, the reason, every row kept); a level "
+        "never reached, or a long saturation of the drive, is a warning (status ok; docs/cosimulation.md, \"A run's "
+        "status and its step metrics\").",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
         "nfal run --reference my_reference.csv --realtime; hardware in the loop against `nfal rig-emulator` or the rig: "
@@ -59,8 +62,9 @@ def register(commands) -> None:
                      help="drive Controller.reference from the master instead of the structure's ReferenceGenerator (its "
                      "connection is replaced): the built-in staircase of Figs. 9-10 (60-180 um; against "
                      "hardware its first level is held 1 s, for lift-off from rest; fig7_reynolds: 60-100 um, what the "
-                     "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s; step "
-                     "metrics are reported for it) or a CSV of time_s,reference_m (held between rows). Default: the "
+                     "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s) or a CSV "
+                     "of time_s,reference_m (held between rows); step metrics for a staircase and for a CSV of steps "
+                     "(levels held 50 ms or more), the IAE alone otherwise. Default: the "
                      "structure's ReferenceGenerator (its parameters: --param ReferenceGenerator.levels=... etc.; "
                      "docs/cosimulation.md), or the built-in staircase in a structure without one. "
                      "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
