@@ -129,7 +129,8 @@ def step_reference(reference, start_s: float, stop_s: float) -> tuple[object | N
     ReferenceGenerator's times or table; :func:`~nfal.orchestration.signals.steps_of`)."""
     if isinstance(reference, Staircase):
         completed = reference.completed_by(stop_s)
-        return completed, None if completed is not None else f"no step of the staircase completes its hold by {stop_s:g} s"
+        why = None if completed is not None else f"no step of the staircase completes its hold by {stop_s:g} s"
+        return completed, why
     if isinstance(reference, StepSequence):
         reference = PiecewiseConstant(reference.times_s, reference.levels_m)
     if isinstance(reference, PiecewiseConstant):

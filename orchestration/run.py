@@ -134,7 +134,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                   out_dir: str | os.PathLike | None = None, realtime: bool | float = False,
                   progress: bool | None = None, plot: Sequence | bool | None = None,
                   metrics: Callable[[ResultTable], Mapping] | None = None,
-                  checks: Callable[[ResultTable], Sequence[Finding]] | None = None, undeclared_dependencies: str = "none",
+                  checks: Callable[[ResultTable], Sequence[Finding]] | None = None,
+                  undeclared_dependencies: str = "none",
                   fmu_logging: str = "on", flush_interval_s: float = 0.25, rt_priority: int | None = None,
                   overwrite: bool = False, max_steps: int | None = None) -> RunResult:
     """Run an SSP 1.0 system structure of FMI 2.0 and FMI 3.0 co-simulation FMUs (mixed at will) with a fixed step.

@@ -10,8 +10,9 @@ which later tasks reuse (they check the hash of the bytes they hold, and the cac
 Every finished run is appended to ``results.csv`` at once (flushed), as one row: run id, status, error,
 warnings, wall time, the swept parameters and the kind's metrics. A run that raises is a row with status
 "failed" and its error; the sweep goes on. A task may return ``warnings`` (text) with its metrics: the run
-is "ok" with warnings, as ``nfal run``'s status rule has it (:mod:`.checks`). Written as well: ``spec.json`` (the expanded spec),
-``summary.json`` and ``sweep.png`` (each metric over the main swept parameter, else metric histograms).
+is "ok" with warnings, as ``nfal run``'s status rule has it (:mod:`.checks`). Written as well: ``spec.json``
+(the expanded spec), ``summary.json`` and ``sweep.png`` (each metric over the main swept parameter, else metric
+histograms).
 
 What a run is comes from the spec's :class:`~.sweep_spec.SweepKind` (its task and metric columns):
 this engine knows no kind of its own (nfal's kinds: :mod:`nfal.sweeps`).
@@ -286,7 +287,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
                        "they are kept", table.path, foreign)
     _write_spec(out / SPEC_JSON, spec, runs)
     summary = {"name": spec.name, "kind": spec.kind.name, "runs": len(runs), "skipped": skipped, "other_rows": foreign,
-               "new": 0, "ok": 0, "with_warnings": 0, "failed": 0, "status": "running", "scheduler": scheduler or "local", "workers": None,
+               "new": 0, "ok": 0, "with_warnings": 0, "failed": 0,
+               "status": "running", "scheduler": scheduler or "local", "workers": None,
                "wall_time_s": 0.0, "task_wall_time_s": 0.0}
     logger.info("%s: %d runs, %d already finished in %s", spec.name, len(runs), skipped, out)
     started = time.perf_counter()
