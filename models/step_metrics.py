@@ -1,6 +1,9 @@
-"""Step-response metrics of a closed-loop run, per step of a staircase reference (Figs. 9-10).
+"""Step-response metrics of a closed-loop run, per step of a step reference (Figs. 9-10).
 
-For the step at t_s from level r0 to r1 (size D = r1 - r0), over its hold [t_s, t_s + hold) and on the
+A step reference is anything with ``levels_m``, ``step_times_s`` and ``duration_s`` (a
+:class:`~nfal.models.closed_loop.Staircase`, or the steps found in a piecewise-constant reference): level
+n + 1 from ``step_times_s[n]`` until the next step (the last until ``duration_s``), level 0 before the first.
+For the step at t_s from level r0 to r1 (size D = r1 - r0), over its hold [t_s, next step) and on the
 *true* clearance h (the sensor noise is not part of the response):
 
 * rise time: first time h passes r0 + 0.9 D minus first time it passes r0 + 0.1 D [s];
@@ -10,6 +13,10 @@ For the step at t_s from level r0 to r1 (size D = r1 - r0), over its hold [t_s, 
 * IAE: integral of |r - h| dt over the hold [m s] (rectangle rule at the sampling instants).
 
 A metric that is not reached within the hold (no 90 % crossing, never settling) is None.
+
+A level is *reached* (:func:`level_reach`) when h came within ``REACHED_BAND`` |D| of it (10 %: the rise
+time's upper band) or crossed it at some time during its hold; the first level's D is from the run's
+first height.
 """
 
 from __future__ import annotations
@@ -20,10 +27,11 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError
 
-from .closed_loop import ClosedLoopRun, Staircase
+from .closed_loop import ClosedLoopRun
 
 SETTLING_BAND = 0.02
 STEADY_FRACTION = 0.25
+REACHED_BAND = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,9 +62,19 @@ def _first_crossing(time: np.ndarray, progress: np.ndarray, level: float) -> flo
     return float(time[i - 1] + fraction * (time[i] - time[i - 1]))
 
 
-def step_metrics(run: ClosedLoopRun, reference: Staircase, *, band: float = SETTLING_BAND,
+def _holds(reference) -> list[tuple[float, float]]:
+    """[start, end) [s] of every level of the step reference ``reference`` (the first from -inf)."""
+    starts = [float(t) for t in reference.step_times_s]
+    return list(zip([-np.inf, *starts], [*starts, float(reference.duration_s)]))
+
+
+def _window(run: ClosedLoopRun, start: float, end: float) -> np.ndarray:
+    return (run.time_s >= start - 1e-12) & (run.time_s < end - 1e-12)
+
+
+def step_metrics(run: ClosedLoopRun, reference, *, band: float = SETTLING_BAND,
                  steady_fraction: float = STEADY_FRACTION) -> list[StepMetrics]:
-    """The metrics of every step of ``reference`` in ``run`` (see the module docstring)."""
+    """The metrics of every step of the step reference ``reference`` in ``run`` (see the module docstring)."""
     if not (0 < band < 1):
         raise InvalidParameterError("band", band, "a fraction in (0, 1)")
     if not (0 < steady_fraction <= 1):
@@ -64,9 +82,9 @@ def step_metrics(run: ClosedLoopRun, reference: Staircase, *, band: float = SETT
     period = float(run.time_s[1] - run.time_s[0])
     results = []
     levels = reference.levels_m
-    for n, start in enumerate(reference.step_times_s):
+    for n, (start, end) in enumerate(_holds(reference)[1:]):
         r0, r1 = levels[n], levels[n + 1]
-        window = (run.time_s >= start - 1e-12) & (run.time_s < start + reference.hold_s - 1e-12)
+        window = _window(run, start, end)
         t, h = run.time_s[window] - start, run.height_m[window]
         size = r1 - r0
         if size == 0:
@@ -87,6 +105,35 @@ def step_metrics(run: ClosedLoopRun, reference: Staircase, *, band: float = SETT
         iae = float(np.sum(np.abs(run.reference_m[window] - h)) * period)
         results.append(StepMetrics(float(r0), float(r1), rise, overshoot, settling, noise, iae))
     return results
+
+
+@dataclasses.dataclass(frozen=True)
+class LevelReach:
+    """How near the height came to one level of a step reference during its hold (SI)."""
+
+    level_m: float
+    start_s: float   #: the hold [start_s, end_s)
+    end_s: float
+    band_m: float    #: REACHED_BAND times the step into the level
+    lowest_m: float  #: the height's range over the hold
+    highest_m: float
+
+    @property
+    def reached(self) -> bool:
+        """Within the band of the level, or crossed it, at some time of the hold."""
+        return self.lowest_m - self.band_m <= self.level_m <= self.highest_m + self.band_m
+
+
+def level_reach(run: ClosedLoopRun, reference, *, band: float = REACHED_BAND) -> list[LevelReach]:
+    """For every level of the step reference ``reference`` with samples in ``run``: how near the height came."""
+    levels, reach = reference.levels_m, []
+    for n, (start, end) in enumerate(_holds(reference)):
+        h = run.height_m[_window(run, start, end)]
+        if h.size:
+            previous = levels[n - 1] if n else float(run.height_m[0])
+            reach.append(LevelReach(float(levels[n]), max(start, float(run.time_s[0])), end,
+                                    band * abs(levels[n] - previous), float(np.min(h)), float(np.max(h))))
+    return reach
 
 
 def total_iae(run: ClosedLoopRun, where: np.ndarray | None = None) -> float:

@@ -154,6 +154,11 @@ class SimulationError(OrchestrationError, RuntimeError):
     result = None
 
 
+class RunCheckError(SimulationError):
+    """A run completed, but a check of its results failed (e.g. the object never lifted off). ``result`` holds
+    every row and a summary with status "failed" and the reason."""
+
+
 class LibcosimUnavailableError(OrchestrationError, RuntimeError):
     """OSP libcosim's Python bindings (``libcosimpy``) are not installed or cannot load."""
 

@@ -1,4 +1,5 @@
-"""What the Fig. 7 loop's results mean to a person: the response plot's panels and the step metrics.
+"""What the Fig. 7 loop's results mean to a person: the response plot's panels, the step metrics, and the checks
+that make a run's status (the object lifted off, the reference's levels reached).
 
 The orchestrator is generic; this module knows the loop's element and variable names (docs/cosimulation.md),
 in both variants: simulated (fig7_slow, fig7_reynolds) and hardware in the loop (fig7_hil, where the
@@ -27,8 +28,10 @@ from nfal.fig7_names import (  # noqa: F401
 )
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
 from nfal.models.control_law import SATURATION_WARNING_S
-from nfal.models.step_metrics import step_metrics, total_iae
-from nfal.orchestration import PlotPanel
+from nfal.models.reference import StepSequence
+from nfal.models.step_metrics import REACHED_BAND, level_reach, step_metrics, total_iae
+from nfal.orchestration import Finding, PiecewiseConstant, PlotPanel
+from nfal.orchestration.signals import steps_of
 
 #: The staircase of the Reynolds loop: the part of Figs. 9-10's range the film of the Fig. 3 stand-in form
 #: holds with |a| <= 10 um (up to ~107 um; its K is negative above 118 um): the paper's 60 -> 100 and
@@ -120,16 +123,84 @@ def loop_run(table, name: str = "fmu loop", columns: LoopColumns = SIMULATED) ->
                          np.asarray(table[columns.measured]), np.asarray(table[columns.excitation]))
 
 
-def loop_metrics(table, reference: Staircase, columns: LoopColumns = SIMULATED) -> dict:
-    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions), SI, the drive's
-    long saturations (:func:`saturation_episodes`), and the first level apart (:func:`first_level`)."""
+def step_reference(reference, start_s: float, stop_s: float) -> tuple[object | None, str | None]:
+    """The steps of a run's reference for the step metrics and the checks, or None and why there are none: a
+    staircase's steps completed by ``stop_s``, or the steps of a piecewise-constant reference (a CSV, the
+    ReferenceGenerator's times or table; :func:`~nfal.orchestration.signals.steps_of`)."""
+    if isinstance(reference, Staircase):
+        completed = reference.completed_by(stop_s)
+        why = None if completed is not None else f"no step of the staircase completes its hold by {stop_s:g} s"
+        return completed, why
+    if isinstance(reference, StepSequence):
+        reference = PiecewiseConstant(reference.times_s, reference.levels_m)
+    if isinstance(reference, PiecewiseConstant):
+        return steps_of(reference, start_s, stop_s)
+    return None, "the reference's levels are not known before the run (a table inside the ReferenceGenerator FMU)"
+
+
+def loop_metrics(table, reference, columns: LoopColumns = SIMULATED, *, no_steps: str | None = None) -> dict:
+    """Total IAE and the per-step metrics of Figs. 9-10 (``nfal compare``'s definitions) of a step reference
+    (a staircase, or :func:`step_reference`'s steps), SI, the drive's long saturations
+    (:func:`saturation_episodes`), and the first level apart (:func:`first_level`). With ``reference`` None:
+    the IAE, the saturations, and ``no_steps``, why there is no step table."""
     run = loop_run(table, columns=columns)
+    saturation = saturation_episodes(table, reference_column=columns.reference)
+    if reference is None:
+        return {"iae": total_iae(run), "steps": None, "no_steps": no_steps, "saturation": saturation,
+                "first_level": None}
     return {"iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)],
-            "saturation": saturation_episodes(table, reference_column=columns.reference),
-            "first_level": first_level(run, reference)}
+            "saturation": saturation, "first_level": first_level(run, reference)}
 
 
-def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
+def loop_checks(table, reference, columns: LoopColumns = SIMULATED) -> list[Finding]:
+    """What the run of the loop failed to do, for its status (:mod:`nfal.orchestration.checks`).
+
+    Failures: the object never left the surface (``columns.resting`` true all along while the drive was on), or no
+    level of the step reference ``reference`` reached. Warnings: each level not reached during its hold (within
+    ``REACHED_BAND`` of the step into it, :func:`~nfal.models.step_metrics.level_reach`), each long saturation of
+    the drive (:func:`saturation_episodes`). A structure without these columns, or a reference without steps
+    (None), is not checked for them.
+    """
+    lift_off = _never_left_surface(table, columns)
+    if lift_off is not None:
+        return [lift_off]
+    levels = _unreached_levels(table, reference, columns)
+    if any(f.failure for f in levels):
+        return levels
+    return [*(Finding(f"the drive stayed saturated for {e['duration_s']:.3g} s from t = {e['start_s']:.4g} s: the "
+                      f"reference {e['reference_m'] * 1e6:.4g} um is out of the film's reach with this drive limit")
+              for e in saturation_episodes(table, reference_column=columns.reference)), *levels]
+
+
+def _never_left_surface(table, columns: LoopColumns) -> Finding | None:
+    if columns.resting not in table or columns.excitation not in table:
+        return None
+    drive = float(np.max(table[columns.excitation]))
+    if drive > 0 and np.all(np.asarray(table[columns.resting]) > 0):
+        return Finding(f"the object never left the surface: {columns.resting} was true for the whole run "
+                       f"({table.time[-1] - table.time[0]:g} s) while the drive reached |a| = {drive * 1e6:.3g} um",
+                       failure=True)
+    return None
+
+
+def _unreached_levels(table, reference, columns: LoopColumns) -> list[Finding]:
+    if reference is None or any(c not in table for c in (columns.height, columns.measured, columns.reference)):
+        return []
+    reach = level_reach(loop_run(table, columns=columns), reference)
+    missed = [r for r in reach if not r.reached]
+    if reach and len(missed) == len(reach):
+        height = np.asarray(table[columns.height])
+        levels = [r.level_m for r in reach]
+        what = "never lifted off to" if height.max() < min(levels) else "never reached"
+        return [Finding(f"the object {what} the reference: its height stayed within {height.min() * 1e6:.3g}-"
+                        f"{height.max() * 1e6:.3g} um, and no level ({min(levels) * 1e6:.4g}-{max(levels) * 1e6:.4g} um) "
+                        "was reached in its hold", failure=True)]
+    return [Finding(f"the reference's level {r.level_m * 1e6:.4g} um ({r.start_s:g}-{r.end_s:g} s) was never reached: "
+                    f"the height stayed within {r.lowest_m * 1e6:.4g}-{r.highest_m * 1e6:.4g} um, not within "
+                    f"{r.band_m * 1e6:.3g} um of it ({REACHED_BAND:.0%} of the step into it)") for r in missed]
+
+
+def first_level(run: ClosedLoopRun, reference) -> dict:
     """The run before the first step and from it on: the highest height and the IAE of the first level (a
     rig's lift-off from rest), and the IAE of the steps [m, m s]."""
     before = run.time_s < float(reference.step_times_s[0])
@@ -140,9 +211,9 @@ def first_level(run: ClosedLoopRun, reference: Staircase) -> dict:
 def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S, *,
                         reference_column: str = REFERENCE) -> list[dict]:
     """Every stretch in which the Controller's drive stayed saturated longer than ``longest_allowed_s``:
-    its start, length and the reference then (what the film could not reach). Empty when the table has
-    no ``Controller.saturated_time`` column (a controller without it)."""
-    if SATURATED_TIME not in table:
+    its start, length and the reference then (what the film could not reach). Empty when the table has no
+    ``Controller.saturated_time`` column (a controller without it) or no reference column."""
+    if SATURATED_TIME not in table or reference_column not in table:
         return []
     time, saturated = np.asarray(table.time), np.asarray(table[SATURATED_TIME])
     reference = np.asarray(table[reference_column])

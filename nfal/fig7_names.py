@@ -36,14 +36,15 @@ class LoopColumns:
     measured: str
     excitation: str
     frequency: str
+    resting: str      #: true while the object rests on the surface
     extra_panels: tuple = ()
     reference: str = REFERENCE  #: the reference's column: the driven input, or GENERATED_REFERENCE
 
 
 SIMULATED = LoopColumns("Plant.height", "SensorChain.measured_height", "ResonanceTracker.excitation_amplitude",
-                        "ResonanceTracker.drive_frequency")
+                        "ResonanceTracker.drive_frequency", "Plant.resting")
 HARDWARE = LoopColumns(f"{PROXY}.measured_height", f"{PROXY}.measured_height", EXCITATION_COMMAND,
-                       f"{PROXY}.drive_frequency",
+                       f"{PROXY}.drive_frequency", f"{PROXY}.resting",
                        extra_panels=((((DRIVE_VOLTAGE, f"{PROXY}.applied_voltage"), 1.0, "drive [V]")),
                                      (((f"{PROXY}.measurement_age",), 1e3, "sample age [ms]"))))
 
@@ -51,5 +52,5 @@ HARDWARE = LoopColumns(f"{PROXY}.measured_height", f"{PROXY}.measured_height", E
 #: outputs a rig reports (nfal.rig_model), and the true height.
 RIG_DRIVE_INPUT = "ResonanceTracker.drive_voltage"
 RIG_READINGS = {"height": SIMULATED.measured, "drive_frequency": SIMULATED.frequency,
-                "locked": "ResonanceTracker.locked", "resting": "Plant.resting"}
+                "locked": "ResonanceTracker.locked", "resting": SIMULATED.resting}
 RIG_TRUE_HEIGHT = SIMULATED.height

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from nfal.errors import InvalidParameterError, SweepSpecError
-from nfal.fig7 import REFERENCE, SIMULATED, loop_metrics, matched_design, reference_staircase
+from nfal.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
 from nfal.models.calibration import perturbation_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.excitation import parse_shape
@@ -77,7 +77,8 @@ def loop_summary(table, staircase) -> dict:
 
 
 def ssp_task(run: RunSpec, path: Path) -> dict:
-    """One SSP run: the archive (unpacked in the worker cache) with the run's overrides; the loop metrics."""
+    """One SSP run: the archive (unpacked in the worker cache) with the run's overrides; the loop metrics and the
+    checks' warnings (a failed check raises, as ``nfal run`` fails: a failed row with the reason)."""
     settings = run.settings
     parameters = dict(settings["parameters"])
     inputs: dict = {k: float(v) for k, v in settings["inputs"].items()}
@@ -98,10 +99,9 @@ def ssp_task(run: RunSpec, path: Path) -> dict:
     with tempfile.TemporaryDirectory(prefix="nfal-sweep-run-") as out:
         result = run_structure(path, stop_time=stop_time, step_size=settings["step_size"], inputs=inputs,
                                parameters=parameters, algorithm=settings["algorithm"], out_dir=out, plot=False,
-                               progress=False)
-        if completed is None:
-            return {}
-        return loop_summary(result.table(), completed)
+                               progress=False, checks=lambda table: loop_checks(table, completed))
+        warnings = {"warnings": "; ".join(result.summary["warnings"])}
+        return warnings if completed is None else {**loop_summary(result.table(), completed), **warnings}
 
 
 def calibration_task(run: RunSpec, _structure: None = None) -> dict:

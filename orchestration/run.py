@@ -1,7 +1,8 @@
 """``run_structure``: read an SSP, run it with the fixed-step master, and write the results.
 
 Writes into ``out_dir``: ``results.csv`` (streamed while the run goes), ``summary.json`` (written
-with status "running" before the first step, rewritten at the end) and ``response.png``.
+with status "running" before the first step, rewritten at the end: "ok", "ok" with ``warnings``,
+"failed" or "interrupted", :mod:`.checks`) and ``response.png``.
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from nfal.errors import InvalidParameterError, ResultsExistError, SimulationError, require_finite, require_positive
+from nfal.errors import (InvalidParameterError, ResultsExistError, RunCheckError, SimulationError, require_finite,
+                         require_positive)
 from nfal.realtime import SlackCollector, realtime_section
 
+from .checks import Finding, judge
 from .interrupts import deferred_interrupts
 from .master import ALGORITHMS, HorizonEnd, Master
 from .pacing import RealTimePacer, prompt_thread_switching, realtime_priority, require_realtime_priority
@@ -130,7 +133,9 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                   parameters: Mapping[str, object] | None = None, algorithm: str = "causal",
                   out_dir: str | os.PathLike | None = None, realtime: bool | float = False,
                   progress: bool | None = None, plot: Sequence | bool | None = None,
-                  metrics: Callable[[ResultTable], Mapping] | None = None, undeclared_dependencies: str = "none",
+                  metrics: Callable[[ResultTable], Mapping] | None = None,
+                  checks: Callable[[ResultTable], Sequence[Finding]] | None = None,
+                  undeclared_dependencies: str = "none",
                   fmu_logging: str = "on", flush_interval_s: float = 0.25, rt_priority: int | None = None,
                   overwrite: bool = False, max_steps: int | None = None) -> RunResult:
     """Run an SSP 1.0 system structure of FMI 2.0 and FMI 3.0 co-simulation FMUs (mixed at will) with a fixed step.
@@ -174,6 +179,9 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         The panels of ``response.png``; None: every column grouped by unit; False: no plot.
     metrics : callable, optional
         ``metrics(table) -> dict``, evaluated after a successful run; stored as ``summary["metrics"]``.
+    checks : callable, optional
+        ``checks(table) -> findings``, evaluated after a successful run: warnings go to ``summary["warnings"]``
+        (the status stays "ok"), a failure makes the status "failed" (:mod:`.checks`).
     undeclared_dependencies : {"none", "all"}
         How to read outputs that declare no dependencies (:mod:`nfal.orchestration.resolve`).
     fmu_logging : {"on", "off"}
@@ -194,7 +202,8 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
         or type mismatch, causality, algebraic loop (``causal``), missing FMU.
     SimulationError (RuntimeError)
         An FMU failed during the run; ``error.result`` is the :class:`RunResult` of what was written
-        (every row up to the failure, and a summary with status "failed").
+        (every row up to the failure, and a summary with status "failed"). :class:`RunCheckError` (a
+        SimulationError) if the run completed but one of ``checks`` failed.
     """
     if algorithm not in ALGORITHMS:
         raise InvalidParameterError("algorithm", algorithm, f"one of {ALGORITHMS}")
@@ -222,6 +231,7 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
             _plot(result, plot, title=f"{system.name} ({algorithm}, {step:g} s)")
         if metrics is not None and loop.error is None:
             _evaluate_metrics(result, metrics)
+        failed_check = _evaluate_checks(result, checks) if checks is not None and loop.error is None else None
         write_summary(summary_path, summary)
         logger.info("%s: %s, %d of %d steps in %.3f s wall time -> %s", system.name, summary["status"],
                     loop.completed, steps, loop.wall_time_s, out)
@@ -229,6 +239,9 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
             if isinstance(loop.error, SimulationError):
                 loop.error.result = result
             raise loop.error
+        if failed_check is not None:
+            failed_check.result = result
+            raise failed_check
         return result
 
 
@@ -356,7 +369,7 @@ def _closing_summary(loop: _LoopOutcome, master: Master, writer: CsvWriter, star
     do_step_total = sum(t["do_step_total_s"] for t in loop.timing.values())
     entries = {
         "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
-        "error": None if error is None else str(error) or type(error).__name__,
+        "error": None if error is None else str(error) or type(error).__name__, "warnings": [],
         "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows,
         "wall_time_s": loop.wall_time_s,
         "initialization_wall_time_s": loop.init_time_s, "loop_wall_time_s": loop_time,
@@ -390,3 +403,13 @@ def _evaluate_metrics(result: RunResult, metrics: Callable[[ResultTable], Mappin
     except Exception as exc:
         logger.warning("metrics failed: %s", exc)
         result.summary["metrics_error"] = f"{type(exc).__name__}: {exc}"
+
+
+def _evaluate_checks(result: RunResult, checks: Callable[[ResultTable], Sequence[Finding]]) -> RunCheckError | None:
+    try:
+        findings = checks(result.table())
+    except Exception as exc:  # a check that breaks must not hide the run's own outcome
+        logger.warning("checks failed: %s", exc)
+        result.summary["checks_error"] = f"{type(exc).__name__}: {exc}"
+        return None
+    return judge(result.summary, findings)

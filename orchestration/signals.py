@@ -4,7 +4,8 @@ Every signal here is a :class:`PiecewiseConstant` (zero-order hold: at time t th
 last change at or before t), callable as ``signal(t) -> float`` in SI. A step sequence of an
 application (an object with ``levels_m``, ``step_times_s`` and ``duration_s``, such as the Fig. 7
 loop's :class:`nfal.models.closed_loop.Staircase`) becomes one with the same values, so that the
-co-simulation and the pure-Python loop see the same reference.
+co-simulation and the pure-Python loop see the same reference. The other way, :func:`steps_of` finds the steps
+of a piecewise-constant signal (a CSV reference), so that it gets the step metrics a staircase gets.
 
 A time within 1e-12 s (relative 1e-12) before a change counts as at the change, so that a
 communication point computed as ``k * dt`` and a change at ``0.1`` agree.
@@ -13,6 +14,7 @@ communication point computed as ``k * dt`` and a change at ``0.1`` agree.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -26,6 +28,9 @@ from nfal.errors import DataFormatError, SignalError
 #: Time tolerance [s] of a change (absolute and relative), see the module docstring.
 TIME_TOLERANCE = 1e-12
 TIME_COLUMNS = ("time_s", "time", "t", "time [s]")
+#: The shortest hold [s] of a level for a signal to count as steps (:func:`steps_of`): one that changes faster
+#: (a ramp or a sine sampled into rows) is a curve, not levels a loop is meant to settle on.
+MIN_STEP_HOLD_S = 0.05
 
 
 class PiecewiseConstant:
@@ -86,6 +91,43 @@ def from_staircase(steps: object, *, name: str = "staircase") -> PiecewiseConsta
     """A step sequence (see :func:`is_step_sequence`) as a :class:`PiecewiseConstant` (same values)."""
     times = [0.0, *map(float, steps.step_times_s)]
     return PiecewiseConstant(times, steps.levels_m, name=name, duration_s=steps.duration_s)
+
+
+@dataclasses.dataclass(frozen=True)
+class Steps:
+    """A step sequence (:func:`is_step_sequence`): ``levels_m[0]`` until ``step_times_s[0]``, then ``levels_m[n + 1]``
+    from ``step_times_s[n]`` until the next step, the last until ``duration_s`` [s]."""
+
+    levels_m: tuple[float, ...]
+    step_times_s: tuple[float, ...]
+    duration_s: float
+
+
+def steps_of(signal: PiecewiseConstant, start_s: float, end_s: float, *,
+             min_hold_s: float = MIN_STEP_HOLD_S) -> tuple[Steps | None, str | None]:
+    """The steps of ``signal`` in a run from ``start_s`` to ``end_s`` [s], or None and why there are none.
+
+    Rows that repeat a value are one level. A step counts when its hold is complete by ``end_s`` (it ends at
+    the next change, or the signal changes no more; such a last hold shorter than ``min_hold_s`` is cut off
+    by the run's end and left out). A signal with a shorter hold is not steps (a sampled ramp or sine).
+    """
+    times, values = signal.times, signal.values
+    changes = [times[i] for i in range(1, len(times)) if values[i] != values[i - 1]]
+    nexts = [*changes[1:], math.inf]  # the end of each change's level
+    inside = [(t, end) for t, end in zip(changes, nexts) if start_s < t < end_s]
+    if not inside:
+        return None, f"the reference has no step between {start_s:g} s and {end_s:g} s"
+    holds = [(t, min(end, end_s)) for t, end in inside
+             if end <= end_s + TIME_TOLERANCE or (end == math.inf and end_s - t >= min_hold_s)]
+    if not holds:
+        return None, f"no step of the reference completes its hold by {end_s:g} s"
+    shortest = min(end - start for start, end in holds)
+    if shortest < min_hold_s:
+        return None, (f"the reference is not a sequence of steps: it changes {len(inside)} times, holding a level "
+                      f"as little as {shortest * 1e3:.3g} ms (steps are held {min_hold_s * 1e3:g} ms or more)")
+    step_times = tuple(start for start, _ in holds)
+    levels = (signal(start_s), *(signal(t) for t in step_times))
+    return Steps(levels, step_times, holds[-1][1]), None
 
 
 def staircase(levels_m: Sequence[float], hold_s: float, lead_s: float) -> PiecewiseConstant:

@@ -8,9 +8,10 @@ checks the hash and unpacks it, FMUs included, into a local cache (``<tmp>/nfal-
 which later tasks reuse (they check the hash of the bytes they hold, and the cache's marker).
 
 Every finished run is appended to ``results.csv`` at once (flushed), as one row: run id, status, error,
-wall time, the swept parameters and the kind's metrics. A run that raises is a row with status
-"failed" and its error; the sweep goes on. Written as well: ``spec.json`` (the expanded spec),
-``summary.json`` and ``sweep.png`` (each metric over each swept parameter, :mod:`.sweep_plot`).
+warnings, wall time, the swept parameters and the kind's metrics. A run that raises is a row with status
+"failed" and its error; the sweep goes on. A task may return ``warnings`` (text) with its metrics: the run
+is "ok" with warnings, as ``nfal run``'s status rule has it (:mod:`.checks`). Written as well: ``spec.json``
+(the expanded spec), ``summary.json`` and ``sweep.png`` (each metric over each swept parameter, :mod:`.sweep_plot`).
 
 What a run is comes from the spec's :class:`~.sweep_spec.SweepKind` (its task and metric columns):
 this engine knows no kind of its own (nfal's kinds: :mod:`nfal.sweeps`).
@@ -44,7 +45,8 @@ from .sweep_spec import RunSpec, SweepSpec, canonical_json
 logger = logging.getLogger(__name__)
 
 RESULTS_CSV, SUMMARY_JSON, SPEC_JSON, SWEEP_PNG = "results.csv", "summary.json", "spec.json", "sweep.png"
-FIXED_COLUMNS = ("run_id", "index", "status", "error", "wall_time_s", "worker")
+FIXED_COLUMNS = ("run_id", "index", "status", "error", "warnings", "wall_time_s", "worker")
+TEXT_COLUMNS = ("run_id", "status", "error", "warnings", "worker")
 CACHE_DIR_NAME = "nfal-sweep-cache"
 
 
@@ -182,7 +184,7 @@ def read_table(path: str | os.PathLike) -> list[dict]:
             for key, text in row.items():
                 if text == "" or text is None:
                     out[key] = None
-                elif key in ("run_id", "status", "error", "worker"):
+                elif key in TEXT_COLUMNS:
                     out[key] = text
                 else:
                     try:
@@ -284,7 +286,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
                        "they are kept", table.path, foreign)
     _write_spec(out / SPEC_JSON, spec, runs)
     summary = {"name": spec.name, "kind": spec.kind.name, "runs": len(runs), "skipped": skipped, "other_rows": foreign,
-               "new": 0, "ok": 0, "failed": 0, "status": "running", "scheduler": scheduler or "local", "workers": None,
+               "new": 0, "ok": 0, "with_warnings": 0, "failed": 0,
+               "status": "running", "scheduler": scheduler or "local", "workers": None,
                "wall_time_s": 0.0, "task_wall_time_s": 0.0}
     logger.info("%s: %d runs, %d already finished in %s", spec.name, len(runs), skipped, out)
     started = time.perf_counter()
@@ -362,6 +365,7 @@ def _close_summary(out: Path, summary: dict, runs: list[RunSpec]) -> list[dict]:
     ids = {r.run_id for r in runs}
     rows = [r for r in read_table(out / RESULTS_CSV) if r["run_id"] in ids]
     summary["ok"] = sum(r["status"] == "ok" for r in rows)
+    summary["with_warnings"] = sum(r["status"] == "ok" and bool(r.get("warnings")) for r in rows)
     summary["failed"] = sum(r["status"] != "ok" for r in rows)
     summary["finished"] = len(rows)
     (out / SUMMARY_JSON).write_text(json.dumps(summary, indent=2, default=str) + "\n")

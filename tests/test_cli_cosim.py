@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from nfal.cli import main
@@ -33,13 +34,54 @@ def test_run_writes_results_summary_and_plot(capsys, tmp_path, fig7_archives):
 
 
 @pytest.mark.slow  # whole runs of the loop
-def test_run_from_a_reference_csv(capsys, tmp_path, fig7_archives):
+def test_run_from_a_reference_csv_of_steps_prints_the_step_table(capsys, tmp_path, fig7_archives):
     csv = tmp_path / "reference.csv"
-    csv.write_text("# time_s,reference_m\n0,60e-6\n0.05,80e-6\n")
+    csv.write_text("# time_s,reference_m\n0,60e-6\n0.05,80e-6\n0.1,80e-6\n")  # one step, held to the end
     assert main(["run", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.3",
                  "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
-    assert "0.3 s" in out and "IAE" not in out  # metrics only for the staircase
+    assert "0.3 s" in out and "IAE" in out and "     60 ->   80 " in out
+    (step,) = json.loads((tmp_path / "run" / "summary.json").read_text())["metrics"]["steps"]
+    assert (step["from_m"], step["to_m"]) == (60e-6, 80e-6) and step["settling_time_s"] is not None
+
+
+@pytest.mark.slow  # whole runs of the loop
+def test_run_from_a_reference_csv_not_of_steps_prints_the_iae_and_why(capsys, tmp_path, fig7_archives):
+    csv = tmp_path / "sine.csv"
+    csv.write_text("time_s,reference_m\n" + "".join(f"{k * 1e-3},{70e-6 + 5e-6 * np.sin(k * 0.03)}\n" for k in range(100)))
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.1",
+                 "--out", str(tmp_path / "run")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("IAE ") and lines[2].startswith("no step table: the reference is not a sequence of steps")
+    metrics = json.loads((tmp_path / "run" / "summary.json").read_text())["metrics"]
+    assert metrics["steps"] is None and metrics["iae"] > 0
+
+
+@pytest.mark.slow  # whole runs of the loop
+def test_a_run_whose_object_never_lifts_off_fails_with_the_reason(capsys, tmp_path, fig7_archives):
+    """The issue's case, short: from rest with a lift-off that never ends, the object never reaches 60 um."""
+    out = tmp_path / "run"
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--param", "Controller.lift_off_time=1e9", "--param",
+                 "Plant.initial_height=5e-6", "--reference", "staircase:60e-6,80e-6:0.05:0.05", "--stop-time", "0.1",
+                 "--out", str(out), "--json"]) == 2
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["status"] == "failed" and summary["steps_completed"] == summary["steps"] == 200
+    assert summary["error"].startswith("the object never lifted off to the reference: its height stayed within 5-")
+    assert f"nfal run: error: {summary['error']}" in captured.err
+    assert json.loads((out / "summary.json").read_text())["status"] == "failed"
+    assert len((out / "results.csv").read_text().splitlines()) == 202  # the header and every row
+
+
+@pytest.mark.slow  # whole runs of the loop
+def test_a_level_out_of_reach_leaves_the_run_ok_with_warnings(capsys, tmp_path, fig7_archives):
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--param", "Controller.max_excitation=2e-6", "--reference",
+                 "staircase:60e-6,100e-6:0.2:0.05", "--stop-time", "0.25", "--out", str(tmp_path / "run")]) == 0
+    out = capsys.readouterr().out
+    assert "(ok with 2 warnings)" in out.splitlines()[0]
+    assert "warning: the reference's level 100 um (0.05-0.25 s) was never reached: the height stayed within 60" in out
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["status"] == "ok" and len(summary["warnings"]) == 2 and summary["warnings"][0] in out
 
 
 @pytest.mark.slow  # whole runs of the loop

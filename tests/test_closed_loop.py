@@ -1,6 +1,7 @@
 """Closed loop of Figs. 9-10: noise, fast plant stepping vs. SimplifiedPlant.advance, metrics, comparison."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from nfal.models.pid_design import design_schedule, fixed_design
 from nfal.models.plant import PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
 from nfal.models.stability import realizable_schedule
-from nfal.models.step_metrics import step_metrics, total_iae
+from nfal.models.step_metrics import level_reach, step_metrics, total_iae
 
 PLANT = SimplifiedPlant(RigParameters(), paper_calibration())
 REFERENCE = Staircase()
@@ -136,6 +137,38 @@ def test_metrics_of_a_known_first_order_response():
     assert m.settling_time_s == pytest.approx(np.log(50) * tau, abs=1e-4)
     assert m.iae == pytest.approx(40e-6 * tau, rel=1e-2)
     assert m.noise_rms_m < 1e-11
+
+
+def test_metrics_of_steps_with_unequal_holds():
+    """Any step reference (levels, step times, duration), not only a staircase: each step judged over its own
+    hold, up to the next step (the last up to the duration)."""
+    tau, rate = 0.02, 20000.0
+    steps = SimpleNamespace(levels_m=(100e-6, 140e-6, 120e-6), step_times_s=(0.1, 0.3), duration_s=0.8)
+    t = np.arange(int(0.8 * rate)) / rate
+    h = np.full_like(t, 100e-6)
+    for start, (r0, r1) in zip(steps.step_times_s, [(100e-6, 140e-6), (140e-6, 120e-6)]):
+        after = t >= start
+        h[after] = r0 + (r1 - r0) * (1 - np.exp(-(t[after] - start) / tau))
+    reference = np.select([t < 0.1, t < 0.3], [100e-6, 140e-6], 120e-6)
+    up, down = step_metrics(ClosedLoopRun("test", t, reference, h, h, np.zeros_like(t)), steps)
+    for m, size in ((up, 40e-6), (down, 20e-6)):
+        assert m.rise_time_s == pytest.approx(np.log(9) * tau, rel=1e-3)
+        assert m.settling_time_s == pytest.approx(np.log(50) * tau, abs=1e-4)
+        assert m.iae == pytest.approx(size * tau, rel=1e-2)
+    assert (up.to_m, down.to_m) == (140e-6, 120e-6)
+
+
+def test_level_reach_within_the_band_or_crossed():
+    """Reached: within 10 % of the step into the level, or across it, at some time of its hold (the first level's
+    step from the run's first height)."""
+    steps = SimpleNamespace(levels_m=(60e-6, 100e-6, 140e-6, 180e-6), step_times_s=(0.1, 0.2, 0.3), duration_s=0.4)
+    t = np.arange(800) * 5e-4
+    h = np.select([t < 0.1, t < 0.2, t < 0.3], [5e-6 + 0.5e-3 * t, 97e-6, np.where(np.arange(800) % 2, 130e-6, 150e-6)],
+                  170e-6)  # 55 um of 60 after a 55 um lift; 3 um short; across 140 between samples; 10 um short
+    reach = level_reach(ClosedLoopRun("test", t, t, h, h, t), steps)
+    assert [r.reached for r in reach] == [True, True, True, False]
+    assert reach[0].band_m == pytest.approx(5.5e-6) and reach[3].band_m == pytest.approx(4e-6)
+    assert (reach[3].start_s, reach[3].end_s, reach[3].highest_m) == (0.3, 0.4, 170e-6)
 
 
 # --- the comparison of Figs. 9-10 ------------------------------------------------------------------

@@ -213,7 +213,8 @@ def test_an_edited_stop_time_runs_as_edited_and_says_so(fig7_archives, tmp_path,
     assert summary["end_time_s"] == pytest.approx(0.25) and summary["steps_completed"] == 500
     assert "DefaultExperiment stopTime (0.25 s) governs, before the reference's end: the reference lasts 3.7 s" in captured.err
     assert summary["experiment"]["stop_time_note"] in captured.err
-    assert "metrics" not in summary  # no step of the staircase completes by 0.25 s
+    assert summary["metrics"]["steps"] is None  # the IAE, and why no step table:
+    assert summary["metrics"]["no_steps"] == "no step of the staircase completes its hold by 0.25 s"
     assert _table(tmp_path / "run").time[-1] == pytest.approx(0.25)
 
 

@@ -12,8 +12,8 @@ from toy_fmus.ssd import bindings, component, connection, connector, pack, param
 
 from nfal.errors import UnknownConnectorError
 from nfal.models.closed_loop import Staircase
-from nfal.orchestration import (AlgebraicLoopError, CausalityError, FmuCallError, Master, PlotPanel, read_ssp, resolve,
-                                run_structure, staircase)
+from nfal.orchestration import (AlgebraicLoopError, CausalityError, Finding, FmuCallError, Master, PlotPanel,
+                                RunCheckError, read_ssp, resolve, run_structure, staircase)
 
 X0, GAIN, DT, STEPS = 1.0, -2.0, 0.1, 20
 
@@ -171,6 +171,38 @@ def test_an_external_input_replaces_the_connection_it_names(loop, tmp_path, algo
     np.testing.assert_allclose(result["Plant.x"], X0 + GAIN * 0.5 * DT * np.arange(STEPS + 1), rtol=1e-12, atol=1e-14)
     assert "Plant.x -> Controller.u" in result.summary["connections"]  # the structure's, as written
     assert result.summary["exchange_order"] and result.summary["status"] == "ok"
+
+
+def decayed(table) -> list[Finding]:
+    """A check of the toy loop that fails: x falls to 0.8**20 = 0.0115 in 2 s, not below 1e-3."""
+    return [Finding("x never fell below 0.001", failure=True)] if table["Plant.x"].min() >= 1e-3 else []
+
+
+def test_a_check_finds_nothing_the_run_is_ok(loop, tmp_path):
+    result = run_structure(loop, out_dir=tmp_path, progress=False, plot=False, checks=lambda table: [])
+    assert json.loads((tmp_path / "summary.json").read_text())["warnings"] == []
+    assert (result.summary["status"], result.summary["warnings"]) == ("ok", [])
+
+
+def test_a_checks_warning_keeps_the_run_ok_with_the_warning(loop, tmp_path):
+    result = run_structure(loop, out_dir=tmp_path, progress=False, plot=False,
+                           checks=lambda table: [Finding("x never fell below 1e-08")])
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert (summary["status"], summary["warnings"], summary["error"]) == ("ok", ["x never fell below 1e-08"], None)
+    assert result.summary == summary
+
+
+def test_a_failed_check_fails_a_completed_run_and_keeps_every_row(loop, tmp_path):
+    with pytest.raises(RunCheckError, match="x never fell below 0.001") as caught:
+        run_structure(loop, out_dir=tmp_path, progress=False, plot=False, checks=decayed)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert (summary["status"], summary["error"], summary["warnings"]) == ("failed", "x never fell below 0.001", [])
+    assert summary["steps_completed"] == STEPS and len(caught.value.result.table()) == STEPS + 1
+
+
+def test_a_check_that_breaks_is_recorded_not_raised(loop, tmp_path):
+    result = run_structure(loop, out_dir=tmp_path, progress=False, plot=False, checks=lambda table: table["nothing"])
+    assert result.summary["status"] == "ok" and "nothing" in result.summary["checks_error"]
 
 
 def test_results_files(loop, tmp_path):

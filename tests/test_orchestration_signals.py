@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import SignalError, csv_signal, signal_from_spec, staircase, step
-from nfal.orchestration.signals import PiecewiseConstant, as_signal, constant
+from nfal.orchestration.signals import PiecewiseConstant, as_signal, constant, is_step_sequence, steps_of
 
 
 def test_a_staircase_equals_the_models_class():
@@ -108,3 +108,34 @@ def test_zero_order_hold_is_the_value_of_the_last_change_at_or_before_t(times, t
     expected = earlier[-1] if earlier else values[0]
     near = any(abs(t - time_) <= 1e-12 * (1 + abs(t)) for time_ in times)
     assert signal(t) == expected or near
+
+
+def test_steps_of_a_csv_reference_are_its_levels_and_change_times(tmp_path):
+    """Repeated rows are one level; each step is held until the next change, the last until the run's end; the
+    result is a step sequence, the staircase's shape."""
+    path = tmp_path / "ref.csv"
+    path.write_text("time_s,reference_m\n0,60e-6\n0.2,60e-6\n0.5,100e-6\n0.9,100e-6\n1.2,80e-6\n")
+    steps, why = steps_of(csv_signal(path), 0.0, 2.0)
+    assert why is None and is_step_sequence(steps)
+    assert (steps.levels_m, steps.step_times_s, steps.duration_s) == ((60e-6, 100e-6, 80e-6), (0.5, 1.2), 2.0)
+
+
+@pytest.mark.parametrize("end, expected", [
+    (1.0, None),                                           # the level from 0.5 s is held until 1.2 s: cut off
+    (1.22, ((60e-6, 100e-6), (0.5,), 1.2)),                # the last level, 20 ms before the end: cut off
+    (1.3, ((60e-6, 100e-6, 80e-6), (0.5, 1.2), 1.3)),      # the last level held to the end
+])
+def test_steps_of_a_run_that_ends_early(end, expected):
+    steps, _ = steps_of(PiecewiseConstant([0.0, 0.5, 1.2], [60e-6, 100e-6, 80e-6]), 0.0, end)
+    assert (steps and (steps.levels_m, steps.step_times_s, steps.duration_s)) == expected
+
+
+@pytest.mark.parametrize("signal, reason", [
+    (PiecewiseConstant(np.arange(1000) * 1e-3, 60e-6 + 1e-6 * np.sin(np.arange(1000) * 1e-2)), "not a sequence of steps"),
+    (PiecewiseConstant(np.arange(100) * 1e-2, np.linspace(60e-6, 100e-6, 100)), "not a sequence of steps"),
+    (PiecewiseConstant([0.0, 0.3], [60e-6, 60e-6]), "no step"),
+    (PiecewiseConstant([0.0, 0.5, 1.5], [60e-6, 100e-6, 80e-6]), "completes its hold by 1 s"),
+])
+def test_a_reference_without_steps_says_why(signal, reason):
+    steps, why = steps_of(signal, 0.0, 1.0)
+    assert steps is None and reason in why

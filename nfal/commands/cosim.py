@@ -38,7 +38,10 @@ def register(commands) -> None:
         "unless --start-time, --stop-time or --step is given; the reference's own length is the stop time only where "
         "the structure has none, and a run says so where the two differ. FMI 2.0 and FMI 3.0 co-simulation FMUs, "
         "mixed at will. An FMU that ends its own horizon (fmi2Discard, then fmi2Terminated; FMI 3.0: "
-        "terminateSimulation) ends the run there, with a note.",
+        "terminateSimulation) ends the run there, with a note. A Fig. 7 run is checked: an object that never leaves "
+        "the surface or reaches no level of its reference fails the run (exit 2, the reason, every row kept); a level "
+        "never reached, or a long saturation of the drive, is a warning (status ok; docs/cosimulation.md, \"A run's "
+        "status and its step metrics\").",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
         "nfal run --reference my_reference.csv --realtime; hardware in the loop against `nfal rig-emulator` or the rig: "
@@ -59,8 +62,9 @@ def register(commands) -> None:
                      help="drive Controller.reference from the master instead of the structure's ReferenceGenerator (its "
                      "connection is replaced): the built-in staircase of Figs. 9-10 (60-180 um; against "
                      "hardware its first level is held 1 s, for lift-off from rest; fig7_reynolds: 60-100 um, what the "
-                     "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s; step "
-                     "metrics are reported for it) or a CSV of time_s,reference_m (held between rows). Default: the "
+                     "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s) or a CSV "
+                     "of time_s,reference_m (held between rows); step metrics for a staircase and for a CSV of steps "
+                     "(levels held 50 ms or more), the IAE alone otherwise. Default: the "
                      "structure's ReferenceGenerator (its parameters: --param ReferenceGenerator.levels=... etc.; "
                      "docs/cosimulation.md), or the built-in staircase in a structure without one. "
                      "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
@@ -153,7 +157,8 @@ def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
 
 
 def _read_structure(structure: Path, parameters: dict):
-    """(element names, the DefaultExperiment's stop time or None, the GeneratedReference or None)."""
+    """(element names, the DefaultExperiment's start time (0 if none) and stop time (or None), the GeneratedReference
+    or None)."""
     # on use: `nfal --help` stays fast
     from nfal.fig7 import generated_reference
     from nfal.orchestration import read_ssp
@@ -161,9 +166,9 @@ def _read_structure(structure: Path, parameters: dict):
 
     with read_ssp(structure) as read:
         names = [element.name for element in read.system.elements]
-        stop = read.default_experiment.stop_time
+        start, stop = read.default_experiment.start_time or 0.0, read.default_experiment.stop_time
         generated = generated_reference(resolve(read, parameters)) if "Controller" in names else None
-    return names, stop, generated
+    return names, start, stop, generated
 
 
 def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> tuple[float | None, str | None]:
@@ -184,15 +189,14 @@ def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> t
 
 def run_run(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.fig7 import HARDWARE, loop_columns, loop_metrics, matched_design, response_panels
-    from nfal.models.closed_loop import Staircase
+    from nfal.fig7 import HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels, step_reference
     from nfal.orchestration import SimulationError, run_structure
 
     if args.max_steps is not None and args.max_steps < 1:
         raise InvalidParameterError("--max-steps", args.max_steps, "a whole number of steps >= 1")
     parameters = matched_design(dict(parse_parameter(text) for text in args.param))
     structure = _structure_path(args)
-    names, ssd_stop, generated = _read_structure(structure, parameters)
+    names, ssd_start, ssd_stop, generated = _read_structure(structure, parameters)
     columns = loop_columns(names)
     if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a device "
@@ -218,25 +222,31 @@ def run_run(args: argparse.Namespace) -> int:
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
     fig7 = reference_input == REFERENCE
-    completed = reference.completed_by(stop_time) if fig7 and isinstance(reference, Staircase) else None
-    metrics = None if completed is None else (lambda table: loop_metrics(table, completed, columns))
+    start = args.start_time if args.start_time is not None else ssd_start
+    steps, no_steps = step_reference(reference, start, stop_time) if fig7 and stop_time is not None else (None, None)
+    metrics = (lambda table: loop_metrics(table, steps, columns, no_steps=no_steps)) if fig7 else None
+    experiment = {"reference": generated.source if from_structure else (reference_input if fig7 else None),
+                  "stop_time_note": note}
     try:
         result = run_structure(structure, start_time=args.start_time, stop_time=stop_time, step_size=args.step,
                                inputs=inputs, parameters=parameters,
                                algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
                                rt_priority=args.rt_priority, overwrite=args.overwrite, max_steps=args.max_steps,
-                               plot=response_panels(columns) if fig7 else None, metrics=metrics)
+                               plot=response_panels(columns) if fig7 else None, metrics=metrics,
+                               checks=lambda table: loop_checks(table, steps, columns))
     except SimulationError as exc:
         if exc.result is not None:
-            _add_link_summary(exc.result, columns)
-            _report(exc.result.summary, out, args.json)
+            _finish(exc.result, columns, experiment, out, args.json)
         raise
-    _add_link_summary(result, columns)
-    experiment = {"reference": generated.source if from_structure else (reference_input if fig7 else None),
-                  "stop_time_note": note}
-    result.update_summary(experiment=experiment)
-    _report(result.summary, out, args.json)
+    _finish(result, columns, experiment, out, args.json)
     return 0
+
+
+def _finish(result, columns, experiment: dict, out: Path, as_json: bool) -> None:
+    """The summary's last entries (the link's health, the experiment), written and reported."""
+    _add_link_summary(result, columns)
+    result.update_summary(experiment=experiment)
+    _report(result.summary, out, as_json)
 
 
 def _add_link_summary(result, columns) -> None:
@@ -254,13 +264,23 @@ def _report(summary: dict, out: Path, as_json: bool) -> None:
         _print_summary(summary, out)
 
 
-def _print_summary(summary: dict, out: Path) -> None:
+def _status_text(summary: dict) -> str:
+    """The status as a person reads it: ok, ok with N warnings, failed (the reason is printed last, on stderr)."""
+    warnings = len(summary.get("warnings") or ())
     if summary.get("status", "ok") != "ok":
+        return f"{summary.get('status')}: the reason is below"
+    return f"ok with {warnings} warning{'s' * (warnings > 1)}" if warnings else "ok"
+
+
+def _print_summary(summary: dict, out: Path) -> None:
+    status = _status_text(summary)
+    if status != "ok" and summary.get("steps_completed") != summary.get("steps"):  # stopped by an error
         print(f"{summary.get('structure')}: {summary.get('status')} after {summary.get('steps_completed')} of "
               f"{summary.get('steps')} steps; the results up to there are in {out}")
         return
     print(f"{summary.get('structure')}: {summary.get('end_time_s', summary.get('stop_time_s')):g} s in {summary.get('wall_time_s', 0.0):.2f} s "
-          f"wall time ({summary.get('algorithm')}, step {summary.get('step_size_s'):g} s) -> {out}")
+          f"wall time ({summary.get('algorithm')}, step {summary.get('step_size_s'):g} s) -> {out}"
+          + ("" if status == "ok" else f" ({status})"))
     if summary.get("note"):
         print(f"note: {summary['note']}")
     metrics = summary.get("metrics")
@@ -269,10 +289,12 @@ def _print_summary(summary: dict, out: Path) -> None:
         parts = (f" (first level {first['iae_m_s'] * 1e6:.3f}, its peak {first['peak_m'] * 1e6:.1f} um; steps "
                  f"{first['steps_iae_m_s'] * 1e6:.3f})" if first.get("peak_m") is not None else "")
         print(f"IAE {metrics['iae'] * 1e6:.3f} um s{parts}")
-        print_step_table(metrics["steps"])
-        for episode in metrics.get("saturation", []):
-            print(f"warning: the drive stayed saturated for {episode['duration_s']:.3g} s from t = {episode['start_s']:.4g} s: "
-                  f"the reference {episode['reference_m'] * 1e6:.4g} um is out of the film's reach with this drive limit")
+        if metrics["steps"] is not None:
+            print_step_table(metrics["steps"])
+        else:
+            print(f"no step table: {metrics.get('no_steps')}")
+    for warning in summary.get("warnings") or ():
+        print(f"warning: {warning}")
     link = summary.get("link")
     if link:
         print(f"link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} rig "

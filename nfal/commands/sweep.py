@@ -62,14 +62,18 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         print_json(summary | {"results_csv": str(result.csv_path),
                               "plot": str(result.plot_path) if result.plot_path else None})
         return 0 if summary["failed"] == 0 else 1
+    warned = summary["with_warnings"]
     where = (f" in {summary['wall_time_s']:.1f} s on {summary['workers']} workers ({summary['scheduler']})"
              if summary["new"] else "")
     print(f"{spec.name}: {summary['runs']} runs ({summary['skipped']} already done, {summary['new']} run now){where}: "
-          f"{summary['ok']} ok, {summary['failed']} failed -> {result.csv_path}")
+          f"{summary['ok']} ok{f' ({warned} with warnings)' if warned else ''}, {summary['failed']} failed "
+          f"-> {result.csv_path}")
     if result.plot_path:
         print(f"plot: {result.plot_path}")
-    if summary["failed"]:
+    if summary["failed"] or warned:
         for row in result.rows():
             if row["status"] != "ok":
                 print(f"  failed {row['run_id']}: {row['error']}")
+            elif row.get("warnings"):
+                print(f"  warning {row['run_id']}: {row['warnings']}")
     return 0 if summary["failed"] == 0 else 1
