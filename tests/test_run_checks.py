@@ -105,3 +105,16 @@ def test_metrics_of_steps_found_in_a_csv_equal_the_staircases():
 def test_metrics_without_steps_are_the_iae_and_why():
     metrics = loop_metrics(table(STAIRCASE(TIME) - 1e-6), None, no_steps="a sine")
     assert metrics["iae"] == pytest.approx(1e-6 * 0.5) and (metrics["steps"], metrics["no_steps"]) == (None, "a sine")
+
+
+def test_the_step_table_marks_a_settling_time_its_noise_decides(capsys):
+    """A 40 um step judged on a height with 0.67 um RMS of noise (the rig's sensor): the 2 % band (0.8 um) is
+    narrower than twice the noise, so its settling time is marked and explained; a quiet step's is not."""
+    from nfal.commands.common import print_step_table
+
+    row = {"from_m": 100e-6, "to_m": 140e-6, "rise_time_s": 0.03, "overshoot_percent": 4.0, "settling_time_s": 0.59,
+           "iae": 1e-6}
+    print_step_table([{**row, "noise_rms_m": 670e-9}, {**row, "noise_rms_m": 150e-9}])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].split()[5] == "590.0*" and lines[2].split()[5] == "590.0"
+    assert "limited by noise" in lines[-1]

@@ -92,17 +92,31 @@ def _to_builtin(value):
     raise TypeError(f"cannot write {type(value).__name__} as JSON")
 
 
+def noise_limits_settling(step: dict) -> bool:
+    """Whether the judged height's noise alone leaves the settling band: the band's half-width (2 % of the step) is
+    within two noise RMS of the level, so the settling time is when the noise last left it, not the object's motion."""
+    from nfal.models.step_metrics import SETTLING_BAND  # on use: `nfal --help` stays fast
+
+    return 2.0 * step["noise_rms_m"] >= SETTLING_BAND * abs(step["to_m"] - step["from_m"])
+
+
 def print_step_table(steps: list[dict]) -> None:
     """The per-step metrics (``StepMetrics.to_dict()`` rows) as an indented table in ms, %, nm and um s; a rise or
-    settling time the step never reached is shown as "-" (and explained under the table)."""
-    show = lambda v, scale, width: f"{'-':>{width}}" if v is None else f"{v * scale:{width}.1f}"  # noqa: E731
+    settling time the step never reached is shown as "-", one its noise decides is marked "*" (both explained under
+    the table)."""
+    def show(value, scale, width, mark=""):
+        return f"{'-':>{width}}" if value is None else f"{value * scale:{width - len(mark)}.1f}{mark}"
     print(f"  {'step [um]':>13} {'rise [ms]':>9} {'overshoot [%]':>13} {'settle [ms]':>11} {'noise [nm]':>10} {'IAE [um s]':>10}")
     for step in steps:
+        mark = "*" if noise_limits_settling(step) else ""
         print(f"  {step['from_m'] * 1e6:5.0f} -> {step['to_m'] * 1e6:4.0f} {show(step['rise_time_s'], 1e3, 9)} "
-              f"{step['overshoot_percent']:13.1f} {show(step['settling_time_s'], 1e3, 11)} "
+              f"{step['overshoot_percent']:13.1f} {show(step['settling_time_s'], 1e3, 11, mark)} "
               f"{step['noise_rms_m'] * 1e9:10.1f} {step['iae'] * 1e6:10.3f}")
     if any(step["rise_time_s"] is None or step["settling_time_s"] is None for step in steps):
         print("  (-: not reached within the step: no 10-90 % rise, or not settled within 2 % by its end)")
+    if any(noise_limits_settling(step) and step["settling_time_s"] is not None for step in steps):
+        print("  (*: limited by noise: the 2 % band is narrower than twice the height's noise RMS, so the time is when "
+              "the noise last left the band, not when the object settled; rise time and overshoot still hold)")
 
 
 def progress_bar(total: int, description: str) -> tqdm:
