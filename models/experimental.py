@@ -129,7 +129,11 @@ def measured_K(rig: RigParameters, data: EquilibriumData) -> tuple[np.ndarray, n
     return rig.squeeze_number(data.height), K
 
 
-def fit_calibration(rig: RigParameters, data: EquilibriumData, degree: int = 4) -> ExperimentalCalibration:
+#: The degree of eq. (17)'s polynomial K(sigma): a fit of it needs one more distinct height than this.
+FIT_DEGREE = 4
+
+
+def fit_calibration(rig: RigParameters, data: EquilibriumData, degree: int = FIT_DEGREE) -> ExperimentalCalibration:
     """Least-squares polynomial K(sigma) of ``degree`` (4 in eq. 17) through the measured K values."""
     if not isinstance(degree, (int, np.integer)) or degree < 0:
         raise InvalidParameterError("degree", degree, "a whole number >= 0")

@@ -28,6 +28,7 @@ from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
+from .experimental import FIT_DEGREE
 from .rig import RigParameters
 from .table2 import WORK_RANGE_M
 from .transducer import Transducer
@@ -39,6 +40,22 @@ SETTLE_WINDOW_S = 0.4
 SETTLE_DRIFT = 2.5e-3
 #: The longest hold or move a plan may allow [s] (a longer one is a typo, and a run that waits for it looks hung).
 LONGEST_HOLD_S = 600.0
+
+
+def _require_distinct(name: str, heights: tuple, spacing: float, minimum: int, why: str) -> None:
+    """Refuse ``heights`` [m] with two closer than ``spacing`` (relative) or fewer than ``minimum`` of them."""
+    ordered = np.sort(heights)
+    close = np.flatnonzero(np.diff(ordered) < spacing * ordered[:-1])
+    if close.size:
+        pair = ordered[close[0]:close[0] + 2]
+        raise InvalidParameterError(name, _micrometres(pair), f"heights at least {spacing * 100:g} % apart (a move "
+                                    f"arrives within {spacing * 50:g} % of its height: closer ones are one height)")
+    if ordered.size < minimum:
+        raise InvalidParameterError(name, _micrometres(ordered), f">= {minimum} distinct heights ({why})")
+
+
+def _micrometres(heights: np.ndarray) -> str:
+    return ", ".join(f"{h * 1e6:.4g}" for h in heights) + " um"
 
 
 def settled(times: np.ndarray, heights: np.ndarray, window_s: float = SETTLE_WINDOW_S,
@@ -210,14 +227,17 @@ class IdentificationPlan:
             if heights.ndim != 1 or not np.all((heights > 1e-6) & (heights < 1e-3)):
                 raise InvalidParameterError(name, getattr(self, name), "clearances between 1 um and 1 mm")
             object.__setattr__(self, name, tuple(float(h) for h in heights))
-        if len(self.equilibrium_heights_m) < 5:
-            raise InvalidParameterError("equilibrium heights", len(self.equilibrium_heights_m), ">= 5 (a quartic fit, eq. 17)")
+        for name in ("settle_window_s", "settle_drift", "move_tolerance"):
+            require_positive(name, getattr(self, name))
+        # heights a move cannot tell apart are one height: a fit through them, or a damping table, has nothing to go on
+        _require_distinct("equilibrium_heights_m", self.equilibrium_heights_m, 2 * self.move_tolerance,
+                          FIT_DEGREE + 1, f"eq. (17)'s fit has {FIT_DEGREE + 1} coefficients")
+        _require_distinct("damping_heights_m", self.damping_heights_m, 2 * self.move_tolerance, 2,
+                          "the damping table interpolates between them")
         if not (0 < self.step_fraction <= 0.2):
             raise InvalidParameterError("step_fraction", self.step_fraction, "in (0, 0.2]")
         if not (isinstance(self.steps, int) and self.steps >= 2 and self.steps % 2 == 0):
             raise InvalidParameterError("steps", self.steps, "an even whole number >= 2")
-        for name in ("settle_window_s", "settle_drift", "move_tolerance"):
-            require_positive(name, getattr(self, name))
         for name in ("max_hold_s", "move_timeout_s"):
             require_duration(name, getattr(self, name), LONGEST_HOLD_S)
         if self.max_hold_s <= self.settle_window_s:

@@ -40,7 +40,7 @@ from nfal.realtime import LatencyStats
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
-from nfal.models.experimental import EquilibriumData, ExperimentalCalibration, fit_calibration
+from nfal.models.experimental import FIT_DEGREE, EquilibriumData, ExperimentalCalibration, fit_calibration
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,
                                         settled)
 from nfal.models.pid_design import design_schedule
@@ -473,7 +473,7 @@ class Identification:
 
 
 def analyse(equilibria: list[Equilibrium], steps: list[list[DriveStep]], rig: RigParameters, *, metres_per_volt: float,
-            lag_s: float = AMPLITUDE_TIME_CONSTANT_S, degree: int = 4) -> Identification:
+            lag_s: float = AMPLITUDE_TIME_CONSTANT_S, degree: int = FIT_DEGREE) -> Identification:
     """K at each equilibrium by eq. (16) with |a| = ``metres_per_volt`` V, its fit of the form of eq. (17), and
     the damping factor over eq. (6) at each step height with its 95 % interval."""
     data = EquilibriumData(np.array([p.height for p in equilibria]),

@@ -90,12 +90,22 @@ def test_the_damping_interval_comes_from_the_steps_spread():
         damping_table([fits[:1]])
 
 
-@pytest.mark.parametrize("change, match", [({"steps": 3}, "steps"), ({"step_fraction": 0.5}, "step_fraction"),
-                                           ({"equilibrium_heights_m": (50e-6, 60e-6)}, "equilibrium heights"),
-                                           ({"max_hold_s": 0.2}, "max_hold_s")])
+@pytest.mark.parametrize("change, match", [
+    ({"steps": 3}, "steps"), ({"step_fraction": 0.5}, "step_fraction"), ({"max_hold_s": 0.2}, "max_hold_s"),
+    ({"equilibrium_heights_m": (50e-6, 60e-6)}, "equilibrium_heights_m = '50, 60 um' .* >= 5 distinct"),
+    ({"equilibrium_heights_m": (100e-6,) * 6}, "equilibrium_heights_m = '100, 100 um' .* 3 % apart"),
+    ({"equilibrium_heights_m": (60e-6, 80e-6, 100e-6, 150e-6, 151e-6, 190e-6)}, "'150, 151 um' .* 3 % apart"),
+    ({"damping_heights_m": (100e-6,)}, "damping_heights_m = '100 um' .* >= 2 distinct"),
+    ({"damping_heights_m": (80e-6, 120e-6, 80e-6)}, "damping_heights_m = '80, 80 um' .* 3 % apart"),
+])
 def test_a_bad_plan_is_refused(change, match):
     with pytest.raises(InvalidParameterError, match=match):
         IdentificationPlan(**change)
+
+
+def test_heights_just_far_enough_apart_are_a_plan():
+    plan = IdentificationPlan(equilibrium_heights_m=tuple(100e-6 * 1.031 ** np.arange(5)), damping_heights_m=(80e-6, 83e-6))
+    assert len(plan.equilibrium_heights_m) == 5 and plan.holds() == 5 + 2 * 7
 
 
 def test_the_plan_states_its_duration():
@@ -207,8 +217,23 @@ def test_dry_run_prints_the_plan_and_its_duration(capsys):
     assert "12 heights" in out and "8 heights" in out and "s of rig time" in out
 
 
-@pytest.mark.parametrize("argv, match", [(["identify"], "--port"), (["identify", "--dry-run", "--steps", "3"], "steps"),
+@pytest.mark.parametrize("argv, match", [(["identify"], "--port"), (["identify", "--dry-run", "--steps", "3"], "--steps"),
                                          (["identify", "--port", "/nonexistent/port"], "cannot open")])
 def test_bad_input_exits_2_with_the_reason(argv, match, capsys):
     assert main(argv) == 2
     assert match in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("plan, match", [
+    (["--equilibria", "1e-4,1e-4,1e-4,1e-4,1e-4,1e-4"], "--equilibria = '100, 100 um' is invalid"),
+    (["--damping-heights", "1e-4"], "--damping-heights = '100 um' is invalid: must be >= 2 distinct heights"),
+    (["--equilibria", "60e-6:180e-6:4"], "--equilibria = '60, 100, 140, 180 um' is invalid: must be >= 5"),
+])
+@pytest.mark.parametrize("mode", [["--dry-run"], ["--port", "/nonexistent/port", "--out", "rig.json"]])
+def test_a_plan_that_cannot_give_a_result_is_refused_before_the_port_opens(plan, match, mode, capsys, tmp_path,
+                                                                           monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["identify", *mode, *plan]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nfal identify: error: {match}") and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())  # no port opened, no raw data begun

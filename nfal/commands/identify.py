@@ -74,11 +74,19 @@ def register(commands) -> None:
     identify.set_defaults(handler=run_identify)
 
 
+#: The plan's fields and the flags that set them (its errors name the flag).
+PLAN_FLAGS = {"equilibrium_heights_m": "--equilibria", "damping_heights_m": "--damping-heights",
+              "step_fraction": "--step-size", "steps": "--steps", "max_hold_s": "--max-hold"}
+
+
 def _plan(args: argparse.Namespace):
     from nfal.models.identification import IdentificationPlan  # scipy: lazy as above
 
-    return IdentificationPlan(tuple(np.sort(args.equilibria)), tuple(np.sort(args.damping_heights)[::-1]),
-                              step_fraction=args.step_size, steps=args.steps, max_hold_s=args.max_hold)
+    try:
+        return IdentificationPlan(tuple(np.sort(args.equilibria)), tuple(np.sort(args.damping_heights)[::-1]),
+                                  step_fraction=args.step_size, steps=args.steps, max_hold_s=args.max_hold)
+    except InvalidParameterError as exc:
+        raise InvalidParameterError(PLAN_FLAGS.get(exc.name, exc.name), exc.value, exc.allowed) from None
 
 
 def _print_plan(plan) -> None:
