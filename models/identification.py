@@ -55,7 +55,7 @@ def _require_distinct(name: str, heights: tuple, spacing: float, minimum: int, w
 
 
 def _micrometres(heights: np.ndarray) -> str:
-    return ", ".join(f"{h * 1e6:.4g}" for h in heights) + " um"
+    return ", ".join(f"{h * 1e6:.6g}" for h in heights) + " um"
 
 
 def settled(times: np.ndarray, heights: np.ndarray, window_s: float = SETTLE_WINDOW_S,

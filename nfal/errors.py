@@ -84,6 +84,13 @@ class SweepSpecError(NfalError, ValueError):
     """A sweep spec cannot be read or names a bad key or value (the message says which)."""
 
 
+# --- plans ----------------------------------------------------------------------------------------
+
+class PlanError(NfalError, ValueError):
+    """A command's plan refused before anything starts: longer than its stated bound (and not accepted), beyond what
+    can be held, or an option that has no effect in the mode chosen (the message says which, and what to do)."""
+
+
 # --- orchestration (the master, SSP) -------------------------------------------------------------
 
 class OrchestrationError(NfalError):

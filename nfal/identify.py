@@ -33,7 +33,7 @@ from typing import Callable, Protocol, TextIO
 
 import numpy as np
 
-from nfal.errors import ExperimentError, InvalidParameterError
+from nfal.errors import ExperimentError, InvalidParameterError, PlanError
 from nfal.hil.link import RigLink, Sample
 from nfal.hil.protocol import StatusFlags
 from nfal.realtime import LatencyStats
@@ -69,6 +69,10 @@ RETARGET = 0.03
 PRE_STEP_S = 0.05
 #: Holds at one equilibrium at most: the first, and up to two at a corrected drive (:meth:`Experiments.equilibria`).
 HOLD_ATTEMPTS = 3
+#: Memory of one sample in the recorder's columns [bytes], and the most the columns may take: they are preallocated
+#: for the plan's longest run, and 8 GiB hold about 30 h of samples at 2 kHz.
+SAMPLE_BYTES = 5 * 8
+MAX_RECORDER_BYTES = 8 << 30
 #: The CSV's columns.
 CSV_HEADER = ("rig_time_s", "height_m", "drive_frequency_hz", "applied_voltage_v", "commanded_voltage_v", "resting",
               "experiment")
@@ -215,10 +219,16 @@ def _touched(shape: tuple[int, int]) -> np.ndarray:
 
 def recorder_capacity(plan: IdentificationPlan, sample_period_s: float = 1 / SAMPLING_RATE_HZ) -> int:
     """Samples a run of ``plan`` can take at most (every move and hold to its limit, every equilibrium held
-    HOLD_ATTEMPTS times), with 5 % to spare: the recorder never grows inside the loop."""
+    HOLD_ATTEMPTS times), with 5 % to spare: the recorder never grows inside the loop. A plan whose columns would
+    take more than :data:`MAX_RECORDER_BYTES` raises :class:`PlanError`."""
     _, longest = plan.duration_s()
     longest += (HOLD_ATTEMPTS - 1) * len(plan.equilibrium_heights_m) * plan.max_hold_s
-    return int(1.05 * longest / sample_period_s) + 4096
+    capacity = int(1.05 * longest / sample_period_s) + 4096
+    if capacity * SAMPLE_BYTES > MAX_RECORDER_BYTES:
+        raise PlanError(f"the plan's longest run (every move and hold to its limit) is {longest:,.0f} s of samples, "
+                        f"{capacity * SAMPLE_BYTES / 2**30:,.1f} GiB held in memory; at most {MAX_RECORDER_BYTES >> 30} "
+                        "GiB: fewer heights or steps, or a shorter hold limit")
+    return capacity
 
 
 @dataclasses.dataclass(frozen=True)

@@ -228,12 +228,25 @@ def test_bad_input_exits_2_with_the_reason(argv, match, capsys):
     (["--equilibria", "1e-4,1e-4,1e-4,1e-4,1e-4,1e-4"], "--equilibria = '100, 100 um' is invalid"),
     (["--damping-heights", "1e-4"], "--damping-heights = '100 um' is invalid: must be >= 2 distinct heights"),
     (["--equilibria", "60e-6:180e-6:4"], "--equilibria = '60, 100, 140, 180 um' is invalid: must be >= 5"),
+    (["--damping-heights", "5e-5:2e-4:100000"], "--damping-heights = '50, 50.0015 um' is invalid"),  # the grid
+    (["--steps", "1000"], "the plan takes about 1.1 h of rig time (up to 11.2 h), more than 1 h: give --accept-long-plan"),
+    (["--steps", "10000", "--accept-long-plan"], "the plan's longest run (every move and hold to its limit) is 400,280 s "
+                                                 "of samples, 31.3 GiB held in memory; at most 8 GiB"),
 ])
 @pytest.mark.parametrize("mode", [["--dry-run"], ["--port", "/nonexistent/port", "--out", "rig.json"]])
-def test_a_plan_that_cannot_give_a_result_is_refused_before_the_port_opens(plan, match, mode, capsys, tmp_path,
-                                                                           monkeypatch):
+def test_a_bad_or_long_plan_is_refused_before_the_port_opens(plan, match, mode, capsys, tmp_path,
+                                                              monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["identify", *mode, *plan]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"nfal identify: error: {match}") and err.count("\n") == 1
     assert not list(tmp_path.iterdir())  # no port opened, no raw data begun
+
+
+def test_a_long_plan_runs_when_accepted_and_the_dry_run_prints_it_as_json(capsys):
+    import json
+
+    assert main(["identify", "--dry-run", "--json", "--steps", "1000", "--accept-long-plan"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert plan["steps"] == 1000 and len(plan["damping_heights_m"]) == 8
+    assert 3600 < plan["duration_s"]["typical"] < plan["duration_s"]["longest"]

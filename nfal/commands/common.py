@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from nfal.errors import PlanError
+
 
 def finite_float(text: str) -> float:
     """An argparse type: a finite number (``nan``, ``inf`` and words are usage errors, exit code 2)."""
@@ -76,6 +78,36 @@ def number_list(text: str) -> np.ndarray:
     if not np.all(np.isfinite(values)):
         raise argparse.ArgumentTypeError(f"{text!r}: every value must be a finite number")
     return values
+
+
+def add_accept_long_plan(parser: argparse.ArgumentParser, bound: str) -> None:
+    """--accept-long-plan: run a plan longer than the command's stated ``bound`` (refused otherwise)."""
+    parser.add_argument("--accept-long-plan", action="store_true", help=f"run a plan longer than {bound} (without it, "
+                        "such a plan is refused before anything starts, with its length)")
+
+
+def refuse_given(options: dict[str, object], reason: str) -> None:
+    """Refuse the first of ``options`` (flag -> parsed value) that was given: it has no effect ``reason`` (e.g.
+    "without --port (...)"). Not given: None, False or an empty list (such options default to those)."""
+    for flag, value in options.items():
+        if not (value is None or value is False or (isinstance(value, list) and not value)):
+            raise PlanError(f"{flag} has no effect {reason}")
+
+
+def fill_defaults(args: argparse.Namespace, defaults: dict[str, object]) -> None:
+    """Set each option of ``defaults`` (dest -> value) left at None: options whose default is None so that
+    :func:`refuse_given` can tell them given."""
+    for dest, value in defaults.items():
+        if getattr(args, dest) is None:
+            setattr(args, dest, value)
+
+
+def duration_text(seconds: float) -> str:
+    """``41 s``, ``12.5 min``, ``1 h``, ``4.5 days``: a plan's length for a person."""
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.1f}".rstrip("0").rstrip(".") + f" {unit}"
+    return f"{seconds:.0f} s"
 
 
 def print_json(data) -> None:

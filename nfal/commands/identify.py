@@ -12,15 +12,18 @@ from pathlib import Path
 import numpy as np
 
 from nfal import __version__
-from nfal.commands.common import add_rig_options, number_list, print_json, progress_bar, rig_from_args
-from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, require_duration,
-                         require_finite, require_positive)
+from nfal.commands.common import (add_accept_long_plan, add_rig_options, duration_text, number_list, print_json,
+                                  progress_bar, rig_from_args)
+from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, PlanError,
+                         require_duration, require_finite, require_positive)
 from nfal.hil.link import DRIVE_GAP_BUDGET_S, LONGEST_WAIT_S  # light: the link's module imports pyserial only
 from nfal.models.table2 import WORK_RANGE_M  # light: constants only
 from nfal.models.transducer import METRES_PER_VOLT  # light: the transducer's constants
 
 #: The longest --max-silence [s]: the rig's watchdog ramps the drive down after 0.1 s without DRIVE anyway.
 LONGEST_SILENCE_S = 10.0
+#: The longest plan run without --accept-long-plan [s of typical rig time]: an hour, about 90 times the default plan.
+LONG_PLAN_S = 3600.0
 
 # The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
 
@@ -48,7 +51,8 @@ def register(commands) -> None:
                           help="the calibration file (default rig-calibration.json); FILE-raw.csv and FILE.png beside it")
     identify.add_argument("--overwrite", action="store_true", help="replace FILE.json, FILE-raw.csv and FILE.png of a "
                           "previous identification (refused otherwise)")
-    identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration; open nothing")
+    identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration (with --json, as JSON); "
+                          "open nothing. A plan that cannot give a result, or a long one, is refused as the run would be")
     identify.add_argument("--equilibria", type=number_list, default=np.geomspace(47e-6, 210e-6, 12), metavar="HEIGHTS",
                           help="equilibrium heights [m], A,B,C or START:STOP:COUNT (default 12 heights spaced "
                           "geometrically over 47-210 um, a little beyond the 50-200 um work range)")
@@ -69,7 +73,9 @@ def register(commands) -> None:
                           f"HELLO_ACK (default 2, at most {LONGEST_WAIT_S:g})")
     identify.add_argument("--max-silence", type=float, default=0.5, metavar="SECONDS", help="no measurement for this "
                           f"long is a lost link (default 0.5, at most {LONGEST_SILENCE_S:g})")
-    identify.add_argument("--json", action="store_true", help="print the summary as JSON")
+    identify.add_argument("--json", action="store_true", help="print the summary (with --dry-run, the plan) as JSON")
+    add_accept_long_plan(identify, f"{duration_text(LONG_PLAN_S)} of rig time (its typical duration, as --dry-run "
+                         "prints it)")
     add_rig_options(identify)
     identify.set_defaults(handler=run_identify)
 
@@ -89,8 +95,22 @@ def _plan(args: argparse.Namespace):
         raise InvalidParameterError(PLAN_FLAGS.get(exc.name, exc.name), exc.value, exc.allowed) from None
 
 
-def _print_plan(plan) -> None:
+def _check_length(plan, accepted: bool) -> None:
     typical, longest = plan.duration_s()
+    if typical > LONG_PLAN_S and not accepted:
+        raise PlanError(f"the plan takes about {duration_text(typical)} of rig time (up to {duration_text(longest)}), "
+                        f"more than {duration_text(LONG_PLAN_S)}: give --accept-long-plan to run it, or fewer "
+                        "--equilibria, --damping-heights or --steps")
+
+
+def _print_plan(plan, as_json: bool) -> None:
+    typical, longest = plan.duration_s()
+    if as_json:
+        print_json({"equilibrium_heights_m": plan.equilibrium_heights_m, "damping_heights_m": plan.damping_heights_m,
+                    "steps": plan.steps, "step_fraction": plan.step_fraction, "settle_window_s": plan.settle_window_s,
+                    "settle_drift": plan.settle_drift, "max_hold_s": plan.max_hold_s, "holds": plan.holds(),
+                    "moves": plan.moves(), "duration_s": {"typical": typical, "longest": longest}})
+        return
     print(f"equilibria: {len(plan.equilibrium_heights_m)} heights "
           f"{', '.join(f'{h * 1e6:.0f}' for h in plan.equilibrium_heights_m)} um: closed-loop move, then the drive held "
           f"until settled ({plan.settle_window_s:g} s window, drift < {plan.settle_drift * 100:g} %)")
@@ -122,8 +142,10 @@ def run_identify(args: argparse.Namespace) -> int:
         raise InvalidParameterError("--amplitude-time-constant", lag, "a time >= 0 s")
     if out.suffix.lower() != ".json":
         raise InvalidParameterError("--out", args.out, "a calibration file name ending in .json")
+    _check_length(plan, args.accept_long_plan)
+    capacity = recorder_capacity(plan)  # a plan whose samples cannot be held is refused, even accepted
     if args.dry_run:
-        _print_plan(plan)
+        _print_plan(plan, args.json)
         return 0
     if not args.port:
         raise InvalidParameterError("--port", args.port, "the rig's port URL (or --dry-run)")
@@ -142,7 +164,7 @@ def run_identify(args: argparse.Namespace) -> int:
     # the samples reach the disk through a thread (nfal.realtime.BackgroundWriter): the loop never waits for it
     with (contextlib.closing(BackgroundWriter(stream)) as writer, deferred_interrupts() as stop_request,
           realtime_section() as collector):
-        recorder = SampleRecorder(writer, recorder_capacity(plan))  # at 2 kHz (it grows for a faster rig)
+        recorder = SampleRecorder(writer, capacity)  # at 2 kHz (it grows for a faster rig)
         try:
             link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
         except BaseException:
