@@ -57,6 +57,31 @@ def test_compare_rejects_bad_controllers(capsys, controllers):
     assert "error" in capsys.readouterr().err
 
 
+SHORT = ["--controllers", "gs", "--levels", "100e-6,120e-6", "--hold", "0.1"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--runs-dir", "runs"], "--runs-dir has no effect without --port (it is for the runs on the rig"),
+    (["--build-dir", "build"], "--build-dir has no effect without --port"),
+    (["--param", "proxy.max_missed_samples=100"], "--param has no effect without --port"),
+    (["--port", "/nonexistent/port", "--seed", "3"], "--seed has no effect with --port (the rig's own sensor gives"),
+    (["--port", "/nonexistent/port", "--noise-peak", "0"], "--noise-peak has no effect with --port"),
+    (["--port", "/nonexistent/port", "--noise-cutoff", "300"], "--noise-cutoff has no effect with --port"),
+    (["--full-schedule"], "--full-schedule has no effect without --placement continuous (the sampled placement"),
+])
+def test_compare_refuses_an_option_without_effect_in_its_mode(capsys, tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(["compare", *SHORT, *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nfal compare: error: {message}") and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())  # nothing built, nothing run
+
+
+def test_compare_takes_the_full_schedule_with_the_continuous_placement(capsys):
+    assert main(["compare", *SHORT, "--placement", "continuous", "--full-schedule", "--seed", "0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["noise"]["seed"] == 0
+
+
 def test_design_reference_zero_changes_the_small_gaps_only(capsys):
     """The default designs through the law's reference filter (faster at small gaps); 0 is the blind design."""
     heights = ["--heights", "50e-6,100e-6,150e-6,200e-6", "--json"]

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list,
-                                  print_json, print_step_table, progress_bar, rig_from_args)
+from nfal.commands.common import (add_output_options, add_rig_options, fill_defaults, finite_float, number_list,
+                                  print_json, print_step_table, progress_bar, refuse_given, rig_from_args)
 from nfal.errors import InvalidParameterError, optional_positive
 from nfal.models.table2 import (  # light: constants only
     CLOSED_LOOP_CUTOFF_HZ,
@@ -28,6 +28,10 @@ from nfal.models.table2 import (  # light: constants only
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
 PLACEMENTS = ("continuous", "sampled")
 GAIN_UNITS = {"height_m": "m", "kp": "m/m", "ki": "1/s", "kd": "s", "slow_pole_hz": "Hz", "fast_pole_hz": "Hz"}
+#: The simulated noise's options and their defaults (None in the parser: with --port they are refused, not ignored).
+NOISE_DEFAULTS = {"seed": 0, "noise_peak": NOISE_PEAK_M, "noise_cutoff": NOISE_CUTOFF_HZ}
+#: Where --port builds fig7_hil by default.
+BUILD_DIR = "build"
 
 
 def register(commands) -> None:
@@ -60,25 +64,28 @@ def register(commands) -> None:
         "the rig's own sensor gives the noise, and every run's results.csv is kept under --runs-dir.")
     compare.add_argument("--controllers", default="gs,80,120,160",
                          help="'gs' and/or design heights of linear controllers in um (default gs,80,120,160)")
-    compare.add_argument("--seed", type=int, default=0, help="seed of the measurement noise (default 0)")
-    compare.add_argument("--noise-peak", type=finite_float, default=NOISE_PEAK_M, help="peak noise magnitude [m] (default %(default)s; 0: none)")
-    compare.add_argument("--noise-cutoff", type=finite_float, default=NOISE_CUTOFF_HZ, help="noise colouring cut-off [Hz] (default %(default)s)")
+    compare.add_argument("--seed", type=int, help="seed of the measurement noise (default 0; not with --port)")
+    compare.add_argument("--noise-peak", type=finite_float, help=f"peak noise magnitude [m] (default {NOISE_PEAK_M:g}; "
+                         "0: none; not with --port)")
+    compare.add_argument("--noise-cutoff", type=finite_float, help=f"noise colouring cut-off [Hz] (default "
+                         f"{NOISE_CUTOFF_HZ:g}; not with --port)")
     compare.add_argument("--levels", type=number_list, default=list(STAIRCASE_LEVELS_M),
                          help="reference levels [m] (default 60,100,140,180,140,100,60 um)")
     compare.add_argument("--hold", type=finite_float, default=0.6, help="hold time of each level [s] (default 0.6)")
     compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M, help="actuator limit |a|max [m] (default %(default)s)")
     compare.add_argument("--full-schedule", action="store_true",
-                         help="with --placement continuous: schedule the paper's designs at every height, even those "
+                         help="with --placement continuous only: schedule the paper's designs at every height, even those "
                          "the 2 kHz forward-Euler loop cannot realise (default: hold the gains below the lowest "
                          "realisable height; the sampled placement realises all)")
     compare.add_argument("--port", metavar="URL", help="run on the rig at URL (a device, a pty of nfal rig-emulator, "
-                         "socket://host:port) instead of simulating; --noise-* and --seed are then the rig's own")
-    compare.add_argument("--runs-dir", metavar="DIR", help="with --port: where each run's folder goes (default "
+                         "socket://host:port) instead of simulating; the noise is then the rig's own (--noise-* and "
+                         "--seed are refused)")
+    compare.add_argument("--runs-dir", metavar="DIR", help="with --port only: where each run's folder goes (default "
                          "runs/compare-<date-time>)")
-    compare.add_argument("--build-dir", default="build", metavar="DIR", help="with --port: where fig7_hil.ssp is built "
-                         "(default build)")
+    compare.add_argument("--build-dir", metavar="DIR", help=f"with --port only: where fig7_hil.ssp is built "
+                         f"(default {BUILD_DIR})")
     compare.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
-                         help="with --port: set a parameter of fig7_hil in every run (repeatable), e.g. "
+                         help="with --port only: set a parameter of fig7_hil in every run (repeatable), e.g. "
                          "proxy.max_missed_samples=100")
     _add_design_options(compare)
     add_output_options(compare)
@@ -188,8 +195,7 @@ def run_compare(args: argparse.Namespace) -> int:
     from nfal.orchestration.run import MAX_STEPS
 
     keys = _parse_controllers(args.controllers)
-    if args.param and not args.port:
-        raise InvalidParameterError("--param", args.param[0], "given with --port (the parameters of the runs on the rig)")
+    _refuse_unused(args)
     started = time.perf_counter()
     # from rest on a rig: a 1 s first level for the lift-off
     reference = Staircase(tuple(args.levels), hold_s=args.hold, **({"lead_s": HARDWARE_LEAD_S} if args.port else {}))
@@ -218,6 +224,20 @@ def run_compare(args: argparse.Namespace) -> int:
         return 0
     _print_table(results)
     return 0
+
+
+def _refuse_unused(args: argparse.Namespace) -> None:
+    """Each option that would have no effect in the mode chosen is refused, naming the option it needs."""
+    if args.port:
+        refuse_given({f"--{dest.replace('_', '-')}": getattr(args, dest) for dest in NOISE_DEFAULTS},
+                     "with --port (the rig's own sensor gives the noise)")
+    else:
+        refuse_given({"--runs-dir": args.runs_dir, "--build-dir": args.build_dir, "--param": args.param},
+                     "without --port (it is for the runs on the rig; a simulated comparison keeps no runs)")
+        fill_defaults(args, NOISE_DEFAULTS)
+    if args.placement != "continuous":
+        refuse_given({"--full-schedule": args.full_schedule},
+                     "without --placement continuous (the sampled placement realises every design)")
 
 
 def _run_metrics(run, reference) -> dict:
@@ -267,7 +287,7 @@ def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     from nfal.fig7 import HARDWARE, REFERENCE, loop_run
     from nfal.orchestration import run_structure
 
-    archive = build_all(args.build_dir, structures=("fig7_hil",))["fig7_hil"]
+    archive = build_all(args.build_dir or BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
     folder = Path(args.runs_dir or Path("runs") / f"compare-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     common = {"proxy.port": args.port, "Controller.placement": args.placement,
               "Controller.closed_loop_cutoff": args.closed_loop_cutoff, "Controller.filter_cutoff": args.filter_cutoff,
