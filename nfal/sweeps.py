@@ -23,7 +23,7 @@ from nfal.models.closed_loop import Staircase
 from nfal.models.excitation import parse_shape
 from nfal.models.table1 import TABLE1, run_case
 from nfal.orchestration import sweep_spec
-from nfal.orchestration.run import run_structure
+from nfal.orchestration.run import MAX_STEPS, run_structure
 from nfal.orchestration.sweep_spec import RunSpec, SweepKind, check_number, sweepable
 
 SSP_METRICS = ("iae_m_s", "rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_m",
@@ -54,6 +54,14 @@ def _staircase(reference, structure: str):
     if reference == "none":
         return None
     return Staircase(tuple(reference["levels_m"]), **{k: reference[k] for k in ("hold_s", "lead_s") if k in reference})
+
+
+def ssp_run_time(settings: dict) -> float | None:
+    """The time an SSP run simulates [s]: ``stop_time``, else its staircase's duration (None: the structure's own)."""
+    if settings["stop_time"] is not None:
+        return float(settings["stop_time"])
+    staircase = _staircase(settings["reference"], settings["structure"])
+    return staircase.duration_s if staircase is not None else None
 
 
 def loop_summary(table, staircase) -> dict:
@@ -94,7 +102,7 @@ def ssp_task(run: RunSpec, path: Path) -> dict:
     staircase = _staircase(settings["reference"], settings["structure"])
     if staircase is not None:
         inputs.setdefault(settings["reference_input"], staircase)
-    stop_time = settings["stop_time"] or (staircase.duration_s if staircase is not None else None)
+    stop_time = ssp_run_time(settings)
     completed = staircase.completed_by(stop_time) if staircase is not None and stop_time else None
     with tempfile.TemporaryDirectory(prefix="nfal-sweep-run-") as out:
         result = run_structure(path, stop_time=stop_time, step_size=settings["step_size"], inputs=inputs,
@@ -140,7 +148,7 @@ def table1_task(run: RunSpec, _structure: None = None) -> dict:
 
 # ---------------------------------------------------------------------------------------------- checks
 
-def _check_ssp_settings(settings: dict) -> None:
+def _check_ssp_settings(settings: dict, swept: list[str]) -> None:
     check_number(settings, "stop_time", optional=True)
     check_number(settings, "step_size")
     for key in ("parameters", "inputs", "ramps"):
@@ -152,11 +160,22 @@ def _check_ssp_settings(settings: dict) -> None:
     for key, ramp in settings["ramps"].items():
         if not isinstance(ramp, dict) or set(ramp) - {"start_s", "duration_s", "initial"} or "duration_s" not in ramp:
             raise SweepSpecError(f"[run.ramps] {key} = {ramp!r}; must be {{start_s, duration_s[, initial]}}")
+    for name in settings["inputs"]:
+        if f"inputs.{name}" in swept:
+            raise SweepSpecError(f"[run.inputs] {name!r} has no effect: \"inputs.{name}\" is swept (each run sets it)")
+    for name in settings["ramps"]:
+        if f"inputs.{name}" not in swept:
+            raise SweepSpecError(f"[run.ramps] {name!r} has no effect without \"inputs.{name}\" swept (a ramp ends at "
+                                 "the swept value)")
     reference = settings["reference"]
     if not (reference in ("staircase", "none") or (isinstance(reference, dict) and "levels_m" in reference
                                                    and set(reference) <= {"levels_m", "hold_s", "lead_s"})):
         raise SweepSpecError(f"[run] reference = {reference!r}; must be \"staircase\", \"none\" or "
                              "{levels_m = [...], hold_s = ..., lead_s = ...}")
+    steps = (ssp_run_time(settings) or 0.0) / settings["step_size"]
+    if steps > MAX_STEPS:  # every run would be refused at its start
+        raise SweepSpecError(f"[run] a run of {ssp_run_time(settings):g} s at step_size = {settings['step_size']:g} s is "
+                             f"{steps:,.0f} steps; at most {MAX_STEPS:,} (a shorter stop_time or a longer step)")
 
 
 def _check_ssp_name(name: str, table: str) -> None:
@@ -169,7 +188,7 @@ def _check_ssp_name(name: str, table: str) -> None:
                          "\"inputs.NAME\" (a constant, or a ramp's final value with [run.ramps])")
 
 
-def _check_calibration_settings(settings: dict) -> None:
+def _check_calibration_settings(settings: dict, _swept: list[str]) -> None:
     sigma = settings["sigma"]
     if not isinstance(sigma, list) or not sigma or not all(
             isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0 for s in sigma):
@@ -185,7 +204,8 @@ KINDS = {kind.name: kind for kind in (
     SweepKind("ssp", {"structure": "fig7_slow", "stop_time": None, "step_size": 5e-4, "algorithm": "causal",
                       "reference": "staircase", "reference_input": REFERENCE, "parameters": {}, "inputs": {},
                       "ramps": {}},
-              ssp_task, lambda settings: SSP_METRICS, _check_ssp_name, _check_ssp_settings, needs_archive=True),
+              ssp_task, lambda settings: SSP_METRICS, _check_ssp_name, _check_ssp_settings, needs_archive=True,
+              run_time=ssp_run_time),
     SweepKind("calibration", {"shape": "paper", "sigma": [10.0, 100.0, 1000.0], "sigma_range": [1.0, 1e5],
                               "points": 200, "nodes": 401},
               calibration_task, _calibration_metrics, sweepable("shape", "points", "nodes", "sigma_range"),

@@ -85,9 +85,13 @@ class SweepKind:
     check_name : callable
         ``check_name(name, table)`` raises :class:`SweepSpecError` if ``[grid]``/``[random]`` may not set ``name``.
     check_settings : callable, optional
-        ``check_settings(settings)`` raises :class:`SweepSpecError` (message from ``[run]`` on) on bad settings.
+        ``check_settings(settings, swept)`` raises :class:`SweepSpecError` (message from ``[run]`` on) on bad settings,
+        or on settings that have no effect given the ``swept`` names.
     needs_archive : bool
         ``settings["structure"]`` names an SSP archive, sent to every worker once.
+    run_time : callable, optional
+        ``run_time(settings) -> seconds or None``: the time one run simulates, if the kind knows it (a sweep's
+        :meth:`SweepSpec.length`).
     """
 
     name: str
@@ -95,8 +99,9 @@ class SweepKind:
     task: Callable[[RunSpec, Path | None], dict]
     metrics: Callable[[dict], tuple[str, ...]]
     check_name: Callable[[str, str], None]
-    check_settings: Callable[[dict], None] | None = None
+    check_settings: Callable[[dict, list[str]], None] | None = None
     needs_archive: bool = False
+    run_time: Callable[[dict], float | None] | None = None
 
 
 def sweepable(*names: str) -> Callable[[str, str], None]:
@@ -134,6 +139,16 @@ class SweepSpec:
     def swept_names(self) -> list[str]:
         """The parameter names that vary, grid first, in spec order."""
         return list(self.grid) + list(self.random)
+
+    @property
+    def run_count(self) -> int:
+        """How many runs the spec expands to (without expanding it)."""
+        return math.prod(len(values) for values in self.grid.values()) * self.draws
+
+    def length(self) -> tuple[int, float | None]:
+        """(runs, time they simulate in all [s], or None where the kind does not know a run's)."""
+        each = self.kind.run_time(self.settings) if self.kind.run_time is not None else None
+        return self.run_count, None if each is None else self.run_count * each
 
     def runs(self) -> list[RunSpec]:
         """Every run: the grid's combinations (in order) times the random draws."""
@@ -192,9 +207,10 @@ def parse_spec(data: dict, kinds: Mapping[str, SweepKind], *, base_dir: str | os
     settings = {**kind.settings, **run}
     grid_table = _table(data.get("grid", {}), "grid", source)
     random_table = dict(_table(data.get("random", {}), "random", source))
+    swept_names = list(grid_table) + [key for key in random_table if key not in ("draws", "seed")]
     try:  # the kind's own checks: their messages start at the table
         if kind.check_settings is not None:
-            kind.check_settings(settings)
+            kind.check_settings(settings, swept_names)
         for table, names in (("grid", grid_table), ("random", set(random_table) - {"draws", "seed"})):
             for swept in names:
                 kind.check_name(swept, table)
@@ -216,21 +232,16 @@ def parse_spec(data: dict, kinds: Mapping[str, SweepKind], *, base_dir: str | os
         raise SweepSpecError(f"{source}: [random] has draws/seed but no distributions")
     if not grid and not random:
         raise SweepSpecError(f"{source}: nothing to sweep; give a [grid] (name = [values]) or a [random] table")
-    _check_run_count(math.prod(len(values) for values in grid.values()) * int(draws or 1), source)
     name = _checked_name(sweep.get("name", Path(source).stem), source)
-    return SweepSpec(name, kind, settings, grid, random, int(draws or 1), seed, Path(base_dir))
+    spec = SweepSpec(name, kind, settings, grid, random, int(draws or 1), seed, Path(base_dir))
+    if spec.run_count > MAX_RUNS:
+        raise SweepSpecError(f"{source}: the spec expands to {spec.run_count:,} runs; at most {MAX_RUNS:,} (fewer grid "
+                             "values or draws, or several specs)")
+    return spec
 
 
 #: The most runs a spec may expand to (a grid of 10 values in each of 5 parameters is 100 000).
 MAX_RUNS = 100_000
-
-
-def _check_run_count(count: int, source: str) -> None:
-    if count > MAX_RUNS:
-        raise SweepSpecError(f"{source}: the spec expands to {count:,} runs; at most {MAX_RUNS:,} (fewer grid values "
-                             "or draws, or several specs)")
-
-
 def _checked_name(name: object, source: str) -> str:
     """The sweep's name names its default folder runs/sweep-NAME: one plain folder name, nothing that leaves runs/."""
     text = str(name)

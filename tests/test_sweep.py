@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -74,12 +75,24 @@ BAD_SPECS = [
      "resonance_shift"),
     ({"run": {"kind": "ssp", "ramps": {"ResonanceTracker.resonance_shift": {"start_s": 0.1}}},
       "grid": {"Plant.mass": [1]}}, "duration_s"),
+    # settings that have no effect given what is swept
+    ({"run": {"kind": "ssp", "ramps": {"ResonanceTracker.resonance_shift": {"duration_s": 0.1}}},
+      "grid": {"Plant.mass": [1]}}, "[run.ramps] 'ResonanceTracker.resonance_shift' has no effect without "
+                                    '"inputs.ResonanceTracker.resonance_shift" swept'),
+    ({"run": {"kind": "ssp", "inputs": {"ResonanceTracker.resonance_shift": 0.0}},
+      "grid": {"inputs.ResonanceTracker.resonance_shift": [1.0]}},
+     "[run.inputs] 'ResonanceTracker.resonance_shift' has no effect: \"inputs.ResonanceTracker.resonance_shift\" is swept"),
+    # runs every one of which would be refused at its start
+    ({"run": {"kind": "ssp", "stop_time": 1e5}, "grid": {"Plant.mass": [1]}},
+     "[run] a run of 100000 s at step_size = 0.0005 s is 200,000,000 steps; at most 10,000,000"),
+    ({"run": {"kind": "ssp", "reference": {"levels_m": [1e-4] * 2, "hold_s": 1e4}}, "grid": {"Plant.mass": [1]}},
+     "steps; at most 10,000,000"),
 ]
 
 
 @pytest.mark.parametrize("data, names", BAD_SPECS)
 def test_bad_specs_name_the_key(data, names):
-    with pytest.raises(SweepSpecError, match=names.replace("[", r"\[").replace("]", r"\]")):
+    with pytest.raises(SweepSpecError, match=re.escape(names)):
         parse_spec(data).runs()
 
 
@@ -144,7 +157,7 @@ def test_a_task_runs_in_process_with_a_ramped_input(fig7_archives):
     import hashlib
 
     data = fig7_archives["fig7_slow"].read_bytes()
-    spec = parse_spec({**SMALL_SSP, "run": {**SMALL_SSP["run"], "inputs": {"ResonanceTracker.resonance_shift": 0.0},
+    spec = parse_spec({**SMALL_SSP, "run": {**SMALL_SSP["run"],
                                            "ramps": {"ResonanceTracker.resonance_shift": {"duration_s": 0.1}}},
                        "grid": {"inputs.ResonanceTracker.resonance_shift": [0.0, 300.0]}})
     rows = [run_task(run, KINDS["ssp"].task, data, hashlib.sha256(data).hexdigest()) for run in spec.runs()]
@@ -326,6 +339,51 @@ def test_scheduler_sweep_gives_the_local_table(dask_cluster, small_spec, fig7_ar
         processes = {f"{socket.gethostname()}:{pid}" for pid in client.run(os.getpid).values()}
     assert {r["worker"] for r in rows if r["status"] == "ok"} <= processes  # which of them ran which is Dask's choice
     _assert_same_table(rows, local_sweep.rows())
+
+
+CALIBRATION_SPEC = '[run]\nkind = "calibration"\nsigma = [10.0]\npoints = 20\nnodes = 41\n[grid]\nshape = ["piston"]\n'
+SSP_SPEC = '[run]\nkind = "ssp"\nstop_time = 0.4\n[grid]\n"Plant.mass" = [0.1347]\n'
+
+
+@pytest.mark.parametrize("spec, argv, message", [
+    (CALIBRATION_SPEC + f"nodes = {list(range(41, 83, 2))}\npoints = {list(range(20, 70))}\n", [],  # 21 x 50 runs
+     "s.toml: 1,050 runs, more than 1,000 runs or 3,600 s simulated: give --accept-long-plan to run it"),
+    (SSP_SPEC.replace("stop_time = 0.4", "stop_time = 400").replace("[0.1347]", "[0.12, 0.13, 0.14, 0.15, 0.16, 0.17, "
+                                                                    "0.18, 0.19, 0.2, 0.21]"), [],
+     "s.toml: 10 runs simulating 4,000 s in all, more than 1,000 runs or 3,600 s simulated: give --accept-long-plan"),
+    (CALIBRATION_SPEC, ["--build-dir", "b"], "--build-dir has no effect with s.toml: it runs no built-in structure"),
+    (SSP_SPEC.replace("stop_time", 'structure = "x.ssp"\nstop_time'), ["--build-dir", "b"],
+     "--build-dir has no effect with s.toml"),
+    (CALIBRATION_SPEC, ["--scheduler", "tcp://127.0.0.1:9", "--workers", "2"],
+     "--workers has no effect with --scheduler (the scheduler's own workers run the sweep)"),
+], ids=["1050-runs", "4000-s-simulated", "build-dir-calibration", "build-dir-archive", "workers-with-scheduler"])
+def test_cli_sweep_refuses_a_long_plan_or_an_option_without_effect_before_anything_starts(tmp_path, capsys, monkeypatch,
+                                                                                        spec, argv, message):
+    from nfal.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text(spec)
+    assert main(["sweep", "s.toml", "--out", "out", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nfal sweep: error: {message}") and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml"]  # no result folder, no build
+
+
+def test_cli_sweep_runs_a_long_plan_when_accepted(tmp_path, capsys, monkeypatch):
+    """Accepted, the long plan goes on to the cluster (here an address that is no scheduler: refused there)."""
+    from nfal.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text(SSP_SPEC.replace("stop_time = 0.4", "stop_time = 4000"))
+    assert main(["sweep", "s.toml", "--out", "out", "--scheduler", "bogus", "--accept-long-plan"]) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["robustness.toml", "k_sigma.toml", "table1_grid.toml"])
+def test_the_example_specs_are_short_plans(name):
+    from nfal.commands.sweep import _require_short
+
+    _require_short(load_spec(EXAMPLES / name), name)
 
 
 @pytest.mark.slow  # a subprocess, or whole sweeps

@@ -30,8 +30,6 @@ PLACEMENTS = ("continuous", "sampled")
 GAIN_UNITS = {"height_m": "m", "kp": "m/m", "ki": "1/s", "kd": "s", "slow_pole_hz": "Hz", "fast_pole_hz": "Hz"}
 #: The simulated noise's options and their defaults (None in the parser: with --port they are refused, not ignored).
 NOISE_DEFAULTS = {"seed": 0, "noise_peak": NOISE_PEAK_M, "noise_cutoff": NOISE_CUTOFF_HZ}
-#: Where --port builds fig7_hil by default.
-BUILD_DIR = "build"
 
 
 def register(commands) -> None:
@@ -82,8 +80,8 @@ def register(commands) -> None:
                          "--seed are refused)")
     compare.add_argument("--runs-dir", metavar="DIR", help="with --port only: where each run's folder goes (default "
                          "runs/compare-<date-time>)")
-    compare.add_argument("--build-dir", metavar="DIR", help=f"with --port only: where fig7_hil.ssp is built "
-                         f"(default {BUILD_DIR})")
+    compare.add_argument("--build-dir", metavar="DIR", help="with --port only: where fig7_hil.ssp is built "
+                         "(default build)")
     compare.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                          help="with --port only: set a parameter of fig7_hil in every run (repeatable), e.g. "
                          "proxy.max_missed_samples=100")
@@ -282,12 +280,12 @@ def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dic
 def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     """Each controller on the rig at ``args.port`` (fig7_hil, real time, from rest): key -> run."""
     # on use: `nfal --help` stays fast
-    from nfal.build import build_all
+    from nfal.build import DEFAULT_BUILD_DIR, build_all
     from nfal.commands.cosim import parse_parameter
     from nfal.fig7 import HARDWARE, REFERENCE, loop_run
     from nfal.orchestration import run_structure
 
-    archive = build_all(args.build_dir or BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
+    archive = build_all(args.build_dir or DEFAULT_BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
     folder = Path(args.runs_dir or Path("runs") / f"compare-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     common = {"proxy.port": args.port, "Controller.placement": args.placement,
               "Controller.closed_loop_cutoff": args.closed_loop_cutoff, "Controller.filter_cutoff": args.filter_cutoff,

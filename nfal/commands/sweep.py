@@ -6,8 +6,13 @@ import argparse
 import logging
 from pathlib import Path
 
-from nfal.commands.common import print_json
-from nfal.errors import InvalidParameterError
+from nfal.commands.common import add_accept_long_plan, duration_text, print_json, refuse_given
+from nfal.errors import InvalidParameterError, PlanError
+
+#: The longest sweep run without --accept-long-plan: this many runs, and SSP runs simulating this long in all [s]
+#: (fig7_slow takes about 2 s of a worker per simulated second: examples/sweeps/robustness.toml, 12 runs of 0.4 s).
+LONG_SWEEP_RUNS = 1_000
+LONG_SWEEP_SIMULATED_S = 3600.0
 
 
 def register(commands) -> None:
@@ -25,36 +30,44 @@ def register(commands) -> None:
     sweep.add_argument("spec", metavar="SPEC.toml", help="the sweep spec (see docs in README 'Sweep many runs on Dask')")
     sweep.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
                        "(default: a local cluster)")
-    sweep.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster "
-                       "(default: this machine's cores); 0: one worker thread in this process (for debugging)")
+    sweep.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster, not with "
+                       "--scheduler (default: this machine's cores); 0: one worker thread in this process (for debugging)")
     sweep.add_argument("--out", metavar="DIR", help="result folder (default runs/sweep-<spec name>); continued if it "
                        "holds the same spec's table")
-    sweep.add_argument("--build-dir", default="build", metavar="DIR",
-                       help="where built-in structures (fig7_slow, fig7_reynolds) are built (default build/)")
+    sweep.add_argument("--build-dir", metavar="DIR", help="where built-in structures (fig7_slow, fig7_reynolds) are "
+                       "built (default build/); only for a spec that runs one")
     sweep.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_accept_long_plan(sweep, f"{LONG_SWEEP_RUNS:,} runs, or SSP runs simulating more than "
+                         f"{duration_text(LONG_SWEEP_SIMULATED_S)} in all (runs x the time each simulates; fig7_slow takes "
+                         "about 2 s of a worker per simulated second)")
     sweep.set_defaults(handler=run_sweep_command)
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
+    from nfal.build import DEFAULT_BUILD_DIR, STRUCTURES, build_all
     from nfal.orchestration.sweep import run_sweep
     from nfal.sweeps import load_spec
 
     if args.workers is not None and args.workers < 0:
         raise InvalidParameterError("--workers", args.workers, "a whole number >= 0 (0: in this process)")
+    if args.scheduler:
+        refuse_given({"--workers": args.workers}, "with --scheduler (the scheduler's own workers run the sweep)")
     spec = load_spec(args.spec)
+    builds = spec.kind.needs_archive and spec.settings["structure"] in STRUCTURES
+    if not builds:
+        refuse_given({"--build-dir": args.build_dir}, f"with {args.spec}: it runs no built-in structure "
+                     f"({', '.join(STRUCTURES)})")
+    if not args.accept_long_plan:
+        _require_short(spec, args.spec)
     if not getattr(args, "verbose", False):  # Dask's scheduler and nanny log every connection at INFO
         import distributed  # noqa: F401 - configures its loggers on import; quiet them afterwards
 
         for name in [n for n in logging.root.manager.loggerDict if n.split(".")[0] == "distributed"] + ["distributed"]:
             logging.getLogger(name).setLevel(logging.ERROR)
     archives = None
-    if spec.kind.needs_archive:
-        # on use: `nfal --help` stays fast
-        from nfal.build import STRUCTURES, build_all
-
-        if spec.settings["structure"] in STRUCTURES:
-            archives = build_all(args.build_dir, structures=(spec.settings["structure"],))
+    if builds:
+        archives = build_all(args.build_dir or DEFAULT_BUILD_DIR, structures=(spec.settings["structure"],))
     out = Path(args.out) if args.out else Path("runs") / f"sweep-{spec.name}"
     result = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers, archives=archives)
     summary = result.summary
@@ -77,3 +90,12 @@ def run_sweep_command(args: argparse.Namespace) -> int:
             elif row.get("warnings"):
                 print(f"  warning {row['run_id']}: {row['warnings']}")
     return 0 if summary["failed"] == 0 else 1
+
+
+def _require_short(spec, source: str) -> None:
+    """Refuse a sweep longer than LONG_SWEEP_RUNS runs or LONG_SWEEP_SIMULATED_S simulated, with its length."""
+    runs, simulated = spec.length()
+    if runs > LONG_SWEEP_RUNS or (simulated or 0.0) > LONG_SWEEP_SIMULATED_S:
+        length = f"{runs:,} runs" + (f" simulating {simulated:,.0f} s in all" if simulated else "")
+        raise PlanError(f"{source}: {length}, more than {LONG_SWEEP_RUNS:,} runs or {LONG_SWEEP_SIMULATED_S:,.0f} s "
+                        "simulated: give --accept-long-plan to run it, or fewer grid values or draws")
