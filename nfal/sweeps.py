@@ -1,7 +1,9 @@
 """nfal's sweep kinds: the Fig. 7 loop over an SSP archive, K(sigma) by perturbation, and Table 1 cases.
 
 Each kind is one :class:`~nfal.orchestration.sweep_spec.SweepKind` in :data:`KINDS` (its ``[run]``
-settings, what a grid may set, its task and metric columns); a new kind is one more entry. The engine
+settings, what a grid may set, its task and metric columns); a new kind is one more entry. The values that
+are paths (:func:`file_in`: ``shape`` and ``calibration``, as settings or as any FMU's parameters) are read
+from the spec's folder and shipped to the workers, as the structure is. The engine
 (:mod:`nfal.orchestration.sweep`) runs any of them on Dask; :func:`load_spec` and :func:`parse_spec`
 read a spec against this registry.
 """
@@ -18,6 +20,7 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError, SweepSpecError
 from nfal.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
+from nfal.fmus.base import CALIBRATION_CHOICES
 from nfal.models.calibration import perturbation_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.excitation import parse_shape
@@ -146,6 +149,30 @@ def table1_task(run: RunSpec, _structure: None = None) -> dict:
             "error_percent": float(result.error_percent)}
 
 
+# ---------------------------------------------------------------------------------------------- paths
+
+def _shape_file(shape: str) -> str | None:
+    """The CSV path a shape names, None for one parse_shape knows by name (models/excitation.py)."""
+    return None if shape in ("piston", "paper") or shape.startswith("plate:") else shape
+
+
+def file_in(name: str, value: object) -> tuple[str, str] | None:
+    """The file a ``shape`` or ``calibration`` value names (a ``[run]`` setting, or an FMU parameter
+    ``Element.shape``/``Element.calibration``): ``(prefix, path)`` with ``value == prefix + path``, or None for the
+    values they take by name (piston, paper, plate:N; paper, perturbation, perturbation:SHAPE)."""
+    if not isinstance(value, str):
+        return None
+    field = name.rpartition(".")[2]
+    if field == "shape":
+        path, prefix = _shape_file(value), ""
+    elif field == "calibration" and value not in CALIBRATION_CHOICES:
+        prefix = "perturbation:" if value.startswith("perturbation:") else ""
+        path = _shape_file(value[len(prefix):]) if prefix else value
+    else:
+        return None
+    return None if path is None else (prefix, path)
+
+
 # ---------------------------------------------------------------------------------------------- checks
 
 def _check_ssp_settings(settings: dict, swept: list[str]) -> None:
@@ -205,15 +232,16 @@ KINDS = {kind.name: kind for kind in (
                       "reference": "staircase", "reference_input": REFERENCE, "parameters": {}, "inputs": {},
                       "ramps": {}},
               ssp_task, lambda settings: SSP_METRICS, _check_ssp_name, _check_ssp_settings, needs_archive=True,
-              run_time=ssp_run_time),
+              run_time=ssp_run_time, file_in=file_in),
     SweepKind("calibration", {"shape": "paper", "sigma": [10.0, 100.0, 1000.0], "sigma_range": [1.0, 1e5],
                               "points": 200, "nodes": 401},
               calibration_task, _calibration_metrics, sweepable("shape", "points", "nodes", "sigma_range"),
-              _check_calibration_settings),
+              _check_calibration_settings, file_in=file_in),
     SweepKind("table1", {"case": "a", "shape": "paper", "nodes": 101, "steps_per_period": 256, "mass": None,
                          "frequency": None, "excitation": None},
               table1_task, lambda settings: TABLE1_METRICS,
-              sweepable("case", "shape", "nodes", "steps_per_period", "mass", "frequency", "excitation")),
+              sweepable("case", "shape", "nodes", "steps_per_period", "mass", "frequency", "excitation"),
+              file_in=file_in),
 )}
 
 #: A spec against :data:`KINDS`: ``load_spec(path)``, ``parse_spec(data, base_dir=..., source=...)``.

@@ -5,7 +5,10 @@ others to a :class:`dask.distributed.Client`: a local cluster of ``workers`` sin
 by default, or the scheduler at ``scheduler``. Nothing needs a shared file system: an SSP archive is
 scattered to every worker once (``broadcast=True``) with its sha256; the first task on a machine
 checks the hash and unpacks it, FMUs included, into a local cache (``<tmp>/nfal-sweep-cache/<sha256>/``),
-which later tasks reuse (they check the hash of the bytes they hold, and the cache's marker).
+which later tasks reuse (they check the hash of the bytes they hold, and the cache's marker). The files the
+spec's values name (:attr:`~.sweep_spec.SweepSpec.files`, resolved from the spec's folder) travel the same way:
+scattered once with their sha256, written to ``<tmp>/nfal-sweep-cache/files/<sha256>/<name>``, and each run's
+value is replaced by that worker-local path (:func:`localised`) before its task runs.
 
 Every finished run is appended to ``results.csv`` at once (flushed), as one row: run id, status, error,
 warnings, wall time, the swept parameters and the kind's metrics. A run that raises is a row with status
@@ -40,7 +43,7 @@ from tqdm import tqdm
 from nfal.errors import SweepError, SweepSpecError
 
 from .sweep_plot import plot_sweep
-from .sweep_spec import RunSpec, SweepSpec, canonical_json
+from .sweep_spec import RunSpec, SweepSpec, canonical_json, map_strings
 
 logger = logging.getLogger(__name__)
 
@@ -70,10 +73,7 @@ def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | No
     folder is complete when its ``.sha256`` file holds the hash; it is built in a temporary folder
     and renamed, so worker processes sharing the cache do not race.
     """
-    actual = hashlib.sha256(data).hexdigest()
-    if actual != sha256:
-        raise SweepError(f"the archive arrived with sha256 {actual}, not {sha256}: refusing to run it")
-    cache = Path(cache_dir) if cache_dir is not None else Path(tempfile.gettempdir()) / CACHE_DIR_NAME
+    cache = _checked_cache(data, sha256, "the archive", cache_dir)
     folder = cache / sha256
     marker = folder / ".sha256"
     if marker.is_file() and marker.read_text().strip() == sha256:
@@ -107,16 +107,57 @@ def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | No
     return folder
 
 
+def _checked_cache(data: bytes, sha256: str, what: str, cache_dir: str | os.PathLike | None) -> Path:
+    """The worker cache folder, once ``data`` (``what``) is checked to have the hash ``sha256``."""
+    actual = hashlib.sha256(data).hexdigest()
+    if actual != sha256:
+        raise SweepError(f"{what} arrived with sha256 {actual}, not {sha256}: refusing to run it")
+    return Path(cache_dir) if cache_dir is not None else Path(tempfile.gettempdir()) / CACHE_DIR_NAME
+
+
+def cached_file(data: bytes, sha256: str, name: str, cache_dir: str | os.PathLike | None = None) -> Path:
+    """The worker-local copy of a file a spec names, ``<cache>/files/<sha256>/<name>``, written once after checking
+    its sha256 (through a temporary file and a rename: worker processes sharing the cache do not race)."""
+    folder = _checked_cache(data, sha256, f"the file {name}", cache_dir) / "files" / sha256
+    path = folder / name
+    if path.is_file() and hashlib.sha256(path.read_bytes()).hexdigest() == sha256:
+        return path
+    folder.mkdir(parents=True, exist_ok=True)
+    handle, temp = tempfile.mkstemp(dir=folder, prefix=".part-")
+    with os.fdopen(handle, "wb") as stream:
+        stream.write(data)
+    os.replace(temp, path)
+    return path
+
+
+def shipped_files(spec: SweepSpec) -> dict:
+    """What :func:`localised` takes: ``{(name, value): (prefix, file name, sha256, bytes)}`` of the spec's files."""
+    shipped = {}
+    for key, (prefix, path) in spec.files.items():
+        data = path.read_bytes()
+        shipped[key] = (prefix, path.name, hashlib.sha256(data).hexdigest(), data)
+    return shipped
+
+
+def localised(run: RunSpec, files: Mapping, cache_dir: str | os.PathLike | None = None) -> RunSpec:
+    """``run`` with each value that names a shipped file (:func:`shipped_files`) replaced by its worker-local copy."""
+    local = {key: prefix + str(cached_file(data, sha, name, cache_dir)) for key, (prefix, name, sha, data) in files.items()}
+    change = lambda key, value: local.get((key, value), value)  # noqa: E731
+    return dataclasses.replace(run, parameters=map_strings(run.parameters, change),
+                               settings=map_strings(run.settings, change))
+
+
 def run_task(run: RunSpec, task: Callable[[RunSpec, Path | None], dict], archive: bytes | None = None,
-             sha256: str | None = None) -> dict:
+             sha256: str | None = None, files: Mapping | None = None) -> dict:
     """Run one run of a sweep with its kind's ``task`` and return its row (status "failed" and the error if
-    it raised); ``archive`` (an SSP archive's bytes) is unpacked into the worker cache first."""
+    it raised); ``archive`` (an SSP archive's bytes) is unpacked into the worker cache first, and the ``files``
+    the run's values name (:func:`shipped_files`) are written there, the values pointing at them."""
     started = time.perf_counter()
     row = {"run_id": run.run_id, "index": run.index, "status": "ok", "error": "", "worker": socket.gethostname()
            + f":{os.getpid()}"}
     try:
         structure = cached_structure(archive, sha256) if archive is not None else None
-        row.update(task(run, structure))
+        row.update(task(localised(run, files) if files else run, structure))
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a dead sweep
         row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
     row["wall_time_s"] = time.perf_counter() - started
@@ -296,15 +337,18 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
                disable=not (progress if progress is not None else sys.stderr.isatty()))
     try:
         if todo:
-            archive = sha = None
+            archive = sha = files = None
             if spec.kind.needs_archive:
                 data = _archive_path(spec, archives).read_bytes()
                 sha = hashlib.sha256(data).hexdigest()
+            shipped = shipped_files(spec)
             client, cluster = _client(scheduler, workers)
             summary["workers"] = len(client.scheduler_info().get("workers", {}))
             if spec.kind.needs_archive:
                 archive = client.scatter(data, broadcast=True)  # once per worker, not per task
-            futures = [client.submit(run_task, run, spec.kind.task, archive, sha, pure=False) for run in todo]
+            if shipped:
+                [files] = client.scatter([shipped], broadcast=True)  # as the archive: once per worker
+            futures = [client.submit(run_task, run, spec.kind.task, archive, sha, files, pure=False) for run in todo]
             for run, row in _as_finished(futures, todo):
                 table.append(row)
                 summary["new"] += 1
@@ -372,5 +416,5 @@ def _close_summary(out: Path, summary: dict, runs: list[RunSpec]) -> list[dict]:
     return rows
 
 
-__all__ = ["ResultsTable", "SweepError", "SweepResult", "SweepSpecError", "cached_structure", "columns",
-           "metric_columns", "plot_sweep", "read_table", "run_sweep", "run_task"]
+__all__ = ["ResultsTable", "SweepError", "SweepResult", "SweepSpecError", "cached_file", "cached_structure", "columns",
+           "localised", "metric_columns", "plot_sweep", "read_table", "run_sweep", "run_task", "shipped_files"]

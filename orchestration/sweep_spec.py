@@ -26,6 +26,11 @@ Distributions: ``uniform`` (low, high), ``loguniform`` (low, high > 0), ``normal
 ``integers`` (low, high, both included). Each run gets a stable id: a hash of the canonical JSON of
 its run settings and parameters, so the same spec expands to the same ids on every machine.
 
+Paths in a spec are relative to the spec's folder: ``structure``, and every string value (a ``[run]`` setting
+at any depth, or a ``[grid]`` value) that the kind's ``file_in`` says names a file. Each such file must exist
+when the spec is read; it is kept in :attr:`SweepSpec.files` and shipped to the workers with the runs
+(:mod:`.sweep`), while the runs keep the value as written (their ids do not depend on where the spec lies).
+
 What a run *is* comes from a registry of :class:`SweepKind` (name -> settings, sweepable names, task,
 metric columns) that the caller passes in: this module and :mod:`.sweep` know no kind of their own.
 """
@@ -92,6 +97,9 @@ class SweepKind:
     run_time : callable, optional
         ``run_time(settings) -> seconds or None``: the time one run simulates, if the kind knows it (a sweep's
         :meth:`SweepSpec.length`).
+    file_in : callable, optional
+        ``file_in(name, value) -> (prefix, path) or None``: the file a setting's or a parameter's string value names
+        (``value == prefix + path``), or None when it names none.
     """
 
     name: str
@@ -102,6 +110,7 @@ class SweepKind:
     check_settings: Callable[[dict, list[str]], None] | None = None
     needs_archive: bool = False
     run_time: Callable[[dict], float | None] | None = None
+    file_in: Callable[[str, object], tuple[str, str] | None] | None = None
 
 
 def sweepable(*names: str) -> Callable[[str, str], None]:
@@ -124,7 +133,8 @@ def check_number(settings: dict, key: str, *, positive: bool = True, optional: b
 
 @dataclasses.dataclass(frozen=True)
 class SweepSpec:
-    """A parsed spec: the run kind and settings, the grid, the random draws, and where it came from."""
+    """A parsed spec: the run kind and settings, the grid, the random draws, where it came from, and the files its
+    values name: ``files[(name, value)] = (prefix, resolved path)``."""
 
     name: str
     kind: SweepKind
@@ -134,6 +144,7 @@ class SweepSpec:
     draws: int
     seed: int | None
     base_dir: Path
+    files: dict = dataclasses.field(default_factory=dict)
 
     @property
     def swept_names(self) -> list[str]:
@@ -233,7 +244,8 @@ def parse_spec(data: dict, kinds: Mapping[str, SweepKind], *, base_dir: str | os
     if not grid and not random:
         raise SweepSpecError(f"{source}: nothing to sweep; give a [grid] (name = [values]) or a [random] table")
     name = _checked_name(sweep.get("name", Path(source).stem), source)
-    spec = SweepSpec(name, kind, settings, grid, random, int(draws or 1), seed, Path(base_dir))
+    files = _files(kind, settings, grid, Path(base_dir), source)
+    spec = SweepSpec(name, kind, settings, grid, random, int(draws or 1), seed, Path(base_dir), files)
     if spec.run_count > MAX_RUNS:
         raise SweepSpecError(f"{source}: the spec expands to {spec.run_count:,} runs; at most {MAX_RUNS:,} (fewer grid "
                              "values or draws, or several specs)")
@@ -242,6 +254,47 @@ def parse_spec(data: dict, kinds: Mapping[str, SweepKind], *, base_dir: str | os
 
 #: The most runs a spec may expand to (a grid of 10 values in each of 5 parameters is 100 000).
 MAX_RUNS = 100_000
+#: Largest file a spec's value may name: it is shipped to every worker.
+MAX_FILE_BYTES = 64 << 20
+
+
+def string_values(table: dict):
+    """(key, value) of every string value in ``table``, nested tables included (under their own keys)."""
+    for key, value in table.items():
+        if isinstance(value, dict):
+            yield from string_values(value)
+        elif isinstance(value, str):
+            yield key, value
+
+
+def map_strings(table: dict, change: Callable[[str, str], str]) -> dict:
+    """``table`` with every string value (nested tables included) replaced by ``change(key, value)``."""
+    return {key: map_strings(value, change) if isinstance(value, dict) else change(key, value) if isinstance(value, str)
+            else value for key, value in table.items()}
+
+
+def _files(kind: SweepKind, settings: dict, grid: dict, base_dir: Path, source: str) -> dict:
+    """The files the settings' and the grid's values name (the kind's ``file_in``), resolved from ``base_dir``."""
+    if kind.file_in is None:
+        return {}
+    values = [*string_values(settings), *((name, v) for name, values in grid.items() for v in values if isinstance(v, str))]
+    files = {}
+    for name, value in values:
+        named = kind.file_in(name, value)
+        if named is None:
+            continue
+        prefix, text = named
+        path = Path(text) if Path(text).is_absolute() else base_dir / text
+        if not path.is_file():
+            raise SweepSpecError(f"{source}: {name} = {value!r}: no file {path} (a path in a spec is relative to the "
+                                 "spec's folder)")
+        if path.stat().st_size > MAX_FILE_BYTES:
+            raise SweepSpecError(f"{source}: {name} = {value!r}: {path} is {path.stat().st_size / 2**20:,.0f} MiB; a "
+                                 f"file shipped to every worker is at most {MAX_FILE_BYTES >> 20} MiB")
+        files[(name, value)] = (prefix, path)
+    return files
+
+
 def _checked_name(name: object, source: str) -> str:
     """The sweep's name names its default folder runs/sweep-NAME: one plain folder name, nothing that leaves runs/."""
     text = str(name)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -18,11 +19,13 @@ from hypothesis import strategies as st
 
 from nfal.errors import SweepError, SweepSpecError
 from nfal.models.closed_loop import Staircase
-from nfal.orchestration.sweep import ResultsTable, cached_structure, columns, read_table, run_sweep, run_task
+from nfal.orchestration.sweep import (ResultsTable, cached_structure, columns, localised, read_table, run_sweep, run_task,
+                                      shipped_files)
 from nfal.orchestration.sweep_spec import expand
-from nfal.sweeps import KINDS, Ramp, load_spec, parse_spec
+from nfal.sweeps import KINDS, Ramp, file_in, load_spec, parse_spec
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
+SCAN_CSV = EXAMPLES.parent / "shapes" / "vibrometer_scan.csv"
 
 # 3 masses (one impossible: the run fails inside the worker) x 2 noise seeds, 0.15 s each.
 SMALL_SSP = {
@@ -394,14 +397,14 @@ def test_cli_sweep_calibration(tmp_path, capsys):
 
     spec = tmp_path / "k.toml"
     spec.write_text('[sweep]\nname = "k"\n[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 40\n'
-                    '[grid]\nshape = ["piston", "plate:1", "nonsense"]\nnodes = [101]\n')
+                    '[grid]\nshape = ["piston", "plate:1", "plate:0"]\nnodes = [101]\n')
     code = main(["sweep", str(spec), "--workers", "1", "--out", str(tmp_path / "out"), "--json"])
     summary = json.loads(capsys.readouterr().out)
     assert code == 1 and summary["ok"] == 2 and summary["failed"] == 1
     rows = read_table(tmp_path / "out" / "results.csv")
     piston = next(r for r in rows if r["param:shape"] == "piston")
     assert 0 < piston["K_at_sigma_10"] < piston["K_at_sigma_100"] < 1.3
-    assert "nonsense" in next(r for r in rows if r["status"] == "failed")["error"]
+    assert "n = 0" in next(r for r in rows if r["status"] == "failed")["error"]
     assert main(["sweep", str(tmp_path / "missing.toml")]) == 2
 
 
@@ -461,3 +464,108 @@ def test_a_sweep_takes_the_structures_default_staircase_as_nfal_run_does():
     assert _staircase("staircase", "fig7_reynolds") == DEFAULT_STAIRCASES["fig7_reynolds"]  # within the film's reach
     assert _staircase("staircase", "some/where/fig7_slow.ssp") == Staircase()
     assert _staircase("none", "fig7_slow") is None
+
+
+# ------------------------------------------------------------------------------------------- paths in a spec
+
+@pytest.mark.parametrize("name, value, named", [
+    ("shape", "scan.csv", ("", "scan.csv")), ("ReynoldsPlant.shape", "../s.csv", ("", "../s.csv")),
+    ("Controller.calibration", "k.json", ("", "k.json")), ("Plant.calibration", "/abs/k.json", ("", "/abs/k.json")),
+    ("Plant.calibration", "perturbation:s.csv", ("perturbation:", "s.csv")),
+    ("shape", "piston", None), ("shape", "paper", None), ("shape", "plate:2", None), ("Plant.calibration", "paper", None),
+    ("Plant.calibration", "perturbation", None), ("Plant.calibration", "perturbation:plate:2", None),
+    ("HardwareProxy.port", "/dev/ttyACM0", None), ("Plant.mass", 0.1, None), ("case", "a", None),
+])
+def test_the_values_that_name_files(name, value, named):
+    assert file_in(name, value) == named
+
+
+def _spec_beside_a_file(tmp_path, text: str) -> Path:
+    """s.toml in tmp_path/spec with scan.csv (a shape) and k.json (the paper's calibration) beside it."""
+    from nfal.models.calibration import paper_calibration
+
+    folder = tmp_path / "spec"
+    folder.mkdir()
+    (folder / "scan.csv").write_bytes(SCAN_CSV.read_bytes())
+    (folder / "k.json").write_text(json.dumps({"version": 1, **paper_calibration().to_dict()}))
+    (folder / "s.toml").write_text(text)
+    (tmp_path / "elsewhere").mkdir()
+    return folder / "s.toml"
+
+
+SHAPES_SPEC = '[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 20\nnodes = 41\n[grid]\nshape = ["scan.csv", "piston"]\n'
+
+
+def test_a_path_in_a_spec_resolves_from_the_specs_folder_and_the_runs_keep_it_as_written(tmp_path, monkeypatch):
+    path = _spec_beside_a_file(tmp_path, SHAPES_SPEC)
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    spec = load_spec(Path("..") / "spec" / "s.toml")
+    assert spec.files == {("shape", "scan.csv"): ("", Path("..") / "spec" / "scan.csv")}
+    assert [r.parameters["shape"] for r in spec.runs()] == ["scan.csv", "piston"]
+    assert [r.run_id for r in spec.runs()] == [r.run_id for r in load_spec(path).runs()]  # wherever the spec is read from
+
+
+@pytest.mark.parametrize("text, message", [
+    (SHAPES_SPEC.replace("scan.csv", "none.csv"), "shape = 'none.csv': no file {folder}/none.csv (a path in a spec is "
+                                                  "relative to the spec's folder)"),
+    ('[run]\nkind = "ssp"\nparameters = {"Controller.calibration" = "perturbation:none.csv"}\n[grid]\n"Plant.mass" = [0.13]\n',
+     "Controller.calibration = 'perturbation:none.csv': no file {folder}/none.csv"),
+    ('[run]\nkind = "table1"\nshape = "nonsense"\n[grid]\ncase = ["a", "b"]\n', "shape = 'nonsense': no file {folder}/nonsense"),
+])
+def test_a_missing_file_is_refused_when_the_spec_is_read_naming_where_it_was_looked_for(tmp_path, text, message):
+    path = _spec_beside_a_file(tmp_path, text)
+    with pytest.raises(SweepSpecError, match=re.escape(message.format(folder=path.parent))):
+        load_spec(path)
+
+
+def test_a_shipped_file_is_checked_and_written_once_to_the_worker_cache(tmp_path):
+    spec = load_spec(_spec_beside_a_file(tmp_path, SHAPES_SPEC))
+    shipped = shipped_files(spec)
+    run = localised(spec.runs()[0], shipped, tmp_path / "cache")
+    local = Path(run.parameters["shape"])
+    assert local.parent.parent == tmp_path / "cache" / "files" and local.name == "scan.csv"
+    assert local.read_bytes() == SCAN_CSV.read_bytes()
+    assert localised(spec.runs()[0], shipped, tmp_path / "cache") == run and spec.runs()[1] == localised(
+        spec.runs()[1], shipped, tmp_path / "cache")  # the same copy; piston is no file
+    (prefix, name, sha, data), = shipped.values()
+    with pytest.raises(SweepError, match="the file scan.csv arrived with sha256"):
+        localised(spec.runs()[0], {("shape", "scan.csv"): (prefix, name, sha, data[:-1])}, tmp_path / "other")
+
+
+def _shape_rows(result) -> dict:
+    from nfal.models.calibration import perturbation_calibration
+    from nfal.models.excitation import parse_shape
+
+    rows = {row["param:shape"]: row for row in result.rows()}
+    assert [row["status"] for row in rows.values()] == ["ok", "ok"], rows
+    expected = perturbation_calibration(parse_shape(str(SCAN_CSV)), (1.0, 1e5), points=20, nodes=41)
+    assert rows["scan.csv"]["K_at_sigma_10"] == pytest.approx(float(expected(10.0)), rel=1e-12)
+    return rows
+
+
+@pytest.mark.parametrize("workers", [0, pytest.param(1, marks=pytest.mark.slow)], ids=["in-process", "processes"])
+def test_a_file_beside_the_spec_reaches_the_workers_wherever_they_run(tmp_path, monkeypatch, workers):
+    path = _spec_beside_a_file(tmp_path, SHAPES_SPEC)
+    monkeypatch.chdir(tmp_path / "elsewhere")  # the workers' folder: no scan.csv here
+    _shape_rows(run_sweep(load_spec(path), tmp_path / "out", workers=workers, plot=False))
+
+
+@pytest.mark.slow  # a Dask cluster of worker processes
+def test_a_file_beside_the_spec_reaches_a_remote_schedulers_workers(tmp_path, dask_cluster):
+    path = _spec_beside_a_file(tmp_path, SHAPES_SPEC)
+    _shape_rows(run_sweep(load_spec(path), tmp_path / "out", scheduler=dask_cluster, plot=False))
+
+
+def test_a_controllers_calibration_file_beside_the_spec_is_read_by_its_runs(tmp_path, fig7_archives, monkeypatch):
+    import hashlib
+
+    path = _spec_beside_a_file(tmp_path, '[run]\nkind = "ssp"\nstop_time = 0.15\nreference = {levels_m = [100e-6, '
+                               '140e-6], hold_s = 0.1, lead_s = 0.05}\n[grid]\n"Controller.calibration" = ["k.json", '
+                               '"paper"]\n')
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    spec = load_spec(path)
+    data = fig7_archives["fig7_slow"].read_bytes()
+    rows = [run_task(run, KINDS["ssp"].task, data, hashlib.sha256(data).hexdigest(), shipped_files(spec))
+            for run in spec.runs()]
+    assert [r["status"] for r in rows] == ["ok", "ok"], rows
+    assert rows[0]["iae_m_s"] == pytest.approx(rows[1]["iae_m_s"], rel=1e-9)  # k.json holds the paper's K
