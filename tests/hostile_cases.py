@@ -461,6 +461,13 @@ def disk_full_reported(folder: Path, done: subprocess.CompletedProcess) -> str |
     return None
 
 
+def error_names(text: str):
+    """The refusal says ``text`` (it is refused for the reason the case is about, not a later one)."""
+    def check(folder: Path, done: subprocess.CompletedProcess) -> str | None:
+        return None if done.returncode != 2 or text in done.stderr else f"the error does not name {text!r}"
+    return check
+
+
 def file_absent(name: str):
     def check(folder: Path, done: subprocess.CompletedProcess) -> str | None:
         return f"{name} was written" if (folder / name).exists() else None
@@ -715,6 +722,18 @@ def control_cases() -> list[Case]:
         ("max-excitation-1m", ["compare", "--max-excitation", "1"]), ("seed-negative", ["compare", "--seed", "-1"]),
         ("seed-2pow64", ["compare", "--seed", str(2 ** 64)])]]
     cases[-1].expect, cases[-1].why = "ok", "numpy seeds from any whole number >= 0 without truncation (SeedSequence)"
+    # an option with no effect in the mode chosen (issue 26): refused, naming it, before anything is built or run
+    short, rig = ["compare", "--controllers", "gs", "--levels", "100e-6,120e-6", "--hold", "0.1"], ["--port", "/nonexistent/port"]
+    cases += [Case(f"compare-{name}", "cli-compare", short + argv, check=error_names(f"{flag} has no effect"))
+              for name, flag, argv in [
+                  ("runs-dir-without-port", "--runs-dir", ["--runs-dir", "runs"]),
+                  ("build-dir-without-port", "--build-dir", ["--build-dir", "b"]),
+                  ("param-without-port", "--param", ["--param", "proxy.max_missed_samples=100"]),
+                  ("seed-with-port", "--seed", rig + ["--seed", "3"]),
+                  ("noise-peak-with-port", "--noise-peak", rig + ["--noise-peak", "0"]),
+                  ("full-schedule-sampled", "--full-schedule", ["--full-schedule"])]]
+    cases.append(Case("compare-full-schedule-continuous", "cli-compare", short + ["--placement", "continuous",
+                      "--full-schedule"], expect="ok", why="--full-schedule where it has an effect: the continuous placement"))
     return cases
 
 
@@ -722,9 +741,13 @@ def sweep_cases() -> list[Case]:
     def spec(text: str | bytes) -> Callable:
         return write("s.toml", text)
 
-    sweep = ["sweep", "s.toml", "--workers", "1", "--build-dir", "{build}", "--out", "out"]
+    remote = ["sweep", "s.toml", "--out", "out"]
+    sweep = remote + ["--workers", "1"]
+    built = sweep + ["--build-dir", "{build}"]  # for a spec of the built-in fig7_slow (refused with any other)
+    fig7_slow = ("grid-nan", "ssp-stop-negative", "ssp-mass-grams")
     cal = '[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 20\nnodes = 41\n'
-    cases = [Case(f"sweep-{name}", "toml", sweep, setup=spec(text), timeout=120) for name, text in [
+    cases = [Case(f"sweep-{name}", "toml", built if name in fig7_slow else sweep, setup=spec(text), timeout=120)
+             for name, text in [
         ("binary", os.urandom(300)), ("empty", ""), ("not-toml", "[[[\n"), ("name-escapes", '[sweep]\nname = "../../x"\n' + cal
                                                                            + '[grid]\nshape = ["piston"]\n'),
         ("name-absolute", '[sweep]\nname = "/tmp/x"\n' + cal + '[grid]\nshape = ["piston"]\n'),
@@ -740,18 +763,18 @@ def sweep_cases() -> list[Case]:
         ("ssp-structure-missing", '[run]\nkind = "ssp"\nstructure = "none.ssp"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [0.13]\n'),
         ("ssp-structure-absolute-outside", '[run]\nkind = "ssp"\nstructure = "/etc/passwd"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [0.13]\n'),
         ("unknown-table", cal + "[grid]\nshape = [\"piston\"]\n[extra]\nx = 1\n"),
-        ("shape-bogus", cal + '[grid]\nshape = ["bogus"]\n'),
+        ("shape-bogus", cal + '[grid]\nshape = ["bogus"]\n'), ("shape-plate-0", cal + '[grid]\nshape = ["plate:0"]\n'),
         ("ssp-mass-grams", '[run]\nkind = "ssp"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [134.7]\n'),
     ]]
     # a value a run refuses: that run is a row with its error, the others go on; exit code 1, each failure named
     for case in cases:
-        if case.id in ("sweep-shape-bogus", "sweep-ssp-mass-grams"):
+        if case.id in ("sweep-shape-plate-0", "sweep-ssp-mass-grams"):
             case.expect, case.exit_code = "ok", 1
             case.why = "the run is a row with its error, named at the end; the sweep exits 1 (a grid's other runs go on)"
             case.check = _failure_named
     cases += [
-        Case("sweep-scheduler-bogus", "toml", sweep + ["--scheduler", "bogus"], setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
-        Case("sweep-scheduler-unreachable", "toml", sweep + ["--scheduler", "tcp://127.0.0.1:9"],
+        Case("sweep-scheduler-bogus", "toml", remote + ["--scheduler", "bogus"], setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
+        Case("sweep-scheduler-unreachable", "toml", remote + ["--scheduler", "tcp://127.0.0.1:9"],
              setup=spec(cal + '[grid]\nshape = ["piston"]\n'), timeout=120),
         Case("sweep-workers-negative", "toml", sweep + ["--workers", "-1"], setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
         Case("sweep-workers-zero", "toml", sweep + ["--workers", "0"], setup=spec(cal + '[grid]\nshape = ["piston"]\n'),
@@ -761,6 +784,36 @@ def sweep_cases() -> list[Case]:
         Case("sweep-spec-missing", "toml", ["sweep", "none.toml"]),
         Case("sweep-spec-dev-zero", "toml", ["sweep", "/dev/zero"], timeout=60),
         Case("sweep-spec-folder", "toml", ["sweep", "."]),
+    ]
+    # plans (issue 26): too long unless accepted, runs that cannot start, settings and options without effect
+    ssp = '[run]\nkind = "ssp"\nstop_time = 0.15\n'
+    masses = '[grid]\n"Plant.mass" = [' + ", ".join(f"{0.12 + 0.01 * i:.2f}" for i in range(10)) + "]\n"
+    cases += [Case(f"sweep-{name}", "toml", argv, setup=spec(text), check=error_names(named)) for name, argv, text, named in [
+        ("long-1050-runs", sweep, cal + f"[grid]\nnodes = {list(range(41, 83, 2))}\npoints = {list(range(20, 70))}\n",
+         "--accept-long-plan"),
+        ("long-4000-s-simulated", built, ssp.replace("0.15", "400") + masses, "--accept-long-plan"),
+        ("ssp-200-million-steps", built, ssp.replace("0.15", "1e5") + masses, "200,000,000 steps"),
+        ("ramp-unswept", built, ssp + '[run.ramps]\n"ResonanceTracker.resonance_shift" = {duration_s = 0.1}\n' + masses,
+         "has no effect"),
+        ("input-constant-swept", built, ssp + '[run.inputs]\n"ResonanceTracker.resonance_shift" = 0.0\n[grid]\n'
+         '"inputs.ResonanceTracker.resonance_shift" = [10.0]\n', "has no effect"),
+        ("workers-with-scheduler", remote + ["--scheduler", "tcp://127.0.0.1:9", "--workers", "2"],
+         cal + '[grid]\nshape = ["piston"]\n', "--workers has no effect"),
+        ("build-dir-calibration", built, cal + '[grid]\nshape = ["piston"]\n', "--build-dir has no effect"),
+        ("shape-file-missing", sweep, cal + '[grid]\nshape = ["none.csv"]\n', "none.csv (a path in a spec is relative"),
+    ]]
+    # a file a spec names, beside the spec: read from the spec's folder (not the workers'), shipped to the workers
+    beside = ["sweep", "spec/s.toml", "--out", "out", "--workers", "1"]
+    scan = (Path(__file__).resolve().parents[1] / "examples" / "shapes" / "vibrometer_scan.csv").read_text()
+    cases += [
+        Case("sweep-shape-file-beside-spec", "toml", beside, setup=files(spec__s_DOT_toml=cal + '[grid]\nshape = '
+             '["scan.csv", "piston"]\n', spec__scan_DOT_csv=scan), expect="ok", timeout=120,
+             why="a path in a spec is relative to the spec's folder; the file goes to the workers as the structure does"),
+        Case("sweep-calibration-file-beside-spec", "toml", beside + ["--build-dir", "{build}"], setup=files(
+             spec__s_DOT_toml=ssp + '[grid]\n"Controller.calibration" = ["k.json"]\n',
+             spec__k_DOT_json=json.dumps({"version": 1, "kind": "polynomial", "name": "eq. 17", "coefficients": [
+                 1.2348, 0.022928, -0.0001301, 2.9826e-07, -2.4985e-10], "sigma_range": [10.0, 500.0]})),
+             expect="ok", timeout=120, why="a Controller.calibration file beside the spec: read from there by the runs"),
     ]
     return cases
 
@@ -1044,6 +1097,27 @@ def hil_cases() -> list[Case]:
         ("max-silence-zero", ["--max-silence", "0"]), ("time-constant-negative", ["--amplitude-time-constant", "-1"]),
         ("mass-grams", ["--mass", "134.7"]), ("connect-timeout-1e9", ["--connect-timeout", "1e9"]),
         ("max-silence-a-day", ["--max-silence", "86400"]), ("max-hold-a-day", ["--max-hold", "86400"])]]
+    # plans that cannot give a result or are too long (issue 26): refused as the run would be, before a port opens
+    no_rig = ["--port", "/nonexistent/port", "--out", "rig.json"]
+    six = ["--equilibria", "1e-4,1e-4,1e-4,1e-4,1e-4,1e-4"]
+    cases += [Case(f"identify-{name}", "cli-identify", ["identify", *argv], check=error_names(named))
+              for name, argv, named in [
+                  ("equilibria-six-identical", ["--dry-run", *six], "--equilibria"),
+                  ("equilibria-six-identical-run", [*no_rig, *six], "--equilibria"),
+                  ("equilibria-four", ["--dry-run", "--equilibria", "6e-5,9e-5,1.2e-4,1.5e-4"], "--equilibria"),
+                  ("damping-one-height", ["--dry-run", "--damping-heights", "1e-4"], "--damping-heights"),
+                  ("damping-one-height-run", [*no_rig, "--damping-heights", "1e-4"], "--damping-heights"),
+                  ("damping-duplicates", ["--dry-run", "--damping-heights", "8e-5,8e-5,1.2e-4"], "--damping-heights"),
+                  ("damping-100000-heights", ["--dry-run", "--damping-heights", "5e-5:2e-4:100000"], "--damping-heights"),
+                  ("steps-1000", ["--dry-run", "--steps", "1000"], "--accept-long-plan"),
+                  ("steps-1000-run", [*no_rig, "--steps", "1000"], "--accept-long-plan"),
+                  ("steps-10000-accepted", ["--dry-run", "--steps", "10000", "--accept-long-plan"], "GiB held in memory")]]
+    cases += [
+        Case("identify-steps-1000-accepted", "cli-identify", ["identify", "--dry-run", "--steps", "1000",
+             "--accept-long-plan"], expect="ok", why="a plan of 1.1 h the user accepted: printed with its duration"),
+        Case("identify-dry-run-json", "cli-identify", ["identify", "--dry-run", "--json"], expect="ok",
+             why="the default plan, as JSON"),
+    ]
     short_identify = ["identify", "--port", "{port}", "--out", "rig.json", "--equilibria", "60e-6:180e-6:5",
                       "--damping-heights", "80e-6,140e-6", "--steps", "2"]
     cases += [
