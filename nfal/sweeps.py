@@ -199,10 +199,11 @@ def _check_ssp_settings(settings: dict, swept: list[str]) -> None:
                                                    and set(reference) <= {"levels_m", "hold_s", "lead_s"})):
         raise SweepSpecError(f"[run] reference = {reference!r}; must be \"staircase\", \"none\" or "
                              "{levels_m = [...], hold_s = ..., lead_s = ...}")
-    steps = (ssp_run_time(settings) or 0.0) / settings["step_size"]
-    if steps > MAX_STEPS:  # every run would be refused at its start
-        raise SweepSpecError(f"[run] a run of {ssp_run_time(settings):g} s at step_size = {settings['step_size']:g} s is "
-                             f"{steps:,.0f} steps; at most {MAX_STEPS:,} (a shorter stop_time or a longer step)")
+    run_time = ssp_run_time(settings)
+    if run_time is not None and run_time / settings["step_size"] > MAX_STEPS:  # every run would be refused at its start
+        raise SweepSpecError(f"[run] a run of {run_time:g} s at step_size = {settings['step_size']:g} s is "
+                             f"{run_time / settings['step_size']:,.0f} steps; at most {MAX_STEPS:,} (a shorter stop_time "
+                             "or a longer step)")
 
 
 def _check_ssp_name(name: str, table: str) -> None:

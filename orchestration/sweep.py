@@ -117,10 +117,11 @@ def _checked_cache(data: bytes, sha256: str, what: str, cache_dir: str | os.Path
 
 def cached_file(data: bytes, sha256: str, name: str, cache_dir: str | os.PathLike | None = None) -> Path:
     """The worker-local copy of a file a spec names, ``<cache>/files/<sha256>/<name>``, written once after checking
-    its sha256 (through a temporary file and a rename: worker processes sharing the cache do not race)."""
+    its sha256 (through a temporary file and a rename: there is no partial file, and worker processes sharing the
+    cache do not race)."""
     folder = _checked_cache(data, sha256, f"the file {name}", cache_dir) / "files" / sha256
     path = folder / name
-    if path.is_file() and hashlib.sha256(path.read_bytes()).hexdigest() == sha256:
+    if path.is_file():
         return path
     folder.mkdir(parents=True, exist_ok=True)
     handle, temp = tempfile.mkstemp(dir=folder, prefix=".part-")
@@ -141,8 +142,12 @@ def shipped_files(spec: SweepSpec) -> dict:
 
 def localised(run: RunSpec, files: Mapping, cache_dir: str | os.PathLike | None = None) -> RunSpec:
     """``run`` with each value that names a shipped file (:func:`shipped_files`) replaced by its worker-local copy."""
-    local = {key: prefix + str(cached_file(data, sha, name, cache_dir)) for key, (prefix, name, sha, data) in files.items()}
-    change = lambda key, value: local.get((key, value), value)  # noqa: E731
+    def change(key: str, value: str) -> str:
+        if (key, value) not in files:
+            return value
+        prefix, name, sha, data = files[(key, value)]
+        return prefix + str(cached_file(data, sha, name, cache_dir))
+
     return dataclasses.replace(run, parameters=map_strings(run.parameters, change),
                                settings=map_strings(run.settings, change))
 

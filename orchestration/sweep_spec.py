@@ -284,7 +284,7 @@ def _files(kind: SweepKind, settings: dict, grid: dict, base_dir: Path, source: 
         if named is None:
             continue
         prefix, text = named
-        path = Path(text) if Path(text).is_absolute() else base_dir / text
+        path = base_dir / text  # an absolute path stays as it is
         if not path.is_file():
             raise SweepSpecError(f"{source}: {name} = {value!r}: no file {path} (a path in a spec is relative to the "
                                  "spec's folder)")
