@@ -15,7 +15,7 @@ thin adapter over :mod:`nfal.models`:
   the attribute of the same name, which the slave sets from its state (no dependencies).
 * **Errors.** Every entry point the FMU runtime calls (setters, getters, initialisation, ``do_step``,
   FMU state) is guarded. Inside the runtime (the instance was passed a ``logger``) an exception
-  becomes :class:`SlaveCallError` ``"<instance>: <call> failed: <reason>"``, which our patched runtime
+  becomes :class:`SlaveCallError` ``"<instance>: <reason> (in <call>)"``, which our patched runtime
   (``fmus/runtime/``, ``fmus/export_runtime.py``) logs once with status fmi2Error and answers with
   **fmi2Error**; the instance stays usable and can be freed. As a Python object (tests, the rig
   emulator) the reason is logged (``logging`` and ``self.log``) and the original exception re-raised.
@@ -420,12 +420,11 @@ class NfalSlave(Fmi2Slave):
 
     def _fail(self, what: str, exc: BaseException) -> None:
         """Say why a call fails: in the runtime, raise SlaveCallError (logged once, fmi2Error); else log."""
-        reason = str(exc) or type(exc).__name__
-        message = f"{self.instance_name}: {what} failed: {reason}"
+        error = SlaveCallError(self.instance_name, what, str(exc) or type(exc).__name__)
         if self._in_wrapper:
-            raise SlaveCallError(message) from exc
-        logger.error(message)
-        self.log(message, Fmi2Status.error)
+            raise error from exc
+        logger.error("%s", error)
+        self.log(str(error), Fmi2Status.error)
 
     def setup_experiment(self, start_time: float, stop_time=None, tolerance=None) -> None:
         def run():
@@ -440,7 +439,7 @@ class NfalSlave(Fmi2Slave):
         so far (the initial state: the plant at initial_height, the controller's bumpless command), so a
         master that propagates outputs before the first step hands on consistent values, not zeros."""
         if self._in_initialization and self._settings_changed:
-            self._guard("initialisation (set-up from the parameters)", self.setup)
+            self._guard("the set-up from the parameters", self.setup)
             self._settings_changed = False
         return self._guard(what, read, vrs)
 
@@ -449,7 +448,7 @@ class NfalSlave(Fmi2Slave):
             self.setup()
             self.initialized = True
             self._in_initialization = False
-        self._guard("exit_initialization_mode (set-up from the parameters)", run)
+        self._guard("exit_initialization_mode, the set-up from the parameters", run)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:  # not through _guard: the hot path builds no closure and no message unless it fails

@@ -17,7 +17,7 @@ calls that differ in FMI 3.0 and writes an FMI 3.0 modelDescription.xml:
 pythonfmu3 (0.3.4) calls the same Python entry points (``setup_experiment(start_time)``,
 ``enter/exit_initialization_mode``, ``do_step``, ``_get_fmu_state`` ...). The FMU's binary is our
 patched build of pythonfmu3's runtime (``fmus/runtime3/``, :mod:`nfal.fmus.export_runtime`): as in
-FMI 2.0, a failed call is one logged line ``"<instance>: <call> failed: <reason>"`` with fmi3Error,
+FMI 2.0, a failed call is one logged line ``"<instance>: <reason> (in <call>)"`` with fmi3Error,
 and the instance stays usable.
 """
 

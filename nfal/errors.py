@@ -9,6 +9,7 @@ FMU runs; problems while a run goes (an FMU answering fmi2Error/fmi2Fatal) while
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 
@@ -16,12 +17,47 @@ class NfalError(Exception):
     """Base of every error nfal raises on purpose."""
 
 
-class InvalidParameterError(NfalError, ValueError):
-    """A parameter or input is out of its allowed range (the message names both)."""
+#: A sequence longer than this is shown as its ends and its length.
+SHOWN_ITEMS = 6
+#: A value's text longer than this is cut (a message stays one readable line).
+SHOWN_CHARACTERS = 200
 
-    def __init__(self, name: str, value: object, allowed: str) -> None:
-        self.name, self.value, self.allowed = name, value, allowed
-        super().__init__(f"{name} = {value!r} is invalid: must be {allowed}")
+
+def shown(value: object) -> str:
+    """``value`` as a message shows it: Python's repr, but numpy scalars and arrays as plain numbers and lists (never
+    ``np.float64(150.0)`` or a multi-line ``array(...)``), a sequence longer than :data:`SHOWN_ITEMS` as its ends and
+    length (``[5e-05, 5.5e-05, ..., 0.0002] (31 values)``), and at most :data:`SHOWN_CHARACTERS` characters."""
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)) and len(value) > SHOWN_ITEMS:
+        text = f"[{shown(value[0])}, {shown(value[1])}, ..., {shown(value[-1])}] ({len(value)} values)"
+    elif isinstance(value, list):
+        text = "[" + ", ".join(shown(v) for v in value) + "]"
+    elif isinstance(value, tuple):
+        text = "(" + ", ".join(shown(v) for v in value) + ("," if len(value) == 1 else "") + ")"
+    else:
+        text = repr(value)
+    return text if len(text) <= SHOWN_CHARACTERS else text[:SHOWN_CHARACTERS - 3] + "..."
+
+
+def span_um(low_m: float, high_m: float) -> str:
+    """A range of clearances [m] as messages give it: ``50.0–200.0 µm``."""
+    return f"{low_m * 1e6:.1f}–{high_m * 1e6:.1f} µm"
+
+
+class InvalidParameterError(NfalError, ValueError):
+    """A parameter or input is out of its allowed range (the message names both).
+
+    ``as_shown`` replaces the value's text (default :func:`shown`), e.g. a range of heights as ``50.0–200.0 µm``.
+    """
+
+    def __init__(self, name: str, value: object, allowed: str, *, as_shown: str | None = None) -> None:
+        self.name, self.value, self.allowed, self.as_shown = name, value, allowed, as_shown
+        super().__init__(f"{name} = {shown(value) if as_shown is None else as_shown} is invalid: must be {allowed}")
+
+    def within(self, parent: str) -> "InvalidParameterError":
+        """The same error for the field ``parent.name`` (a field of a file's ``parent`` entry)."""
+        return InvalidParameterError(f"{parent}.{self.name}", self.value, self.allowed, as_shown=self.as_shown)
 
 
 class DataFormatError(NfalError, ValueError):
@@ -48,7 +84,11 @@ class FmuStateError(NfalError, ValueError):
 
 
 class SlaveCallError(NfalError, RuntimeError):
-    """An FMI call that failed inside our FMU, as the host's logger shows it: ``"<instance>: <call> failed: <reason>"``."""
+    """An FMI call that failed inside our FMU, as the host's logger shows it, the reason first:
+    ``"<instance>: <reason> (in <call>)"``."""
+
+    def __init__(self, instance: str, call: str, reason: str) -> None:
+        super().__init__(f"{instance}: {reason} (in {call})")
 
 
 class RuntimeBuildError(NfalError, RuntimeError):
@@ -181,6 +221,10 @@ class FmuLoadError(OrchestrationError, RuntimeError):
 class FmuCallError(SimulationError):
     """An FMU answered a call with fmi2Error or fmi2Fatal (or worse).
 
+    The message leads with the FMU's own reason (its logged messages, the instance name they start with said once),
+    the FMI call after it: ``"Controller: mass = -1.0 is invalid: must be a finite number > 0 (in the set-up from
+    the parameters; fmi2GetReal for saturated_time at t = 0 s)"``.
+
     Attributes
     ----------
     element, function : str
@@ -191,16 +235,27 @@ class FmuCallError(SimulationError):
         The communication point [s] at which the call was made.
     messages : tuple of str
         The FMU's last logged messages (its reason, usually).
+    context : str
+        What the call was doing, e.g. ``"for saturated_time"`` (may be empty).
     """
 
     STATUS_NAMES = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 
-    def __init__(self, element: str, function: str, status: int, time: float, messages: Sequence[str] = ()) -> None:
+    def __init__(self, element: str, function: str, status: int, time: float, messages: Sequence[str] = (),
+                 context: str = "") -> None:
         self.element, self.function, self.status, self.time = element, function, status, time
-        self.messages = tuple(messages)
+        self.messages, self.context = tuple(messages), context
         label = self.STATUS_NAMES.get(status, f"illegal status {status}")
-        reason = "; ".join(self.messages) if self.messages else "the FMU logged no reason"
-        super().__init__(f"{element}: {function} returned {label} at t = {time:.9g} s: {reason}")
+        reason = "; ".join(m.removeprefix(f"{element}: ") for m in self.messages) or "the FMU logged no reason"
+        call = " ".join(filter(None, (function, context))) + (f" at t = {time:.9g} s" if math.isfinite(time) else "")
+        call += "" if status == 3 else f", which returned {label}"
+        own = _OWN_CALL.fullmatch(reason)  # our FMUs end their reason with "(in <call>)": one parenthesis for both
+        text = f"{own[1]} (in {own[2]}; {call})" if own else f"{reason} (in {call})"
+        super().__init__(f"{element}: {text}")
+
+
+#: A reason that ends with the call it failed in, as our FMUs log it (:class:`SlaveCallError`).
+_OWN_CALL = re.compile(r"(.*) \(in ([^()]*)\)", re.DOTALL)
 
 
 # --- checks --------------------------------------------------------------------------------------

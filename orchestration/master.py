@@ -37,8 +37,8 @@ Values cross a link as the target's type (Integer -> Real) and through its ``Lin
 if any (:mod:`~nfal.orchestration.resolve`). An FMU that ends its own horizon (fmi2Discard from
 doStep and fmi2Terminated true) sets :attr:`Master.ended` (a :class:`HorizonEnd`), not an error.
 Any other failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
-:class:`~nfal.errors.FmuCallError` naming the element, the function, the time and the
-FMU's logged reason. :meth:`Master.close` then frees what can be freed (an instance in error is freed
+:class:`~nfal.errors.FmuCallError`: the element and the FMU's logged reason first (an error-status message
+before any earlier warning), then the function, what it was for and the time. :meth:`Master.close` then frees what can be freed (an instance in error is freed
 without fmi2Terminate; after fmi2Fatal, FMI allows no further call to that FMU, so none is made).
 """
 
@@ -64,7 +64,7 @@ from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3True, fmi3ValueRe
 from fmpy.logging import addLoggerProxy
 
 from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
-                         TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive)
+                         TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive, shown)
 
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
 from .results import Column
@@ -106,11 +106,11 @@ def _route_log(environment, instance, status, category, message) -> None:
         level = _STATUS_LEVELS.get(status, logging.ERROR)
         if slave is not None:
             name = slave.name
-            if status >= 1 and not (text.startswith(_PYTHONFMU_AFTER_REASON) and slave.reason_logged):
+            if status >= 1 and not (text.startswith(_PYTHONFMU_AFTER_REASON) and slave.reasons):
                 slave.messages.append(text)
             if status >= 3:  # the failing call's FmuCallError carries the messages: said once, there
                 level = logging.DEBUG
-                slave.reason_logged = True
+                slave.reasons.append(text)
         logger.log(level, "[%s] %s", name, text)
     except Exception:  # pragma: no cover - never let an exception cross the C callback
         pass
@@ -130,7 +130,8 @@ class _Slave:
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
         self.element, self.name = element, element.name
         self.messages: collections.deque[str] = collections.deque(maxlen=20)
-        self.reason_logged = False  # an error-status message came: pythonfmu's generic follow-up adds nothing
+        #: The error-status messages: an error's cause, said first (pythonfmu's generic follow-up to one adds nothing)
+        self.reasons: collections.deque[str] = collections.deque(maxlen=5)
         self.state = "loaded"  # -> instantiated -> initialization -> running -> freed; error; fatal
         self.step_time = 0.0
         self.fmu_logging = fmu_logging
@@ -191,7 +192,7 @@ class _Slave3(_Slave):
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
         self.element, self.name = element, element.name
         self.messages = collections.deque(maxlen=20)
-        self.reason_logged = False
+        self.reasons = collections.deque(maxlen=5)
         self.state = "loaded"
         self.step_time = 0.0
         self.fmu_logging = fmu_logging
@@ -243,7 +244,7 @@ def _log3(slave: "_Slave | None", status: int, message: bytes | None) -> None:
                 slave.messages.append(text)
             if status >= 3:  # the failing call's FmuCallError carries the messages
                 level = logging.DEBUG
-                slave.reason_logged = True
+                slave.reasons.append(text)
         logger.log(level, "[%s] %s", name, text)
     except Exception:  # pragma: no cover - never let an exception cross the C callback
         pass
@@ -512,8 +513,8 @@ class Master:
             try:
                 slave.set_start(variable, value)
             except FMICallException as exc:
-                raise self._failure(slave, exc, f" (setting {name} = {value!r}, from "
-                                                f"{slave.element.origins.get(name, '?')})") from None
+                raise self._failure(slave, exc, f"for {name} = {shown(value)} from "
+                                                f"{slave.element.origins.get(name, '?')}") from None
             logger.debug("%s.%s = %r (%s)", slave.name, name, value, slave.element.origins.get(name, "?"))
 
     def _build_transfers(self) -> None:
@@ -551,7 +552,7 @@ class Master:
             for transfer in transfers:
                 transfer.run(self.row)
         except FMICallException as exc:
-            raise self._failure(transfer.slave, exc, f" ({transfer.kind} {', '.join(transfer.names)})") from None
+            raise self._failure(transfer.slave, exc, f"for {', '.join(transfer.names)}") from None
 
     def _call_all(self, name: str) -> None:
         slave = None
@@ -674,9 +675,10 @@ class Master:
             for transfer in self.sets:
                 transfer.load(self.row)
 
-    def _failure(self, slave: _Slave, exc: FMICallException, detail: str = "") -> FmuCallError:
+    def _failure(self, slave: _Slave, exc: FMICallException, context: str = "") -> FmuCallError:
         slave.state = "fatal" if exc.status >= 4 else "error"
-        return FmuCallError(slave.name, exc.function + detail, exc.status, self.time, list(slave.messages))
+        others = [m for m in slave.messages if m not in slave.reasons]  # the cause first, then what came before
+        return FmuCallError(slave.name, exc.function, exc.status, self.time, [*slave.reasons, *others], context)
 
     def timing(self) -> dict[str, dict]:
         """Per element: its FMU file and the wall time spent in its doStep calls [s]."""

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from nfal.csvdata import read_numeric_csv
-from nfal.errors import DataFormatError, SignalError
+from nfal.errors import DataFormatError, SignalError, shown
 
 #: Time tolerance [s] of a change (absolute and relative), see the module docstring.
 TIME_TOLERANCE = 1e-12
@@ -133,7 +133,7 @@ def steps_of(signal: PiecewiseConstant, start_s: float, end_s: float, *,
 def staircase(levels_m: Sequence[float], hold_s: float, lead_s: float) -> PiecewiseConstant:
     """Steps through ``levels_m`` [m]: the first held ``lead_s``, the others ``hold_s`` [s]."""
     if len(levels_m) < 2 or not (hold_s > 0 and lead_s > 0):
-        raise SignalError(f"staircase: levels {list(levels_m)!r}, hold {hold_s!r} s, lead {lead_s!r} s: "
+        raise SignalError(f"staircase: levels {shown(list(levels_m))}, hold {shown(hold_s)} s, lead {shown(lead_s)} s: "
                           "expected two or more levels and a hold and lead > 0")
     times = [0.0, *map(float, lead_s + hold_s * np.arange(len(levels_m) - 1))]
     return PiecewiseConstant(times, levels_m, name="staircase", duration_s=lead_s + hold_s * (len(levels_m) - 1))

@@ -250,9 +250,9 @@ def test_fmu_rejects_a_step_that_does_not_divide_the_sample_period(controller, s
     with pytest.raises(FMICallException) as raised:
         controller.step(step_s)
     assert raised.value.status == FMI_ERROR
-    assert controller.errors() == [f"instance: doStep at t = 0 s failed: communication step size = {step_s:g} is "
-                                   "invalid: must be the sample period 0.0005 s divided by a whole number "
-                                   "(e.g. 0.0005 s or 0.00025 s)"]
+    assert controller.errors() == [f"instance: communication step size = {step_s:g} is invalid: must be the sample "
+                                   "period 0.0005 s divided by a whole number (e.g. 0.0005 s or 0.00025 s) "
+                                   "(in doStep at t = 0 s)"]
     controller.step(PERIOD)  # the instance is whole: a valid step goes on
 
 

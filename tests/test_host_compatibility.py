@@ -189,8 +189,8 @@ def test_an_error_in_a_c_host_is_one_logged_line_and_fmi2error(fmus, c_host, tmp
     runs = run_in_c_host(c_host, fmus["Controller"], tmp_path, runs=1, stop_time=0.003, step_size=3e-4)
     assert runs.exit_codes == [3]  # the host's "an FMI call did not return fmi2OK", not a signal
     logged = [line for line in runs.first_failure.splitlines() if line.startswith("log ")]
-    assert logged == ["log 3 logStatusError: instance: doStep at t = 0 s failed: communication step size = 0.0003 is invalid: "
-                      "must be the sample period 0.0005 s divided by a whole number (e.g. 0.0005 s or 0.00025 s) "
+    assert logged == ["log 3 logStatusError: instance: communication step size = 0.0003 is invalid: must be the sample "
+                      "period 0.0005 s divided by a whole number (e.g. 0.0005 s or 0.00025 s) (in doStep at t = 0 s) "
                       "[instance]"]
     assert "fmi2DoStep returned 3" in runs.first_failure
 

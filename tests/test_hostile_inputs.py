@@ -117,7 +117,7 @@ def test_the_judge(tmp_path, returncode, stderr, expect, outcome):
     assert classify(case, done, {}, {}, tmp_path)[0] == outcome
 
 
-@pytest.mark.parametrize("stdout, outcome", [("[ERROR] x: doStep failed: mass = -1 ...\n", CLEAR), ("", WRONG)])
+@pytest.mark.parametrize("stdout, outcome", [("[ERROR] x: mass = -1.0 is invalid: ... (in doStep at t = 0 s)\n", CLEAR), ("", WRONG)])
 def test_the_judge_wants_an_fmus_reason(tmp_path, stdout, outcome):
     case = Case("judge", "judge", fmu={"fmu": "SlowPlant"})
     done = subprocess.CompletedProcess(["python"], 2, stdout, "fmu: error: doStep: fmi2DoStep failed\n")

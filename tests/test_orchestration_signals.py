@@ -29,6 +29,12 @@ def test_a_bad_staircase_is_refused(levels, hold, lead):
         staircase(levels, hold, lead)
 
 
+def test_a_bad_staircase_of_numpy_values_reads_as_plain_numbers():
+    with pytest.raises(SignalError, match=r"levels \[0.0001\], hold 0.0 s, lead 0.5 s") as caught:
+        staircase(np.array([1e-4]), np.float64(0.0), np.float64(0.5))
+    assert "np." not in str(caught.value)
+
+
 def test_a_communication_point_a_hair_before_a_change_counts_as_at_it():
     signal = staircase((1.0, 2.0), hold_s=1.0, lead_s=0.3)
     assert signal(0.3 - 1e-15) == 2.0 and signal(0.1 * 3) == 2.0 and signal(0.3 - 1e-9) == 1.0
