@@ -31,6 +31,7 @@ from nfal.csvdata import read_user_text
 from . import piecewise
 from .damping import DampingCorrection
 from .excitation import ExcitationShape
+from .json_fields import as_json, json_number, json_numbers
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
 from .rig import RigParameters
 from .scalar_spline import ScalarSpline
@@ -42,6 +43,9 @@ PAPER_COEFFICIENTS = (1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10)
 PAPER_SIGMA_RANGE = (10.0, 500.0)
 #: The calibration file format this code reads and writes (a file without ``"version"`` is read as 1).
 CALIBRATION_FILE_VERSION = 1
+#: A calibration file's entries (``"equilibria"``: the data behind an identification's K, carried, not read).
+FILE_KEYS = ("version", "kind", "name", "coefficients", "sigma_range", "sigma", "K", "damping", "rig", "provenance",
+             "equilibria")
 #: The rig parameters a calibration file's ``"rig"`` may name, and the relative mismatch that makes it
 #: another rig's (K by eq. (16) and the damping factor depend on all of them; h0 only scales).
 CHECKED_RIG_FIELDS = ("mass", "radius", "frequency", "viscosity", "ambient_pressure", "gravity")
@@ -175,16 +179,26 @@ def perturbation_calibration(shape: ExcitationShape, sigma_range: tuple[float, f
 
 
 def calibration_from_dict(data: dict) -> CalibrationFunction:
-    """Rebuild a calibration from :meth:`CalibrationFunction.to_dict` output."""
+    """Rebuild a calibration from :meth:`CalibrationFunction.to_dict` output (read as JSON: every number exactly a
+    number, the name a string; an error names the field, its value and what it must be)."""
+    if not isinstance(data, dict):
+        raise DataFormatError(f"a calibration description is a JSON object, not {type(data).__name__}")
+    kind, name = data.get("kind"), data.get("name", data.get("kind"))
+    if "kind" not in data:
+        raise DataFormatError("not a calibration description: no 'kind' ('polynomial' or 'table')")
+    if kind not in ("polynomial", "table"):
+        raise DataFormatError(f"unknown calibration kind {as_json(kind)}: expected 'polynomial' or 'table'")
+    if not isinstance(name, str):
+        raise InvalidParameterError("name", name, "a string", as_shown=as_json(name))
     try:
-        kind = data["kind"]
         if kind == "polynomial":
-            return PolynomialK(data["coefficients"], tuple(data["sigma_range"]), name=data.get("name", "polynomial"))
-        if kind == "table":
-            return TabulatedK(data["sigma"], data["K"], name=data.get("name", "table"))
-    except (KeyError, TypeError) as exc:
-        raise DataFormatError(f"not a calibration description: missing or bad {exc}") from None
-    raise DataFormatError(f"unknown calibration kind {data.get('kind')!r}: expected 'polynomial' or 'table'")
+            sigma_range = json_numbers("sigma_range", data["sigma_range"])
+            if len(sigma_range) != 2:
+                raise InvalidParameterError("sigma_range", sigma_range, "two squeeze numbers [low, high]")
+            return PolynomialK(json_numbers("coefficients", data["coefficients"]), tuple(sigma_range), name=name)
+        return TabulatedK(json_numbers("sigma", data["sigma"]), json_numbers("K", data["K"]), name=name)
+    except KeyError as exc:
+        raise DataFormatError(f"a calibration of kind {as_json(kind)} needs {exc}") from None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,24 +254,39 @@ def rig_record(rig: RigParameters) -> dict[str, float]:
     return {name: float(getattr(rig, name)) for name in CHECKED_RIG_FIELDS}
 
 
+def rig_record_from_dict(data: dict) -> dict[str, float]:
+    """A calibration file's ``"rig"`` (:func:`rig_record`): some of :data:`CHECKED_RIG_FIELDS`, each a JSON number that
+    :class:`RigParameters` accepts (> 0, and plausible: not grams as kg, nor kHz as Hz)."""
+    if not isinstance(data, dict) or not set(data) <= set(CHECKED_RIG_FIELDS):
+        raise DataFormatError(f"rig = {as_json(data)} is invalid: must map some of {', '.join(CHECKED_RIG_FIELDS)} to "
+                              "numbers (SI)")
+    record = {name: json_number(f"rig.{name}", value) for name, value in data.items()}
+    for name, value in record.items():
+        try:
+            RigParameters(**{name: value})
+        except InvalidParameterError as exc:
+            raise exc.within("rig") from None
+    return record
+
+
 def rig_calibration_from_dict(data: dict) -> RigCalibration:
-    """Read a calibration file's content (:meth:`RigCalibration.to_dict`); a K-only description is one too."""
+    """Read a calibration file's content (:meth:`RigCalibration.to_dict`); a K-only description is one too.
+    Each field is checked: a number is a JSON number (not ``true``, not ``"1"``), and lengths, heights and the rig
+    in their plausible ranges (a damping table in um is a unit slip, not a rig)."""
     if not isinstance(data, dict):
         raise DataFormatError(f"a calibration file holds a JSON object, not {type(data).__name__}")
+    unknown = sorted(set(data) - set(FILE_KEYS))
+    if unknown:
+        raise DataFormatError(f"unknown entries {unknown} in a calibration file: it holds {', '.join(FILE_KEYS)}")
     version = data.get("version", CALIBRATION_FILE_VERSION)
-    if version != CALIBRATION_FILE_VERSION:
-        raise DataFormatError(f"calibration file version {version!r} is not supported: this nfal reads version "
-                              f"{CALIBRATION_FILE_VERSION} (re-identify, or update nfal)")
-    rig = data.get("rig")
-    if rig is not None:
-        if not isinstance(rig, dict) or not set(rig) <= set(CHECKED_RIG_FIELDS) or not all(
-                isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in rig.values()):
-            raise DataFormatError(f"a calibration file's 'rig' maps some of {CHECKED_RIG_FIELDS} to finite numbers > 0 "
-                                  f"(SI), got {rig!r:.200}")
-        rig = {name: float(value) for name, value in rig.items()}
+    if type(version) is not int or version != CALIBRATION_FILE_VERSION:
+        raise InvalidParameterError("version", version, f"{CALIBRATION_FILE_VERSION}, the file format this nfal reads "
+                                    "(re-identify, or update nfal)", as_shown=as_json(version))
+    rig = None if data.get("rig") is None else rig_record_from_dict(data["rig"])
     provenance = data.get("provenance", {})
     if not isinstance(provenance, dict):
-        raise DataFormatError(f"a calibration file's 'provenance' is a JSON object, got {provenance!r:.200}")
+        raise DataFormatError(f"provenance = {as_json(provenance)} is invalid: must be a JSON object (free-form: date, "
+                              "port, firmware, raw data)")
     damping = None if data.get("damping") is None else DampingCorrection.from_dict(data["damping"])
     return RigCalibration(calibration_from_dict(data), damping, rig, provenance)
 
@@ -285,7 +314,7 @@ def load_rig_calibration(path: str | os.PathLike, rig: RigParameters | None = No
     try:
         loaded = rig_calibration_from_dict(data)
         require_lift(loaded.calibration, "K")
-    except DataFormatError as exc:
+    except (DataFormatError, InvalidParameterError) as exc:
         raise DataFormatError(f"calibration {path}: {exc}") from None
     if rig is not None:
         loaded.check_rig(rig, f"calibration {path}")

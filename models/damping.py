@@ -16,9 +16,15 @@ import math
 import numpy as np
 from scipy import interpolate
 
-from nfal.errors import DataFormatError
+from nfal.errors import DataFormatError, InvalidParameterError
 
+from .json_fields import as_json, json_numbers
+from .plausibility import require_clearances
 from .scalar_spline import ScalarSpline
+
+
+#: The fields of a damping table (a calibration file's ``"damping"``).
+FIELDS = ("heights_m", "factors", "factors_low", "factors_high")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -28,7 +34,8 @@ class DampingCorrection:
     Parameters
     ----------
     heights_m : array_like
-        Identified clearances [m], strictly increasing, at least 2.
+        Identified clearances [m], strictly increasing, at least 2, each within 1 um-1 mm
+        (:data:`~nfal.models.plausibility.WORK_CLEARANCES_M`: a table in um is refused, not held at one factor).
     factors : array_like
         Measured multiplier f of eq. (6)'s c(h) at each clearance (> 0).
     factors_low, factors_high : array_like, optional
@@ -41,15 +48,15 @@ class DampingCorrection:
     factors_high: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        heights = _finite_row("heights_m", self.heights_m)
+        heights = require_clearances("heights_m", _finite_row("heights_m", self.heights_m))
         factors = _finite_row("factors", self.factors)
         low = factors if self.factors_low is None else _finite_row("factors_low", self.factors_low)
         high = factors if self.factors_high is None else _finite_row("factors_high", self.factors_high)
         if heights.size < 2 or any(v.size != heights.size for v in (factors, low, high)):
             raise DataFormatError(f"a damping table needs >= 2 heights and one factor (and band) per height, got "
                                   f"{heights.size} heights, {factors.size} factors, {low.size}/{high.size} band ends")
-        if heights[0] <= 0 or np.any(np.diff(heights) <= 0):
-            raise DataFormatError(f"damping heights_m must be > 0 m and strictly increasing, got {heights.tolist()}")
+        if np.any(np.diff(heights) <= 0):
+            raise DataFormatError(f"damping heights_m must be strictly increasing, got {heights.tolist()}")
         if np.any(low <= 0) or np.any(low > factors) or np.any(factors > high):
             raise DataFormatError("damping factors must satisfy 0 < factors_low <= factors <= factors_high, got "
                                   f"{low.tolist()}, {factors.tolist()}, {high.tolist()}")
@@ -86,13 +93,17 @@ class DampingCorrection:
 
     @classmethod
     def from_dict(cls, data: dict) -> "DampingCorrection":
-        """Read the ``"damping"`` entry of a calibration file (:meth:`to_dict`)."""
-        if not isinstance(data, dict) or "heights_m" not in data or "factors" not in data:
-            raise DataFormatError(f"a calibration file's 'damping' must hold 'heights_m' and 'factors', got {data!r:.200}")
-        unknown = set(data) - {"heights_m", "factors", "factors_low", "factors_high"}
-        if unknown:
-            raise DataFormatError(f"unknown keys {sorted(unknown)} in a calibration file's 'damping'")
-        return cls(data["heights_m"], data["factors"], data.get("factors_low"), data.get("factors_high"))
+        """Read the ``"damping"`` entry of a calibration file (:meth:`to_dict`); an error names the field
+        (``damping.heights_m``), its value and what it must be."""
+        if not isinstance(data, dict) or not {"heights_m", "factors"} <= set(data) <= set(FIELDS):
+            raise DataFormatError(f"damping = {as_json(data)} is invalid: must hold heights_m and factors (and "
+                                  "optionally factors_low, factors_high), nothing else")
+        try:
+            band = {name: json_numbers(name, data[name]) for name in ("factors_low", "factors_high")
+                    if data.get(name) is not None}
+            return cls(json_numbers("heights_m", data["heights_m"]), json_numbers("factors", data["factors"]), **band)
+        except InvalidParameterError as exc:
+            raise exc.within("damping") from None
 
     def __repr__(self) -> str:
         return (f"<DampingCorrection {self.heights_m.size} heights {self.heights_m[0] * 1e6:.0f}-"

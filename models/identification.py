@@ -29,6 +29,7 @@ from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
 from .experimental import FIT_DEGREE
+from .plausibility import require_clearances
 from .rig import RigParameters
 from .table2 import WORK_RANGE_M
 from .transducer import Transducer
@@ -223,9 +224,7 @@ class IdentificationPlan:
 
     def __post_init__(self) -> None:
         for name in ("equilibrium_heights_m", "damping_heights_m"):
-            heights = np.asarray(getattr(self, name), dtype=float)
-            if heights.ndim != 1 or not np.all((heights > 1e-6) & (heights < 1e-3)):
-                raise InvalidParameterError(name, getattr(self, name), "clearances between 1 um and 1 mm")
+            heights = require_clearances(name, getattr(self, name))
             object.__setattr__(self, name, tuple(float(h) for h in heights))
         for name in ("settle_window_s", "settle_drift", "move_tolerance"):
             require_positive(name, getattr(self, name))

@@ -1,17 +1,23 @@
-"""Physical plausibility: the ceilings past which a value is a unit slip, not a rig.
+"""Physical plausibility: the ranges outside which a value is a unit slip, not a rig.
 
 Near-field levitation lifts grams to a kilogram or so over tens to hundreds of micrometres (the paper's
-rig: 134.7 g at 60-180 um, driven with |a| of a few um). A value far past these ceilings is almost
-always grams given as kg or um given as m; it is refused with a hint rather than simulated (a 1 m
-excitation "levitates" the object 126 km). The ceilings are generous: ten times anything NFAL does.
+rig: 134.7 g at 60-180 um, driven with |a| of a few um at 28.5 kHz, in air). A value far outside these
+ranges is almost always grams given as kg, um given as m or kHz as Hz; it is refused with a hint rather
+than simulated (a 1 m excitation "levitates" the object 126 km). The ranges are generous: ten times
+anything NFAL does.
 """
 
 from __future__ import annotations
 
-from nfal.errors import InvalidParameterError
+import numpy as np
+
+from nfal.errors import InvalidParameterError, span_um
 
 #: Largest clearance (levitation height, rest gap, reference clearance) [m]: squeeze films end at about 1 mm.
 MAX_CLEARANCE_M = 5e-3
+#: The clearances a levitation rig works at [m], exclusive: heights to identify, design for or tabulate (a
+#: calibration file's damping). Below 1 um the surfaces touch; past 1 mm the squeeze film has gone.
+WORK_CLEARANCES_M = (1e-6, 1e-3)
 #: Largest excitation amplitude |a| [m]: piezo-driven surfaces vibrate by a few um (the paper: at most 10 um).
 MAX_EXCITATION_M = 1e-4
 #: Largest levitated mass [kg]: above Table 1's heaviest case (20 kg on the paper's 50 mm disc), below a
@@ -22,14 +28,39 @@ MAX_RADIUS_M = 1.0
 #: Largest gain of the voltage -> |a| map [m/V]: the excitation ceiling reached at 10 V (the paper's
 #: transducer: 1e-7 m/V, 10 um at 100 V). A 1e300 made every drive voltage 0 V.
 MAX_METRES_PER_VOLT = 1e-5
+#: Excitation (and resonance) frequencies [Hz]: Table 1 goes down to 2 kHz, the paper's rig runs at 28.5 kHz;
+#: 28.5 is kHz given as Hz.
+FREQUENCY_RANGE_HZ = (500.0, 1e6)
+#: Dynamic viscosity of the gas [Pa s]: gases are 1e-5 to 3e-5; 18.1 is uPa s given as Pa s.
+MAX_VISCOSITY_PA_S = 1e-3
+#: Ambient pressure [Pa]: 101.325 is kPa given as Pa, 1013 hPa, 1.013 bar.
+PRESSURE_RANGE_PA = (1e4, 1e7)
+#: Gravitational acceleration [m/s^2]: 981 is cm/s^2.
+MAX_GRAVITY_M_S2 = 100.0
 
-_HINTS = {"m": "did you give um or mm as m?", "kg": "did you give grams as kg?", "m/V": "did you give um/V as m/V?"}
+_HINTS = {"m": "did you give µm or mm as m?", "kg": "did you give grams as kg?", "m/V": "did you give µm/V as m/V?",
+          "Hz": "did you give kHz as Hz?", "Pa": "did you give kPa, hPa or bar as Pa?",
+          "Pa.s": "did you give µPa s or mPa s as Pa s?"}
 
 
-def require_plausible(name: str, value: float, ceiling: float, unit: str) -> float:
-    """Return ``value`` if it is at most ``ceiling`` [unit], else raise :class:`InvalidParameterError` with a
-    hint at the likely unit slip. ``value`` is expected finite (checked before)."""
-    if value > ceiling:
-        hint = _HINTS.get(unit, "check the unit")
-        raise InvalidParameterError(name, value, f"at most {ceiling:g} {unit} for a levitation rig ({hint})")
+def require_plausible(name: str, value: float, ceiling: float, unit: str, floor: float = 0.0) -> float:
+    """Return ``value`` if it is at most ``ceiling`` (and at least ``floor``) [unit], else raise
+    :class:`InvalidParameterError` with a hint at the likely unit slip. ``value`` is expected finite (checked before)."""
+    if value > ceiling or value < floor:
+        bounds = f"at most {ceiling:g} {unit}" if floor == 0.0 else f"within {floor:g}–{ceiling:g} {unit}"
+        raise InvalidParameterError(name, value, f"{bounds} for a levitation rig ({_HINTS.get(unit, 'check the unit')})")
     return value
+
+
+def require_clearances(name: str, heights) -> np.ndarray:
+    """``heights`` [m] as a 1-D float array if each is a clearance of :data:`WORK_CLEARANCES_M`, else raise
+    :class:`InvalidParameterError` naming the range and the likely unit slip."""
+    low, high = WORK_CLEARANCES_M
+    allowed = f"clearances within {span_um(low, high)} ({_HINTS['m']})"
+    try:
+        values = np.asarray(heights, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(name, heights, allowed) from None
+    if values.ndim != 1 or not np.all((values > low) & (values < high)):
+        raise InvalidParameterError(name, heights, allowed)
+    return values

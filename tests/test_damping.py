@@ -123,17 +123,47 @@ def _write(tmp_path, **extra) -> str:
 
 
 @pytest.mark.parametrize("extra, reason", [
-    ({"version": 2}, "version 2 is not supported"),
-    ({"version": "1"}, "version '1' is not supported"),
-    ({"damping": {"heights_m": [50e-6, 60e-6]}}, "must hold 'heights_m' and 'factors'"),
-    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, 2], "factor": 3}}, "unknown keys"),
-    ({"rig": {"mass": -1.0}}, "finite numbers > 0"),
-    ({"rig": {"colour": 1.0}}, "maps some of"),
-    ({"provenance": "yesterday"}, "'provenance' is a JSON object"),
+    ({"version": 2}, "version = 2 is invalid: must be 1, the file format this nfal reads"),
+    ({"version": "1"}, 'version = "1" is invalid: must be 1'),
+    ({"version": True}, "version = true is invalid: must be 1"),
+    ({"version": 1.0}, "version = 1.0 is invalid: must be 1"),
+    ({"damping": {"heights_m": [50e-6, 60e-6]}}, "damping = .* is invalid: must hold heights_m and factors"),
+    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, 2], "factor": 3}}, "damping = .*nothing else"),
+    ({"damping": {"heights_m": [49.2, 80, 120, 200], "factors": [1, 2, 3, 4]}},
+     r"damping.heights_m = \[49.2, 80.0, 120.0, 200.0\] is invalid: must be clearances within 1.0–1000.0 µm "
+     r"\(did you give µm or mm as m\?\)"),
+    ({"damping": {"heights_m": [0.5e-6, 60e-6], "factors": [1, 2]}}, "damping.heights_m = .* within 1.0–1000.0 µm"),
+    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, True]}}, r"damping.factors\[1\] = true is invalid: must be a number"),
+    ({"damping": {"heights_m": "50e-6", "factors": [1, 2]}}, 'damping.heights_m = "50e-6" is invalid: must be a list of numbers'),
+    ({"rig": {"mass": -1.0}}, "rig.mass = -1.0 is invalid: must be a finite number > 0"),
+    ({"rig": {"mass": 134.7}}, r"rig.mass = 134.7 is invalid: must be at most 100 kg .*grams as kg"),
+    ({"rig": {"mass": True}}, "rig.mass = true is invalid: must be a number"),
+    ({"rig": {"colour": 1.0}}, r'rig = \{"colour": 1.0\} is invalid: must map some of mass, radius'),
+    ({"provenance": "yesterday"}, 'provenance = "yesterday" is invalid: must be a JSON object'),
+    ({"dampin": {}}, r"unknown entries \['dampin'\] in a calibration file"),
+    ({"name": 3}, "name = 3 is invalid: must be a string"),
+    ({"coefficients": [1.2, True]}, r"coefficients\[1\] = true is invalid: must be a number"),
+    ({"sigma_range": [10, "500"]}, r'sigma_range\[1\] = "500" is invalid: must be a number'),
+    ({"sigma_range": [10, 100, 500]}, r"sigma_range = \[10.0, 100.0, 500.0\] is invalid: must be two squeeze numbers"),
 ])
-def test_bad_files_name_the_problem(tmp_path, extra, reason):
-    with pytest.raises(DataFormatError, match=reason):
+def test_bad_files_name_the_field_its_value_and_the_range(tmp_path, extra, reason):
+    with pytest.raises(DataFormatError, match=f"^calibration .*c.json: {reason}") as caught:
         load_rig_calibration(_write(tmp_path, **extra))
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("field, values", [("sigma", [10, 30, True, 300]), ("K", [1.0, 1.1, 1.2, False])])
+def test_a_tables_numbers_are_numbers(tmp_path, field, values):
+    table = {"kind": "table", "name": "t", "sigma": [10, 30, 100, 300], "K": [1.0, 1.1, 1.2, 1.3], field: values}
+    path = tmp_path / "t.json"
+    path.write_text(json.dumps(table))
+    with pytest.raises(DataFormatError, match=rf"{field}\[\d\] = (true|false) is invalid: must be a number"):
+        load_rig_calibration(path)
+
+
+def test_a_damping_table_in_micrometres_is_refused_not_held_at_one_factor():
+    with pytest.raises(InvalidParameterError, match="heights_m = .* within 1.0–1000.0 µm"):
+        DampingCorrection([49.2, 80.0, 120.0, 200.0], [1.0, 1.5, 2.0, 4.0])
 
 
 @pytest.mark.parametrize("field, value", [("mass", 0.2), ("frequency", 40e3), ("radius", 0.03)])
@@ -164,7 +194,7 @@ def test_cli_design_uses_the_files_damping(capsys, identified_file):
     assert max(max(row) for row in corrected["stability_map"]["max_pole_modulus"]) < 1.0
 
 
-@pytest.mark.parametrize("extra, message", [({"version": 7}, "version 7 is not supported"),
+@pytest.mark.parametrize("extra, message", [({"version": 7}, "version = 7 is invalid: must be 1"),
                                             ({"rig": {"mass": 0.5}}, "another rig")])
 def test_cli_refuses_a_bad_file_with_exit_2(capsys, tmp_path, extra, message):
     from nfal.cli import main  # the front door, only for these tests
