@@ -41,8 +41,8 @@ def shown(value: object) -> str:
 
 
 def span_um(low_m: float, high_m: float) -> str:
-    """A range of clearances [m] as messages give it: ``50.0–200.0 µm``."""
-    return f"{low_m * 1e6:.1f}–{high_m * 1e6:.1f} µm"
+    """A range of clearances [m] as messages give it: ``50.0–200.0 µm`` (``120.0 µm`` if both ends are one)."""
+    return f"{low_m * 1e6:.1f} µm" if low_m == high_m else f"{low_m * 1e6:.1f}–{high_m * 1e6:.1f} µm"
 
 
 class InvalidParameterError(NfalError, ValueError):

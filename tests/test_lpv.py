@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
-from nfal.models.calibration import TabulatedK, paper_calibration, perturbation_calibration
+from nfal.models.calibration import (PAPER_COEFFICIENTS, PolynomialK, TabulatedK, paper_calibration,
+                                     perturbation_calibration)
 from nfal.models.excitation import PistonShape
 from nfal.models.lpv import calibration_slope, lpv_coefficients
 from nfal.models.plant import SimplifiedPlant
@@ -66,6 +67,18 @@ def test_si_transfer_function_has_rescaled_poles():
 def test_bad_or_uncalibrated_heights_raise(height):
     with pytest.raises(InvalidParameterError):
         lpv_coefficients(height)
+
+
+def test_heights_beyond_a_short_calibration_are_one_line_that_says_what_to_do():
+    """A short identification's K covers a few heights: designing the work range over it says so in one line (it
+    printed the 31 heights as a 6-line array)."""
+    short = PolynomialK(PAPER_COEFFICIENTS, (100.0, 150.0), name="a short identification")
+    with pytest.raises(InvalidParameterError) as caught:
+        lpv_coefficients(np.linspace(50e-6, 200e-6, 31), RIG, short)
+    assert str(caught.value) == (
+        "design heights = 50.0–200.0 µm is invalid: must be within 80.0–98.0 µm, where a short identification is "
+        "calibrated: design within it (nfal design --heights; the Controller's reference_min, reference_max), or "
+        "calibrate over these heights (from a rig: a longer identification, nfal identify --equilibria spanning them)")
 
 
 def test_unknown_derivative_scheme_raises():
