@@ -372,8 +372,12 @@ class NfalSlave(Fmi2Slave):
         """RigParameters from the rig parameters (the excitation at ``frequency`` [Hz], default nominal)."""
         values = {name: require_positive(name, getattr(self, name)) for name, *_ in RIG_PARAMETERS}
         nominal = values.pop("nominal_frequency")
+        source = "nominal_frequency" if frequency is None else "drive_frequency"
         frequency = nominal if frequency is None else require_positive("frequency", frequency)
-        return RigParameters(frequency=frequency, **values)
+        try:
+            return RigParameters(frequency=frequency, **values)
+        except InvalidParameterError as exc:  # named as this FMU's variable
+            raise InvalidParameterError(source, exc.value, exc.allowed) if exc.name == "frequency" else exc from None
 
     def build_calibration(self) -> CalibrationFunction:
         """K(sigma) of :meth:`build_rig_calibration` for this slave's rig."""

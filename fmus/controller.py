@@ -36,7 +36,7 @@ from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
-from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
+from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_clearance, require_plausible
 from nfal.models.stability import realizable_schedule
 from nfal.models.table2 import (CLOSED_LOOP_CUTOFF_HZ, FILTER_CUTOFF_HZ, FIXED_DESIGN_HEIGHT_M, MAX_EXCITATION_M,
                                 REFERENCE_ZERO_RATIO, SAMPLING_RATE_HZ, STAIRCASE_LEVELS_M, WORK_RANGE_M)
@@ -116,8 +116,8 @@ class Controller(NfalSlave):
         spec = DesignSpec(require_positive("closed_loop_cutoff", self.closed_loop_cutoff),
                           require_positive("filter_cutoff", self.filter_cutoff),
                           sample_rate if self.placement == "sampled" else None, reference_zero)
-        design_height = require_positive("design_height", self.design_height) if self.design == "fixed" else None
-        low, high = require_positive("reference_min", self.reference_min), require_positive("reference_max", self.reference_max)
+        design_height = require_clearance("design_height", self.design_height) if self.design == "fixed" else None
+        low, high = require_clearance("reference_min", self.reference_min), require_clearance("reference_max", self.reference_max)
         if low >= high:
             raise InvalidParameterError("reference_max", high, f"> reference_min = {low:g} m")
         require_positive("saturation_warning_time", self.saturation_warning_time)

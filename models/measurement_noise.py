@@ -28,6 +28,7 @@ from scipy import signal
 
 from nfal.errors import InvalidParameterError, require_positive
 
+from .plausibility import MAX_CLEARANCE_M, require_plausible
 from .table2 import NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
 
 #: Least number of samples filtered and discarded so that the stream starts in the filter's steady state.
@@ -49,7 +50,7 @@ def _check_settings(sample_rate_hz, cutoff_hz, peak_m) -> tuple[float, float, fl
         raise InvalidParameterError("peak_m", peak_m, "a finite amplitude >= 0 m") from None
     if not (math.isfinite(peak) and peak >= 0):
         raise InvalidParameterError("peak_m", peak_m, "a finite amplitude >= 0 m")
-    return rate, cutoff, peak
+    return rate, cutoff, require_plausible("peak_m", peak, MAX_CLEARANCE_M, "m")
 
 
 class ColouredNoise:

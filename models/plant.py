@@ -23,6 +23,7 @@ from nfal.errors import ConvergenceError, InvalidParameterError, require_finite,
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
+from .plausibility import MAX_CLEARANCE_M, require_plausible
 from .rig import RigParameters
 
 Excitation = float | Callable[[float], float]
@@ -62,7 +63,8 @@ class ExcessDamping:
     exponent: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "height", require_positive("excess damping height", self.height))
+        object.__setattr__(self, "height", require_plausible(
+            "excess damping height", require_positive("excess damping height", self.height), MAX_CLEARANCE_M, "m"))
         exponent = require_finite("excess damping exponent", self.exponent, "a finite number >= 1")
         if exponent < 1.0:
             raise InvalidParameterError("excess damping exponent", self.exponent, "a finite number >= 1")

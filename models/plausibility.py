@@ -9,6 +9,8 @@ anything NFAL does.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from nfal.errors import InvalidParameterError, span_um
@@ -43,24 +45,29 @@ _HINTS = {"m": "did you give µm or mm as m?", "kg": "did you give grams as kg?"
           "Pa.s": "did you give µPa s or mPa s as Pa s?"}
 
 
-def require_plausible(name: str, value: float, ceiling: float, unit: str, floor: float = 0.0) -> float:
+def require_plausible(name: str, value: float, ceiling: float, unit: str, floor: float = -math.inf) -> float:
     """Return ``value`` if it is at most ``ceiling`` (and at least ``floor``) [unit], else raise
     :class:`InvalidParameterError` with a hint at the likely unit slip. ``value`` is expected finite (checked before)."""
     if value > ceiling or value < floor:
-        bounds = f"at most {ceiling:g} {unit}" if floor == 0.0 else f"within {floor:g}–{ceiling:g} {unit}"
+        bounds = f"at most {ceiling:g} {unit}" if floor == -math.inf else f"within {floor:g}–{ceiling:g} {unit}"
         raise InvalidParameterError(name, value, f"{bounds} for a levitation rig ({_HINTS.get(unit, 'check the unit')})")
     return value
 
 
-def require_clearances(name: str, heights) -> np.ndarray:
-    """``heights`` [m] as a 1-D float array if each is a clearance of :data:`WORK_CLEARANCES_M`, else raise
-    :class:`InvalidParameterError` naming the range and the likely unit slip."""
+def require_clearances(name: str, heights, what: str = "clearances", ndim: int = 1):
+    """``heights`` [m] as a float array of ``ndim`` dimensions (0: a float) if each is a clearance of
+    :data:`WORK_CLEARANCES_M`, else raise :class:`InvalidParameterError` naming the range and the likely unit slip."""
     low, high = WORK_CLEARANCES_M
-    allowed = f"clearances within {span_um(low, high)} ({_HINTS['m']})"
+    allowed = f"{what} within {span_um(low, high)} ({_HINTS['m']})"
     try:
         values = np.asarray(heights, dtype=float)
     except (TypeError, ValueError):
         raise InvalidParameterError(name, heights, allowed) from None
-    if values.ndim != 1 or not np.all((values > low) & (values < high)):
+    if values.ndim != ndim or not np.all((values > low) & (values < high)):
         raise InvalidParameterError(name, heights, allowed)
-    return values
+    return values if ndim else float(values)
+
+
+def require_clearance(name: str, height: float) -> float:
+    """One clearance [m] of :data:`WORK_CLEARANCES_M` (:func:`require_clearances`)."""
+    return require_clearances(name, height, "a clearance", ndim=0)

@@ -9,10 +9,14 @@ import numpy as np
 
 from nfal.errors import require_positive
 
-from .plausibility import MAX_CLEARANCE_M, MAX_MASS_KG, MAX_RADIUS_M, require_plausible
+from .plausibility import (FREQUENCY_RANGE_HZ, MAX_CLEARANCE_M, MAX_GRAVITY_M_S2, MAX_MASS_KG, MAX_RADIUS_M,
+                           MAX_VISCOSITY_PA_S, PRESSURE_RANGE_PA, require_plausible)
 
-#: Fields with a plausibility ceiling (:mod:`nfal.models.plausibility`): name -> (ceiling, unit).
-_CEILINGS = {"mass": (MAX_MASS_KG, "kg"), "radius": (MAX_RADIUS_M, "m"), "reference_clearance": (MAX_CLEARANCE_M, "m")}
+#: Every field's plausible range (:mod:`nfal.models.plausibility`): name -> (ceiling, unit[, floor]).
+_RANGES = {"mass": (MAX_MASS_KG, "kg"), "radius": (MAX_RADIUS_M, "m"),
+           "frequency": (FREQUENCY_RANGE_HZ[1], "Hz", FREQUENCY_RANGE_HZ[0]), "viscosity": (MAX_VISCOSITY_PA_S, "Pa.s"),
+           "ambient_pressure": (PRESSURE_RANGE_PA[1], "Pa", PRESSURE_RANGE_PA[0]), "gravity": (MAX_GRAVITY_M_S2, "m/s2"),
+           "reference_clearance": (MAX_CLEARANCE_M, "m")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,8 +57,8 @@ class RigParameters:
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
             object.__setattr__(self, field.name, require_positive(field.name, getattr(self, field.name)))
-        for name, (ceiling, unit) in _CEILINGS.items():
-            require_plausible(name, getattr(self, name), ceiling, unit)
+        for name, plausible in _RANGES.items():
+            require_plausible(name, getattr(self, name), *plausible)
 
     def replace(self, **changes: float) -> "RigParameters":
         """A copy with some fields changed (validated like the original)."""

@@ -92,7 +92,8 @@ class SensorChain:
         self.sample_rate_hz = require_positive("sample_rate_hz", sample_rate_hz)
         self.noise = ColouredNoise(self.sample_rate_hz, noise_cutoff_hz, noise_peak_m, seed)
         self.analog_cutoff_hz = _non_negative("analog_cutoff_hz", analog_cutoff_hz, "Hz")
-        self.resolution_m = _non_negative("resolution_m", resolution_m, "m")
+        self.resolution_m = require_plausible("resolution_m", _non_negative("resolution_m", resolution_m, "m"),
+                                              MAX_CLEARANCE_M, "m")
         omega = 2.0 * math.pi * self.analog_cutoff_hz
         self._dynamics = np.array([[0.0, 1.0, 0.0], [-omega ** 2, -math.sqrt(2.0) * omega, omega ** 2], [0.0, 0.0, 0.0]])
         self._cache: tuple[float, np.ndarray, np.ndarray] | None = None

@@ -51,7 +51,7 @@ import math
 from nfal.errors import InvalidParameterError, require_finite, require_positive
 
 from .rig import RigParameters
-from .plausibility import MAX_METRES_PER_VOLT, require_plausible
+from .plausibility import FREQUENCY_RANGE_HZ, MAX_METRES_PER_VOLT, require_plausible
 
 #: Nominal resonance [Hz] (the rig's nominal frequency).
 RESONANCE_FREQUENCY_HZ = RigParameters.frequency
@@ -80,8 +80,9 @@ class Transducer:
     metres_per_volt: float = METRES_PER_VOLT
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "resonance_frequency_hz",
-                           require_positive("resonance_frequency_hz", self.resonance_frequency_hz))
+        object.__setattr__(self, "resonance_frequency_hz", require_plausible(
+            "resonance_frequency_hz", require_positive("resonance_frequency_hz", self.resonance_frequency_hz),
+            FREQUENCY_RANGE_HZ[1], "Hz", FREQUENCY_RANGE_HZ[0]))
         q = require_positive("quality_factor", self.quality_factor)
         if q <= 0.5:
             raise InvalidParameterError("quality_factor", self.quality_factor, "> 0.5 (an underdamped resonance)")

@@ -34,6 +34,30 @@ def test_design_text_output(capsys):
     assert "kp [m/m]" in out and "zoh" in out
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["--heights", "50:200:4"], "--heights = [50.0, 100.0, 150.0, 200.0] is invalid: must be clearances within "
+                                "1.0–1000.0 µm (did you give µm or mm as m?)"),
+    (["--frequency", "28.5"], "frequency = 28.5 is invalid: must be within 500–1e+06 Hz for a levitation rig (did you "
+                              "give kHz as Hz?)"),
+    (["--ambient-pressure", "101.325"], "ambient_pressure = 101.325 is invalid: must be within 10000–1e+07 Pa for a "
+                                        "levitation rig (did you give kPa, hPa or bar as Pa?)"),
+])
+def test_design_refuses_a_unit_slip_in_one_line(capsys, argv, message):
+    assert main(["design", *argv]) == 2
+    assert capsys.readouterr().err == f"nfal design: error: {message}\n"
+
+
+def test_design_over_a_short_calibration_says_what_to_do_in_one_line(capsys, tmp_path):
+    """A short identification's K (here 80-98 um) under the default 50-200 um design heights."""
+    short = tmp_path / "short.json"
+    short.write_text(json.dumps({"version": 1, "kind": "polynomial", "name": "short", "sigma_range": [100, 150],
+                                 "coefficients": [1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10]}))
+    assert main(["design", "--calibration", str(short)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nfal design: error: design heights = 50.0–200.0 µm is invalid: must be within 80.0–98.0 µm")
+    assert "nfal identify --equilibria" in err and err.count("\n") == 1
+
+
 def test_compare_json_and_plot(capsys, tmp_path):
     png = tmp_path / "compare.png"
     argv = ["compare", "--controllers", "gs,160", "--levels", "100e-6,140e-6,100e-6", "--hold", "0.3", "--seed", "3",

@@ -74,7 +74,7 @@ def test_factor_is_numpy_friendly():
 
 
 @pytest.mark.parametrize("height, exponent", [(0.0, 6.0), (-1e-4, 6.0), (math.nan, 6.0), (math.inf, 6.0),
-                                              (1e-4, 0.5), (1e-4, math.nan), (1e-4, -2.0)])
+                                              (1e-4, 0.5), (1e-4, math.nan), (1e-4, -2.0), (137.0, 6.0)])
 def test_bad_excess_damping_raises(height, exponent):
     with pytest.raises(InvalidParameterError):
         ExcessDamping(height, exponent)

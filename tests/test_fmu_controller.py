@@ -176,6 +176,10 @@ def test_every_slave_reads_a_calibration_file_with_the_rig_check(identified):
     ({"reference": 300e-6}, "reference = 0.0003"),
     ({"sample_rate": -1.0}, "sample_rate"),
     ({"metres_per_volt": 0.0}, "metres_per_volt"),
+    ({"reference_max": 200.0}, r"reference_max = 200.0 is invalid: must be a clearance within 1.0–1000.0 µm"),
+    ({"reference_min": 50.0}, r"reference_min = 50.0 is invalid: must be a clearance within 1.0–1000.0 µm"),
+    ({"design": "fixed", "design_height": 120.0}, r"design_height = 120.0 is invalid: must be a clearance"),
+    ({"nominal_frequency": 28.5}, r"nominal_frequency = 28.5 is invalid: .*kHz as Hz"),
 ])
 def test_object_rejects_bad_parameters(parameters, reason):
     with pytest.raises(InvalidParameterError, match=reason):

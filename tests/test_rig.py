@@ -14,6 +14,23 @@ def test_invalid_values_name_the_field(field, bad):
         RigParameters(**{field: bad})
 
 
+@pytest.mark.parametrize("field, slip, hint", [
+    ("frequency", 28.5, "kHz as Hz"), ("frequency", 28.5e6, "kHz as Hz"), ("ambient_pressure", 101.325, "kPa, hPa or bar"),
+    ("ambient_pressure", 1013.25, "kPa, hPa or bar"), ("ambient_pressure", 1.01325, "kPa, hPa or bar"),
+    ("viscosity", 18.1, "µPa s or mPa s"), ("gravity", 981.0, "check the unit"), ("mass", 134.7, "grams as kg"),
+])
+def test_unit_slips_are_refused_with_a_hint(field, slip, hint):
+    with pytest.raises(InvalidParameterError, match=f"^{field} = .* for a levitation rig \\(.*{hint}"):
+        RigParameters(**{field: slip})
+
+
+@pytest.mark.parametrize("field, value", [("frequency", 2e3), ("frequency", 100e3), ("ambient_pressure", 5e4),
+                                          ("viscosity", 1.2e-5), ("gravity", 1.62)])
+def test_plausible_rigs_are_accepted(field, value):
+    """Table 1's 2 kHz rig, an ultrasonic one, half an atmosphere, helium-like gas, the Moon."""
+    assert getattr(RigParameters(**{field: value}), field) == value
+
+
 def test_unknown_field_is_an_error():
     with pytest.raises(TypeError):
         RigParameters(weight=1.0)

@@ -101,6 +101,12 @@ def test_bad_settings_raise(kwargs):
         SensorChain(**kwargs)
 
 
+@pytest.mark.parametrize("kwargs", [{"noise_peak_m": 1.0}, {"resolution_m": 0.1}])
+def test_lengths_in_micrometres_given_as_metres_are_refused(kwargs):
+    with pytest.raises(InvalidParameterError, match=r"at most 0.005 m for a levitation rig \(did you give µm"):
+        SensorChain(**kwargs)
+
+
 def test_bad_inputs_raise():
     chain = SensorChain()
     state = chain.initial_state(60e-6)

@@ -97,7 +97,7 @@ def test_envelope_follows_the_fast_time_resonator():
 
 
 @pytest.mark.parametrize("kwargs", [{"quality_factor": 0.5}, {"quality_factor": -3.0}, {"metres_per_volt": 0.0},
-                                    {"resonance_frequency_hz": float("nan")}])
+                                    {"resonance_frequency_hz": float("nan")}, {"resonance_frequency_hz": 28.5}])
 def test_bad_parameters_raise(kwargs):
     with pytest.raises(InvalidParameterError):
         Transducer(**kwargs)

@@ -127,10 +127,11 @@ def _model(args: argparse.Namespace):
 def run_design(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.models.pid_design import design_schedule
+    from nfal.models.plausibility import require_clearances
     from nfal.models.stability import realizable_schedule, stability_map
 
     rig, model, spec = _model(args)
-    heights = np.unique(args.heights)
+    heights = np.unique(require_clearances("--heights", args.heights))
     schedule = design_schedule(heights, rig, model.calibration, spec, damping=model.damping)
     default = "forward-euler" if spec.sample_rate_hz is None else "zoh"
     discretisation = DISCRETISATION_CHOICES[args.discretisation or default]
