@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
-from nfal.errors import InvalidParameterError, optional_positive, require_positive
+from nfal.errors import InvalidParameterError, optional_positive, require_positive, span_um
 from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
 from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
@@ -117,7 +117,7 @@ class Controller(NfalSlave):
                           require_positive("filter_cutoff", self.filter_cutoff),
                           sample_rate if self.placement == "sampled" else None, reference_zero)
         design_height = require_clearance("design_height", self.design_height) if self.design == "fixed" else None
-        low, high = require_clearance("reference_min", self.reference_min), require_clearance("reference_max", self.reference_max)
+        low, high = (require_clearance(name, getattr(self, name)) for name in ("reference_min", "reference_max"))
         if low >= high:
             raise InvalidParameterError("reference_max", high, f"> reference_min = {low:g} m")
         require_positive("saturation_warning_time", self.saturation_warning_time)
@@ -155,7 +155,8 @@ class Controller(NfalSlave):
     def _checked_reference(self) -> float:
         low, high = self.law.reference_range_m
         if not (low <= self.reference <= high):
-            raise InvalidParameterError("reference", self.reference, f"within [reference_min, reference_max] = [{low:g}, {high:g}] m")
+            raise InvalidParameterError("reference", self.reference,
+                                        f"within reference_min–reference_max, {span_um(low, high)}")
         return float(self.reference)
 
     # --- outputs (feedthrough at sample instants) -----------------------------------------------------

@@ -49,7 +49,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from nfal.errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError, require_positive, span_um
 
 from .pid_design import FixedGains, GainSchedule
 from .plausibility import MAX_EXCITATION_M as PLAUSIBLE_EXCITATION_M
@@ -248,5 +248,5 @@ class DiscreteControlLaw:
         except (TypeError, ValueError):
             raise InvalidParameterError(name, value, "a finite number [m]") from None
         if not (math.isfinite(number) and allowed[0] <= number <= allowed[1]):
-            raise InvalidParameterError(name, value, f"finite and within [{allowed[0]:g}, {allowed[1]:g}] m")
+            raise InvalidParameterError(name, value, f"finite and within {span_um(*allowed)}")
         return number

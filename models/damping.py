@@ -16,7 +16,7 @@ import math
 import numpy as np
 from scipy import interpolate
 
-from nfal.errors import DataFormatError, InvalidParameterError
+from nfal.errors import DataFormatError, InvalidParameterError, shown
 
 from .json_fields import as_json, json_numbers
 from .plausibility import require_clearances
@@ -56,10 +56,10 @@ class DampingCorrection:
             raise DataFormatError(f"a damping table needs >= 2 heights and one factor (and band) per height, got "
                                   f"{heights.size} heights, {factors.size} factors, {low.size}/{high.size} band ends")
         if np.any(np.diff(heights) <= 0):
-            raise DataFormatError(f"damping heights_m must be strictly increasing, got {heights.tolist()}")
+            raise DataFormatError(f"damping heights_m must be strictly increasing, got {shown(heights)}")
         if np.any(low <= 0) or np.any(low > factors) or np.any(factors > high):
             raise DataFormatError("damping factors must satisfy 0 < factors_low <= factors <= factors_high, got "
-                                  f"{low.tolist()}, {factors.tolist()}, {high.tolist()}")
+                                  f"{shown(low)}, {shown(factors)}, {shown(high)}")
         for name, value in (("heights_m", heights), ("factors", factors), ("factors_low", low), ("factors_high", high)):
             value.flags.writeable = False
             object.__setattr__(self, name, value)
@@ -114,7 +114,7 @@ def _finite_row(name: str, values) -> np.ndarray:
     try:
         row = np.array(values, dtype=float)
     except (TypeError, ValueError):
-        raise DataFormatError(f"damping {name} must be a list of numbers, got {values!r:.200}") from None
+        raise DataFormatError(f"damping {name} must be a list of numbers, got {shown(values)}") from None
     if row.ndim != 1 or not np.all(np.isfinite(row)):
-        raise DataFormatError(f"damping {name} must be a flat list of finite numbers, got {values!r:.200}")
+        raise DataFormatError(f"damping {name} must be a flat list of finite numbers, got {shown(values)}")
     return row

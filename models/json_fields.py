@@ -1,11 +1,13 @@
 """The numbers of a JSON data file (a calibration file), read exactly: each error names the field and its value.
 
-JSON ``true`` is a bool and ``"1"`` a string: neither is a number here (numpy would read them as 1.0).
+JSON ``true`` is a bool and ``"1"`` a string: neither is a number here (numpy would read them as 1.0), nor are
+``NaN`` and ``1e999`` (which Python's reader accepts).
 """
 
 from __future__ import annotations
 
 import json
+import math
 
 from nfal.errors import SHOWN_CHARACTERS, InvalidParameterError
 
@@ -17,10 +19,10 @@ def as_json(value: object) -> str:
 
 
 def json_number(field: str, value: object) -> float:
-    """``value`` as float if it is a JSON number (an int or a float, not a bool), else raise
+    """``value`` as float if it is a finite JSON number (an int or a float: not a bool, NaN or 1e999), else raise
     :class:`InvalidParameterError` naming ``field``."""
-    if type(value) not in (int, float):
-        raise InvalidParameterError(field, value, "a number", as_shown=as_json(value))
+    if type(value) not in (int, float) or not math.isfinite(value):
+        raise InvalidParameterError(field, value, "a finite number", as_shown=as_json(value))
     return float(value)
 
 

@@ -146,10 +146,11 @@ def lpv_coefficients(height_m, rig: RigParameters | None = None, calibration: Ca
     sigma = rig.squeeze_number(height)
     if not np.all(calibration.in_range(sigma)):
         low, high = (float(rig.clearance_at(s)) for s in calibration.sigma_range[::-1])
+        asked = span_um(float(np.min(height)), float(np.max(height)))
         raise InvalidParameterError(
-            "design heights", height_m, f"within {span_um(low, high)}, where {calibration.name} is calibrated: design within "
-            "it (nfal design --heights; the Controller's reference_min, reference_max), or calibrate over these heights "
-            "(from a rig: a longer identification, nfal identify --equilibria spanning them)", as_shown=span_um(float(np.min(height)), float(np.max(height))))
+            "design heights", height_m, f"within {span_um(low, high)}, where {calibration.name} is calibrated: design "
+            "within it (nfal design --heights; the Controller's reference_min, reference_max), or calibrate over these "
+            "heights (from a rig: a longer identification, nfal identify --equilibria spanning them)", as_shown=asked)
     excitation = SimplifiedPlant(rig, calibration, excess_damping=damping).equilibrium_excitation(height)  # eq. (16)
     H = height / rig.reference_clearance
     u = excitation / rig.reference_clearance

@@ -38,8 +38,9 @@ if any (:mod:`~nfal.orchestration.resolve`). An FMU that ends its own horizon (f
 doStep and fmi2Terminated true) sets :attr:`Master.ended` (a :class:`HorizonEnd`), not an error.
 Any other failing call (fmi2Error, fmi2Fatal, fmi2Discard from doStep) raises
 :class:`~nfal.errors.FmuCallError`: the element and the FMU's logged reason first (an error-status message
-before any earlier warning), then the function, what it was for and the time. :meth:`Master.close` then frees what can be freed (an instance in error is freed
-without fmi2Terminate; after fmi2Fatal, FMI allows no further call to that FMU, so none is made).
+before any earlier warning), then the function, what it was for and the time. :meth:`Master.close` then
+frees what can be freed (an instance in error is freed without fmi2Terminate; after fmi2Fatal, FMI allows
+no further call to that FMU, so none is made).
 """
 
 from __future__ import annotations

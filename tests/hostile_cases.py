@@ -468,6 +468,34 @@ def error_names(text: str):
     return check
 
 
+def error_leads_with(prefix: str):
+    """The error is the last line (no array or traceback after it) and starts with ``prefix`` (the cause, not FMI
+    plumbing)."""
+    def check(folder: Path, done: subprocess.CompletedProcess) -> str | None:
+        rows = [row for row in done.stderr.splitlines() if row.strip()]
+        if not rows or not rows[-1].startswith(prefix):
+            return f"the error does not end the output or lead with {prefix!r}: {_last_line(done.stderr)}"
+        return None
+    return check
+
+
+def calibration_file(**changes) -> str:
+    """A calibration file as nfal identify writes one (eq. 17's K, a damping table, the paper's rig), with ``changes``
+    (a value of None removes the entry)."""
+    document = {"version": 1, "kind": "polynomial", "name": "identified", "sigma_range": [10.0, 500.0],
+                "coefficients": [1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10],
+                "damping": {"heights_m": [50e-6, 100e-6, 150e-6, 200e-6], "factors": [1.0, 1.3, 2.1, 4.0]},
+                "rig": {"mass": 0.1347, "radius": 0.05, "frequency": 28.5e3, "viscosity": 1.81e-5,
+                        "ambient_pressure": 101325.0, "gravity": 9.81}}
+    document.update(changes)
+    return json.dumps({key: value for key, value in document.items() if value is not None})
+
+
+#: A damping table in um, and a short identification's K (80-98 um).
+UM_DAMPING = {"heights_m": [49.2, 80.0, 120.0, 160.0, 200.0], "factors": [1.0, 1.2, 1.6, 2.5, 4.0]}
+SHORT_K = {"sigma_range": [100.0, 150.0], "damping": None}
+
+
 def file_absent(name: str):
     def check(folder: Path, done: subprocess.CompletedProcess) -> str | None:
         return f"{name} was written" if (folder / name).exists() else None
@@ -526,6 +554,14 @@ def cli_cases() -> list[Case]:
              setup=write("k.json", "[1, 2, 3]")),
         Case("run-param-calibration-dev-zero", "cli-run", RUN + ["--param", "Controller.calibration=/dev/zero"],
              timeout=60),
+        Case("run-param-calibration-damping-um", "calibration", RUN + ["--param", "Controller.calibration=k.json"],
+             setup=write("k.json", calibration_file(damping=UM_DAMPING)),
+             check=error_leads_with("nfal run: error: Controller: calibration k.json: damping.heights_m = [49.2")),
+        Case("run-param-calibration-short", "calibration", RUN + ["--param", "Controller.calibration=k.json"],
+             setup=write("k.json", calibration_file(**SHORT_K)),
+             check=error_leads_with("nfal run: error: Controller: design heights = 50.0–200.0 µm is invalid")),
+        Case("run-param-mass-negative-cause-first", "cli-run", RUN + ["--param", "Controller.mass=-1"],
+             check=error_leads_with("nfal run: error: Controller: mass = -1.0 is invalid: must be")),
         Case("run-param-sensor-noise-negative", "cli-run", RUN + ["--param", "SensorChain.noise_peak=-1e-6"]),
         Case("run-param-tracker-q-zero", "cli-run", RUN + ["--param", "ResonanceTracker.quality_factor=0"]),
         Case("run-param-max-excitation-1m", "cli-run", RUN + ["--param", "Controller.max_excitation=1"]),
@@ -688,7 +724,8 @@ def control_cases() -> list[Case]:
         ("frequency-negative", ["--frequency", "-28500"]), ("viscosity-zero", ["--viscosity", "0"]),
         ("pressure-negative", ["--ambient-pressure", "-1"]), ("calibration-missing", ["--calibration", "none.json"]),
         ("placement-bogus", ["--placement", "bogus"]), ("discretisation-bogus", ["--discretisation", "bogus"]),
-        ("reference-clearance-mm", ["--reference-clearance", "10"])]]
+        ("reference-clearance-mm", ["--reference-clearance", "10"]), ("frequency-khz", ["--frequency", "28.5"]),
+        ("pressure-kpa", ["--ambient-pressure", "101.325"]), ("viscosity-upas", ["--viscosity", "18.1"])]]
     cases += [
         Case("design-calibration-k-zero", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000],
@@ -709,6 +746,22 @@ def control_cases() -> list[Case]:
              setup=write("k.json", json.dumps({"version": 1, "kind": "polynomial", "name": "z", "coefficients": []}))),
         Case("design-calibration-deep-json", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", "[" * 100000 + "]" * 100000)),
+        *(Case(f"design-calibration-{name}", "calibration", ["design", "--calibration", "k.json"],
+               setup=write("k.json", calibration_file(**changes)), check=error_leads_with(f"nfal design: error: {lead}"))
+          for name, changes, lead in [
+              ("damping-um", {"damping": UM_DAMPING}, "calibration k.json: damping.heights_m = [49.2, 80.0"),
+              ("version-true", {"version": True}, "calibration k.json: version = true is invalid"),
+              ("factor-true", {"damping": {"heights_m": [5e-5, 1e-4], "factors": [1.0, True]}},
+               "calibration k.json: damping.factors[1] = true is invalid: must be a finite number"),
+              ("coefficient-string", {"coefficients": [1.2348, "0.02"]}, 'calibration k.json: coefficients[1] = "0.02"'),
+              ("rig-grams", {"rig": {"mass": 134.7}}, "calibration k.json: rig.mass = 134.7 is invalid"),
+              ("rig-khz", {"rig": {"frequency": 28.5}}, "calibration k.json: rig.frequency = 28.5 is invalid"),
+              ("entry-misspelt", {"dampin": {}}, "calibration k.json: unknown entries ['dampin']"),
+              ("short-identification", SHORT_K,
+               "design heights = 50.0–200.0 µm is invalid: must be within 80.0–98.0 µm")]),
+        Case("design-calibration-identified", "calibration", ["design", "--calibration", "k.json"],
+             setup=write("k.json", calibration_file()), expect="ok",
+             why="a calibration file as nfal identify writes it: every field in its range"),
         Case("design-calibration-huge-number", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", '{"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000], "K": [1, 1e999, 3, 4]}')),
     ]
@@ -718,6 +771,7 @@ def control_cases() -> list[Case]:
         ("controllers-negative", ["compare", "--controllers=-80"]), ("controllers-mm", compare + ["gs,80000"]),
         ("levels-mm", ["compare", "--levels", "60,100"]), ("hold-zero", ["compare", "--hold", "0"]),
         ("hold-huge", ["compare", "--hold", "1e9"]), ("noise-negative", ["compare", "--noise-peak", "-1"]),
+        ("noise-um", ["compare", "--noise-peak", "2"]),
         ("noise-cutoff-zero", ["compare", "--noise-cutoff", "0"]), ("max-excitation-zero", ["compare", "--max-excitation", "0"]),
         ("max-excitation-1m", ["compare", "--max-excitation", "1"]), ("seed-negative", ["compare", "--seed", "-1"]),
         ("seed-2pow64", ["compare", "--seed", str(2 ** 64)])]]
@@ -1197,6 +1251,12 @@ def fmu_cases() -> list[Case]:
         (slow, "near-surface-bogus", {"near_surface": "bogus"}, {}),
         (slow, "excess-damping-nan", {"excess_damping_exponent": float("nan")}, {}),
         (slow, "frequency-negative", {"nominal_frequency": -28500.0}, {}),
+        (slow, "frequency-khz", {"nominal_frequency": 28.5}, {}),
+        (slow, "pressure-kpa", {"ambient_pressure": 101.325}, {}), (slow, "viscosity-upas", {"viscosity": 18.1}, {}),
+        (slow, "excess-damping-height-um", {"excess_damping_height": 137.0}, {}),
+        (tracker, "resonance-khz", {"resonance_frequency": 28.5}, {}),
+        ("SensorChain", "noise-um", {"noise_peak": 2.0}, {}),
+        ("Controller", "reference-max-um", {"reference_max": 200.0}, {}),
         (reynolds, "radial-nodes-2pow31", {"radial_nodes": 2 ** 31 - 1}, {}),
         (reynolds, "radial-nodes-0", {"radial_nodes": 0}, {}),
         (reynolds, "radial-nodes-negative", {"radial_nodes": -5}, {}),

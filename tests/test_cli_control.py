@@ -54,7 +54,8 @@ def test_design_over_a_short_calibration_says_what_to_do_in_one_line(capsys, tmp
                                  "coefficients": [1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10]}))
     assert main(["design", "--calibration", str(short)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("nfal design: error: design heights = 50.0–200.0 µm is invalid: must be within 80.0–98.0 µm")
+    assert err.startswith("nfal design: error: design heights = 50.0–200.0 µm is invalid: must be within "
+                          "80.0–98.0 µm")
     assert "nfal identify --equilibria" in err and err.count("\n") == 1
 
 

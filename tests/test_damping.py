@@ -133,17 +133,21 @@ def _write(tmp_path, **extra) -> str:
      r"damping.heights_m = \[49.2, 80.0, 120.0, 200.0\] is invalid: must be clearances within 1.0–1000.0 µm "
      r"\(did you give µm or mm as m\?\)"),
     ({"damping": {"heights_m": [0.5e-6, 60e-6], "factors": [1, 2]}}, "damping.heights_m = .* within 1.0–1000.0 µm"),
-    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, True]}}, r"damping.factors\[1\] = true is invalid: must be a number"),
-    ({"damping": {"heights_m": "50e-6", "factors": [1, 2]}}, 'damping.heights_m = "50e-6" is invalid: must be a list of numbers'),
+    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, True]}},
+     r"damping.factors\[1\] = true is invalid: must be a finite number"),
+    ({"damping": {"heights_m": [50e-6, 60e-6], "factors": [1, float("nan")]}},
+     r"damping.factors\[1\] = NaN is invalid: must be a finite number"),
+    ({"damping": {"heights_m": "50e-6", "factors": [1, 2]}},
+     'damping.heights_m = "50e-6" is invalid: must be a list of numbers'),
     ({"rig": {"mass": -1.0}}, "rig.mass = -1.0 is invalid: must be a finite number > 0"),
     ({"rig": {"mass": 134.7}}, r"rig.mass = 134.7 is invalid: must be at most 100 kg .*grams as kg"),
-    ({"rig": {"mass": True}}, "rig.mass = true is invalid: must be a number"),
+    ({"rig": {"mass": True}}, "rig.mass = true is invalid: must be a finite number"),
     ({"rig": {"colour": 1.0}}, r'rig = \{"colour": 1.0\} is invalid: must map some of mass, radius'),
     ({"provenance": "yesterday"}, 'provenance = "yesterday" is invalid: must be a JSON object'),
     ({"dampin": {}}, r"unknown entries \['dampin'\] in a calibration file"),
     ({"name": 3}, "name = 3 is invalid: must be a string"),
-    ({"coefficients": [1.2, True]}, r"coefficients\[1\] = true is invalid: must be a number"),
-    ({"sigma_range": [10, "500"]}, r'sigma_range\[1\] = "500" is invalid: must be a number'),
+    ({"coefficients": [1.2, True]}, r"coefficients\[1\] = true is invalid: must be a finite number"),
+    ({"sigma_range": [10, "500"]}, r'sigma_range\[1\] = "500" is invalid: must be a finite number'),
     ({"sigma_range": [10, 100, 500]}, r"sigma_range = \[10.0, 100.0, 500.0\] is invalid: must be two squeeze numbers"),
 ])
 def test_bad_files_name_the_field_its_value_and_the_range(tmp_path, extra, reason):
@@ -152,12 +156,15 @@ def test_bad_files_name_the_field_its_value_and_the_range(tmp_path, extra, reaso
     assert "\n" not in str(caught.value)
 
 
-@pytest.mark.parametrize("field, values", [("sigma", [10, 30, True, 300]), ("K", [1.0, 1.1, 1.2, False])])
-def test_a_tables_numbers_are_numbers(tmp_path, field, values):
+@pytest.mark.parametrize("field, values, shown", [
+    ("sigma", [10, 30, True, 300], "true"), ("K", [1.0, 1.1, 1.2, False], "false"),
+    ("K", [1.0, float("nan"), 1.2, 1.3], "NaN"), ("K", [1.0, float("inf"), 1.2, 1.3], "Infinity"),
+])
+def test_a_tables_numbers_are_finite_numbers(tmp_path, field, values, shown):
     table = {"kind": "table", "name": "t", "sigma": [10, 30, 100, 300], "K": [1.0, 1.1, 1.2, 1.3], field: values}
     path = tmp_path / "t.json"
     path.write_text(json.dumps(table))
-    with pytest.raises(DataFormatError, match=rf"{field}\[\d\] = (true|false) is invalid: must be a number"):
+    with pytest.raises(DataFormatError, match=rf"{field}\[\d\] = {shown} is invalid: must be a finite number"):
         load_rig_calibration(path)
 
 

@@ -57,9 +57,9 @@ def test_anyones_fmu_reason_comes_first(status, time, messages, text):
 
 
 def test_the_master_puts_the_error_before_earlier_warnings():
-    slave = types.SimpleNamespace(name="Controller", state="running",
-                                  messages=collections.deque(["Controller: drive saturated for 0.1 s", "Controller: x bad"]),
-                                  reasons=collections.deque(["Controller: x bad"]))
+    earlier, cause = "Controller: drive saturated for 0.1 s", "Controller: x bad"
+    slave = types.SimpleNamespace(name="Controller", state="running", messages=collections.deque([earlier, cause]),
+                                  reasons=collections.deque([cause]))
     error = Master._failure(types.SimpleNamespace(time=0.25), slave, FMICallException("fmi2DoStep", 3))
     assert str(error).startswith("Controller: x bad; drive saturated for 0.1 s (in fmi2DoStep at t = 0.25 s)")
     assert slave.state == "error"

@@ -36,9 +36,15 @@ IN_PROCESS = {
                        "identify-damping-100000-heights", "identify-steps-1000", "identify-steps-1000-accepted",
                        "compare-runs-dir-without-port", "compare-seed-with-port", "sweep-long-1050-runs",
                        "sweep-ssp-200-million-steps", "sweep-ramp-unswept", "sweep-workers-with-scheduler",
-                       "sweep-shape-file-missing"],
+                       "sweep-shape-file-missing",
+                       # unit slips and calibration fields (issue 26)
+                       "design-calibration-damping-um", "design-calibration-version-true",
+                       "design-calibration-factor-true", "design-calibration-rig-khz",
+                       "design-calibration-entry-misspelt", "design-frequency-khz", "compare-noise-um"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
-    "misleading messages": ["ssp-not-zip", "run-max-steps-0", "rig-emulator-c-firmware-with-faults"],
+    "misleading messages": ["ssp-not-zip", "run-max-steps-0", "rig-emulator-c-firmware-with-faults",
+                            "design-calibration-short-identification"],
+    "valid refused": ["design-calibration-identified"],
 }
 
 #: Cases that load FMUs, run, open ports or unpack archives: each in its own process.
@@ -52,7 +58,10 @@ OWN_PROCESS = {
                        "fmu-ResonanceTracker-drive-1e300", "fmu-ResonanceTracker-mpv-1e300",
                        "fmu-SensorChain-true-height-1e300", "fmu-SlowPlant-excess-damping-nan",
                        "run-generator-levels-mm", "run-generator-table-outside",
-                       "sweep-shape-file-beside-spec"],  # read from the workers' folder before issue 26
+                       "sweep-shape-file-beside-spec",  # read from the workers' folder before issue 26
+                       "run-param-calibration-damping-um", "fmu-SlowPlant-frequency-khz",
+                       "fmu-Controller-reference-max-um"],
+    "misleading messages": ["run-param-calibration-short", "run-param-mass-negative-cause-first"],
     "crashes and hangs": ["ssd-source-dev-zero", "run-param-calibration-dev-zero", "run-stop-1e9",
                           "fmu-SlowPlant-excitation-1e200", "fmu-ReynoldsPlant-radial-nodes-2pow31",
                           "fmu-SlowPlant-free-twice", "ssp-self-nested", "rig-emulator-c-firmware-garbage-from-host"],
@@ -117,7 +126,8 @@ def test_the_judge(tmp_path, returncode, stderr, expect, outcome):
     assert classify(case, done, {}, {}, tmp_path)[0] == outcome
 
 
-@pytest.mark.parametrize("stdout, outcome", [("[ERROR] x: mass = -1.0 is invalid: ... (in doStep at t = 0 s)\n", CLEAR), ("", WRONG)])
+@pytest.mark.parametrize("stdout, outcome", [("[ERROR] x: mass = -1.0 is invalid: ... (in doStep at t = 0 s)\n", CLEAR),
+                                             ("", WRONG)])
 def test_the_judge_wants_an_fmus_reason(tmp_path, stdout, outcome):
     case = Case("judge", "judge", fmu={"fmu": "SlowPlant"})
     done = subprocess.CompletedProcess(["python"], 2, stdout, "fmu: error: doStep: fmi2DoStep failed\n")

@@ -15,8 +15,9 @@ def test_invalid_values_name_the_field(field, bad):
 
 
 @pytest.mark.parametrize("field, slip, hint", [
-    ("frequency", 28.5, "kHz as Hz"), ("frequency", 28.5e6, "kHz as Hz"), ("ambient_pressure", 101.325, "kPa, hPa or bar"),
-    ("ambient_pressure", 1013.25, "kPa, hPa or bar"), ("ambient_pressure", 1.01325, "kPa, hPa or bar"),
+    ("frequency", 28.5, "kHz as Hz"), ("frequency", 28.5e6, "kHz as Hz"),
+    ("ambient_pressure", 101.325, "kPa, hPa or bar"), ("ambient_pressure", 1013.25, "kPa, hPa or bar"),
+    ("ambient_pressure", 1.01325, "kPa, hPa or bar"),
     ("viscosity", 18.1, "µPa s or mPa s"), ("gravity", 981.0, "check the unit"), ("mass", 134.7, "grams as kg"),
 ])
 def test_unit_slips_are_refused_with_a_hint(field, slip, hint):
