@@ -53,7 +53,7 @@ from nfal.errors import InvalidParameterError, require_positive, span_um
 
 from .pid_design import FixedGains, GainSchedule
 from .plausibility import MAX_EXCITATION_M as PLAUSIBLE_EXCITATION_M
-from .plausibility import require_plausible
+from .plausibility import MAX_SHAPING_TIME_S, require_plausible
 from .table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ, WORK_RANGE_M
 
 #: A drive saturated at the limit this long [s] is reported: the reference is out of the film's reach.
@@ -155,9 +155,9 @@ class DiscreteControlLaw:
         if not (0.0 < low <= high < math.inf):
             raise InvalidParameterError("reference_range_m", reference_range_m, "0 < low <= high, finite [m]")
         self.reference_range_m = (low, high)
-        self.reference_filter_s = (None if reference_filter_s is None
-                                   else require_positive("reference_filter_s", reference_filter_s))
-        self.lift_off_time_s = None if lift_off_time_s is None else require_positive("lift_off_time_s", lift_off_time_s)
+        self.reference_filter_s, self.lift_off_time_s = (
+            None if value is None else require_plausible(name, require_positive(name, value), MAX_SHAPING_TIME_S, "s")
+            for name, value in (("reference_filter_s", reference_filter_s), ("lift_off_time_s", lift_off_time_s)))
         self.actuator_lag_s = float(actuator_lag_s)
         self.reference_zero_ratio = (None if reference_zero_ratio is None
                                      else require_positive("reference_zero_ratio", reference_zero_ratio))

@@ -39,10 +39,13 @@ MAX_VISCOSITY_PA_S = 1e-3
 PRESSURE_RANGE_PA = (1e4, 1e7)
 #: Gravitational acceleration [m/s^2]: 981 is cm/s^2.
 MAX_GRAVITY_M_S2 = 100.0
+#: Largest time constant of the loop's reference shaping (lift-off pair, reference pair) [s]: the loop settles in
+#: 0.1-0.6 s and the lift-off pair is 60 ms; 60 is ms given as s.
+MAX_SHAPING_TIME_S = 10.0
 
 _HINTS = {"m": "did you give µm or mm as m?", "kg": "did you give grams as kg?", "m/V": "did you give µm/V as m/V?",
           "Hz": "did you give kHz as Hz?", "Pa": "did you give kPa, hPa or bar as Pa?",
-          "Pa.s": "did you give µPa s or mPa s as Pa s?"}
+          "Pa.s": "did you give µPa s or mPa s as Pa s?", "s": "did you give ms as s?"}
 
 
 def require_plausible(name: str, value: float, ceiling: float, unit: str, floor: float = -math.inf) -> float:

@@ -1257,6 +1257,7 @@ def fmu_cases() -> list[Case]:
         (tracker, "resonance-khz", {"resonance_frequency": 28.5}, {}),
         ("SensorChain", "noise-um", {"noise_peak": 2.0}, {}),
         ("Controller", "reference-max-um", {"reference_max": 200.0}, {}),
+        ("Controller", "lift-off-time-ms", {"lift_off_time": 60.0}, {}),
         (reynolds, "radial-nodes-2pow31", {"radial_nodes": 2 ** 31 - 1}, {}),
         (reynolds, "radial-nodes-0", {"radial_nodes": 0}, {}),
         (reynolds, "radial-nodes-negative", {"radial_nodes": -5}, {}),

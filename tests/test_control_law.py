@@ -270,6 +270,12 @@ def test_bad_additions_raise(kwargs):
         DiscreteControlLaw(SCHEDULE, **kwargs)
 
 
+@pytest.mark.parametrize("name", ["lift_off_time_s", "reference_filter_s"])
+def test_a_shaping_time_in_ms_given_as_s_is_refused(name):
+    with pytest.raises(InvalidParameterError, match=rf"^{name} = 60.0 is invalid: must be at most 10 s .*ms as s"):
+        DiscreteControlLaw(SCHEDULE, **{name: 60.0})
+
+
 @pytest.mark.parametrize("gains", [SCHEDULE, fixed_design(120e-6)], ids=["scheduled", "fixed"])
 def test_the_laws_scalar_terms_are_the_schedules(gains):
     """law_terms (plain floats, the law's 0.5 ms path) equals gains_si and 1/p1 interpolated linearly, held outside."""
