@@ -365,7 +365,7 @@ def _step_all(execution, manipulator, readers, recording: _Recording, driven, la
                 setters[variable.type](variable.slave, [variable.reference], [value])
                 last[name] = value
         if not execution.step(1):
-            raise SimulationError(f"libcosim: step {k} from t = {t:.9g} s failed: {last_error()}")
+            raise SimulationError(f"libcosim: {last_error()} (in step {k} from t = {t:.9g} s)")
         for read in readers:
             read(recording.values, k)
         recording.done = k + 1
