@@ -1296,12 +1296,12 @@ def fmu_cases() -> list[Case]:
     ]
     cases = [Case(f"fmu-{fmu}-{name}", "fmu", fmu={"fmu": fmu, "parameters": parameters, "inputs": inputs},
                   check=fmu_outputs_plausible, timeout=60) for fmu, name, parameters, inputs in table]
-    # unit slips (issue 26) refused for their own reason, named first
+    leads = {"fmu-Controller-reference-max-um": "reference_max = 200.0",  # unit slips (issue 26): refused for their
+             "fmu-Controller-lift-off-time-ms": "lift_off_time_s = 60.0",  # own reason, named first
+             "fmu-SlowPlant-frequency-khz": "nominal_frequency = 28.5"}
     for case in cases:
-        lead = {"Controller-reference-max-um": "reference_max = 200.0", "Controller-lift-off-time-ms": "lift_off_time_s = 60.0",
-                "SlowPlant-frequency-khz": "nominal_frequency = 28.5"}.get(case.id.removeprefix("fmu-"))
-        if lead:
-            case.check = error_leads_with(f"[ERROR] census: {lead} is invalid")
+        if case.id in leads:
+            case.check = error_leads_with(f"[ERROR] census: {leads[case.id]} is invalid")
     cases += [
         Case("fmu-SlowPlant-free-twice", "fmu", fmu={"fmu": slow, "free_twice": True}, expect="ok",
              why="a second fmi2FreeInstance is harmless", check=fmu_outputs_plausible),
