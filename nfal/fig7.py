@@ -80,7 +80,7 @@ def generated_reference(system) -> GeneratedReference | None:
     # on use: the FMU's slave module (pythonfmu) loads only when a structure is read
     from nfal.fmus.reference_generator import PARAMETERS, reference_of
 
-    link = next((l for l in system.links if l.target.path == REFERENCE), None)
+    link = next((candidate for candidate in system.links if candidate.target.path == REFERENCE), None)
     if link is None:
         return None
     element = next(e for e in system.elements if e.name == link.source.element)

@@ -115,7 +115,7 @@ def _resolved(path, parameters):
 
 def in_process_capable(system) -> bool:
     """Whether every element is an nfal FMU :class:`InProcessRig` can run, wired as :data:`RIG_LINKS`."""
-    links = {(l.source.element, l.source.name, l.target.element, l.target.name) for l in system.links}
+    links = {(link.source.element, link.source.name, link.target.element, link.target.name) for link in system.links}
     plain = all(link.transformation is None for link in system.links)  # InProcessRig wires without transformations
     return links == RIG_LINKS and plain and all(e.model_description.coSimulation.modelIdentifier in SLAVE_CLASSES
                                                 for e in system.elements)

@@ -130,7 +130,9 @@ def test_bad_parameters_fail_initialisation_by_name(tmp_path, parameters, named)
 
 
 def test_stop_time_the_ssd_governs_and_the_run_says_where_the_reference_differs():
-    args = lambda stop=None: argparse.Namespace(stop_time=stop)
+    def args(stop=None):
+        return argparse.Namespace(stop_time=stop)
+
     assert _stop_time(args(), 3.7, Staircase()) == (3.7, None)
     stop, note = _stop_time(args(), 0.25, Staircase())
     assert stop == 0.25 and "stopTime (0.25 s) governs, before the reference's end" in note and "3.7 s" in note

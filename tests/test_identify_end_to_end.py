@@ -22,7 +22,6 @@ from nfal.models.calibration import calibration_from_dict, paper_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
-from nfal.orchestration import run_structure
 
 pytestmark = pytest.mark.realtime
 
