@@ -80,7 +80,8 @@ def _step_count(start: float, stop: float, step: float) -> int:
         logger.warning("stop time %g s is not a whole number of %g s steps from %g s: the run ends at %g s",
                        stop, step, start, start + count * step)
     if count < 1:
-        raise InvalidParameterError("stop_time", stop, f"at least one step ({step:g} s) after the start time {start:g} s")
+        raise InvalidParameterError("stop_time", stop,
+                                    f"at least one step ({step:g} s) after the start time {start:g} s")
     return count
 
 
