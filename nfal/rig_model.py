@@ -43,7 +43,8 @@ class StructureRig:
         ``"Element.variable" -> value`` overrides, as for ``nfal run --param``.
     """
 
-    def __init__(self, path: str | os.PathLike, period_s: float, parameters: Mapping[str, object] | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, period_s: float,
+                 parameters: Mapping[str, object] | None = None) -> None:
         self.voltage = 0.0
         self._stack = contextlib.ExitStack()
         try:
@@ -131,7 +132,8 @@ class InProcessRig:
 
     def __init__(self, system, period_s: float) -> None:
         if not in_process_capable(system):
-            raise InvalidParameterError("rig structure", system.name, "ResonanceTracker -> Plant -> SensorChain of nfal FMUs")
+            raise InvalidParameterError("rig structure", system.name,
+                                        "ResonanceTracker -> Plant -> SensorChain of nfal FMUs")
         self.period_s = require_positive("period_s", period_s)
         self.voltage = 0.0
         self.time = 0.0
