@@ -237,7 +237,8 @@ def test_referenced_ssd_is_read_as_a_nested_system(tmp_path, toys):
     write_folder(tmp_path, inner_text, toys)
     (tmp_path / "SystemStructure.ssd").rename(tmp_path / "controller.ssd")
     outer = ssd(system("outer", (component("Plant", "Integrator"),
-                                 '<ssd:Component name="Ctl" source="controller.ssd" type="application/x-ssp-definition">'
+                                 '<ssd:Component name="Ctl" source="controller.ssd" '
+                                 'type="application/x-ssp-definition">'
                                  '<ssd:Connectors><ssd:Connector name="e" kind="input"/>'
                                  '<ssd:Connector name="command" kind="output"/></ssd:Connectors></ssd:Component>'),
                        (connection("Plant.x", "Ctl.e"), connection("Ctl.command", "Plant.u"))))
