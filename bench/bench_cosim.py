@@ -133,7 +133,8 @@ def libcosim_patched(archive: Path, stop: float) -> tuple[float, object]:
 def libcosim_child(archive: Path, stop: float, repeats: int, environment: dict[str, str]) -> float:
     """Best-of wall time of ``run_ssp`` in a child process with ``environment`` added (e.g. a BLAS setting
     that must be set before numpy loads): this script with ``--libcosim-only``."""
-    command = [sys.executable, __file__, "--libcosim-only", str(archive), "--stop", repr(stop), "--repeats", str(repeats)]
+    command = [sys.executable, __file__, "--libcosim-only", str(archive), "--stop", repr(stop),
+               "--repeats", str(repeats)]
     done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, **environment})
     if done.returncode != 0:
         raise RuntimeError(f"child failed ({done.returncode}): {done.stderr[-2000:]}")
@@ -215,7 +216,8 @@ def pure_python(stop: float) -> tuple[float, float, object]:
     started = time.perf_counter()
     rig, calibration = RigParameters(), paper_calibration()
     plant = SimplifiedPlant(rig, calibration)
-    gains = realizable_schedule(design_schedule(None, rig, calibration, DesignSpec(10.0, 300.0)), rig, sample_rate_hz=2000.0)
+    gains = realizable_schedule(design_schedule(None, rig, calibration, DesignSpec(10.0, 300.0)), rig,
+                                sample_rate_hz=2000.0)
     law = DiscreteControlLaw(gains, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_range_m=(50e-6, 200e-6))
     noise = coloured_noise(reference.samples(2000.0), sample_rate_hz=2000.0, cutoff_hz=300.0, peak_m=2e-6, seed=0)
     begin = time.perf_counter()
@@ -403,8 +405,8 @@ def main() -> None:
             f"step): loop {t['loop']:.2f} s = doStep calls {do_step:.2f} + get/set calls {t['exchange']:.2f} + the "
             f"rest. Cross-check, a bare fmpy loop making the same calls with the same values (final height "
             f"{'equal' if same else 'DIFFERENT'}), best of {len(bare)}: FMU calls {in_calls:.2f} s, that loop all in "
-            f"{min(b['loop'] for b in bare):.2f} s; ours' best loop minus these calls: {overhead / fmu_steps * 1e6:.1f} "
-            "us per FMU step"))
+            f"{min(b['loop'] for b in bare):.2f} s; ours' best loop minus these calls: "
+            f"{overhead / fmu_steps * 1e6:.1f} us per FMU step"))
     lb_wall, lb_first, lb_rest = min(runs["libcosim_bare"], key=lambda r: r[0])
     patched_wall = min(w for w, _ in runs["libcosim_patched"])
     ours_wall = {a: min(w for w, _ in runs[a]) for a in ("causal", "jacobi")}
@@ -416,7 +418,8 @@ def main() -> None:
          f"{steps - 1} steps {lb_rest:.2f} s = {lb_rest / (steps - 1) * 1e6:.0f} us per communication step"),
         ("what-if: libcosim, run_ssp, with the SensorChain's transition cache tolerant of libcosim's step-size "
          "rounding (patched in this process)", patched_wall, f"{patched_wall / lib_wall:.2f}",
-         f"ours / this: `causal` {ours_wall['causal'] / patched_wall:.2f}, `jacobi` {ours_wall['jacobi'] / patched_wall:.2f}"),
+         f"ours / this: `causal` {ours_wall['causal'] / patched_wall:.2f}, "
+         f"`jacobi` {ours_wall['jacobi'] / patched_wall:.2f}"),
         ("libcosim, run_ssp, in a child process with OPENBLAS_NUM_THREADS=1", blas1, f"{blas1 / lib_wall:.2f}",
          f"ours / this: `causal` {ours_wall['causal'] / blas1:.2f}, `jacobi` {ours_wall['jacobi'] / blas1:.2f} "
          "(ours measured in this process, default BLAS threads)"),

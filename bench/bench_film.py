@@ -43,7 +43,8 @@ def bench_K(shape) -> list[tuple]:
     gap = np.max(np.abs(K_tm - K_pert))
     return [
         ("K(sigma), 50 points on [5, 500], perturbation route (baseline), 101 nodes", pert_time, 1.0, "-"),
-        ("K(sigma), 50 points, perturbation route, default 401 nodes (goal <= 0.1 s)", default_time, default_time / pert_time, "-"),
+        ("K(sigma), 50 points, perturbation route, default 401 nodes (goal <= 0.1 s)", default_time,
+         default_time / pert_time, "-"),
         ("K(sigma), 50 points, time marching, 101 nodes, 256 steps/period, delta = 0.01", tm_time, tm_time / pert_time,
          f"max abs K gap to perturbation {gap:.1e}"),
         ("numba compile / cache load of the film kernels (first call)", compile_time, float("nan"), "-"),
@@ -67,14 +68,16 @@ def bench_coupled(shape, quick: bool) -> list[tuple]:
     fine, fine_time = run(161, 256, True)
     reference = fine.height + (fine.height - medium.height) / 3.0
     rows = []
-    for nodes, steps, envelope in ((41, 64, False), (41, 64, True), (81, 128, False), (81, 128, True), (101, 256, True)):
+    for nodes, steps, envelope in ((41, 64, False), (41, 64, True), (81, 128, False), (81, 128, True),
+                                   (101, 256, True)):
         if (nodes, steps, envelope) == (81, 128, True):
             result, elapsed = medium, medium_time
         else:
             result, elapsed = run(nodes, steps, envelope)
         deviation = np.abs(result.height - reference) / reference
         rows.append((f"coupled, {duration:g} s rig time, {nodes} nodes x {steps} steps, "
-                     f"{'envelope following' if envelope else 'every period'} ({result.marched_periods}/{result.height.size} periods marched)",
+                     f"{'envelope following' if envelope else 'every period'} "
+                     f"({result.marched_periods}/{result.height.size} periods marched)",
                      elapsed, elapsed / duration,
                      f"slow height vs reference: max {100 * deviation.max():.3f} %, final {100 * deviation[-1]:.3f} %"))
     fine_dev = np.abs(fine.height - reference) / reference

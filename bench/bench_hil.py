@@ -122,8 +122,8 @@ def hil(archives: dict, seconds: float, out: Path, rt_priority: int | None, trut
         port = emulator.stdout.readline().strip()
         emulator.stdout.readline()  # the banner
         cpu_at_start, started = cpu_seconds(emulator.pid), time.perf_counter()
-        summary = paced(archives["fig7_hil"], seconds, out, {"proxy.port": port, "proxy.max_missed_samples": MAX_MISSED},
-                        rt_priority)
+        summary = paced(archives["fig7_hil"], seconds, out,
+                        {"proxy.port": port, "proxy.max_missed_samples": MAX_MISSED}, rt_priority)
         summary["emulator_cpu_share"] = (cpu_seconds(emulator.pid) - cpu_at_start) / (time.perf_counter() - started)
     finally:
         emulator.terminate()
@@ -138,7 +138,8 @@ def row(name: str, summary: dict, baseline: dict | None) -> str:
     base_p99 = summary["realtime"]["jitter_p99_s"] if baseline is None else baseline["realtime"]["jitter_p99_s"]
     ratio = f"{r['jitter_p99_s'] / base_p99:.2f}" if base_p99 >= 1e-6 else "- (p99 < 1 µs)"
     fmus = ", ".join(f"{k} {v['do_step_mean_us']:.0f}" for k, v in summary["timing"].items()) or "-"
-    return (f"| {name} | {r['steps']} | {r['overruns']} | {r['jitter_p50_s'] * 1e6:.0f} | {r['jitter_p99_s'] * 1e6:.0f} "
+    return (f"| {name} | {r['steps']} | {r['overruns']} | {r['jitter_p50_s'] * 1e6:.0f} | "
+            f"{r['jitter_p99_s'] * 1e6:.0f} "
             f"| {r['jitter_max_s'] * 1e6:.0f} | {ratio} | {r['step_duration_mean_s'] * 1e6:.0f} / "
             f"{r['step_duration_max_s'] * 1e6:.0f} | {fmus} | {summary['host_cpu_share'] * 100:.0f} % "
             f"| {summary['steal_share'] * 100:.1f} % |")
@@ -149,15 +150,16 @@ def hil_details(name: str, summary: dict) -> str:
     if summary.get("error"):
         return f"- {name}: the run {summary['error']}. {plant_cpu(summary)}"
     link = summary["link"]
-    return (f"- {name}: link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} "
-            f"rig faults; at most {link['samples_missed_max']} samples missed in a row; sample age mean "
-            f"{link['measurement_age_mean_s'] * 1e6:.0f} µs, max {link['measurement_age_max_s'] * 1e6:.0f} µs; "
-            f"{link['stale_steps']} steps without a new sample. Emulator: {summary['emulator_cpu_share'] * 100:.0f} % of a "
-            f"core; tick mean {pacing['step_duration_mean_s'] * 1e6:.0f} µs, max {pacing['step_duration_max_s'] * 1e6:.0f} "
-            f"µs; {pacing['overruns']} late ticks; {pacing.get('resyncs', 0)} stalls over 2 ms "
+    return (f"- {name}: link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, "
+            f"{link['rig_faults']} rig faults; at most {link['samples_missed_max']} samples missed in a row; "
+            f"sample age mean {link['measurement_age_mean_s'] * 1e6:.0f} µs, "
+            f"max {link['measurement_age_max_s'] * 1e6:.0f} µs; {link['stale_steps']} steps without a new sample. "
+            f"Emulator: {summary['emulator_cpu_share'] * 100:.0f} % of a core; tick mean "
+            f"{pacing['step_duration_mean_s'] * 1e6:.0f} µs, max {pacing['step_duration_max_s'] * 1e6:.0f} µs; "
+            f"{pacing['overruns']} late ticks; {pacing.get('resyncs', 0)} stalls over 2 ms "
             f"({pacing.get('time_given_up_s', 0.0) * 1e3:.1f} ms given up); tick-start lateness p50 "
-            f"{pacing['jitter_p50_s'] * 1e6:.0f} µs, p99 {pacing['jitter_p99_s'] * 1e6:.0f} µs (sleep only, no busy wait). "
-            f"{plant_cpu(summary)}")
+            f"{pacing['jitter_p50_s'] * 1e6:.0f} µs, p99 {pacing['jitter_p99_s'] * 1e6:.0f} µs "
+            f"(sleep only, no busy wait). {plant_cpu(summary)}")
 
 
 def plant_cpu(summary: dict) -> str:
@@ -236,17 +238,17 @@ def main() -> int:
               f"{f'SCHED_FIFO {fifo}' if fifo else 'normal'}), {args.rounds} rounds of {args.round_seconds:g} s each, "
               "alternating; the last two columns of each, the emulator's late ticks and its Plant's longest doStep in "
               "CPU time:\n")
-        print("| round | overruns, slow | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] | overruns, Reynolds "
-              "| p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
+        print("| round | overruns, slow | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] "
+              "| overruns, Reynolds | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
         print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
         print("\n".join(ab))
     elif ab:
         print(f"\nSCHED_FIFO {fifo} (`--rt-priority {fifo}` on both `nfal run` and `nfal rig-emulator`) against normal "
-              f"scheduling, fig7_hil (truth {args.truth}), {args.rounds} rounds of {args.round_seconds:g} s each, the two "
-              "alternating so that both see the machine alike; the last two columns of each, the emulator's late ticks "
-              "and its Plant's longest doStep in CPU time:\n")
-        print("| round | overruns, normal | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] | overruns, SCHED_FIFO "
-              "| p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
+              f"scheduling, fig7_hil (truth {args.truth}), {args.rounds} rounds of {args.round_seconds:g} s each, the "
+              "two alternating so that both see the machine alike; the last two columns of each, the emulator's late "
+              "ticks and its Plant's longest doStep in CPU time:\n")
+        print("| round | overruns, normal | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] "
+              "| overruns, SCHED_FIFO | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
         print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
         print("\n".join(ab))
     print(f"\nload average after: {os.getloadavg()[0]:.2f}")

@@ -45,7 +45,8 @@ def loop_wall_time(archive: Path, solver: str, stop: float, out: Path) -> tuple[
     """Wall time [s] of one fig7_reynolds run as a library call (set-up included), and its summary."""
     started = time.perf_counter()
     result = run_structure(archive, stop_time=stop, step_size=STEP,
-                           inputs={"Controller.reference": DEFAULT_STAIRCASES["fig7_reynolds"]}, parameters={"Plant.film_solver": solver}, out_dir=out, plot=False, progress=False)
+                           inputs={"Controller.reference": DEFAULT_STAIRCASES["fig7_reynolds"]},
+                           parameters={"Plant.film_solver": solver}, out_dir=out, plot=False, progress=False)
     return time.perf_counter() - started, result.summary
 
 
@@ -74,7 +75,8 @@ def accuracy(duration: float) -> dict:
     """Largest |h / h_ref - 1| after 30 ms: the plant on each of ``TABLES`` (and settled, at the ends of the
     holds), and the coarser references."""
     rig, shape = RigParameters(), paper_shape()
-    runs = [CoupledModel(rig, shape, nodes, steps).simulate(duration, excitation, 60e-6) for nodes, steps in REFERENCE_GRIDS]
+    runs = [CoupledModel(rig, shape, nodes, steps).simulate(duration, excitation, 60e-6)
+            for nodes, steps in REFERENCE_GRIDS]
     coarse, reference = (fine.height + (fine.height - rough.height) / 3 for rough, fine in zip(runs, runs[1:]))
     third_order = reference + (reference - coarse) / 15  # second-order scheme: errors ~ h^2 + h^4
     time = runs[-1].time  # a row per excitation period, at its samples' mean time (finest grid's)

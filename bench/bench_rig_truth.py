@@ -6,10 +6,10 @@ Each built-in rig structure (rig_slow, rig_reynolds: ``nfal rig-emulator --truth
 in-process as the emulator runs it (:func:`nfal.rig_model.open_rig`) for 10 s of rig time from rest
 (45 V, lift-off, then 60 V), twice, the second time with the imports, numba kernels and the Reynolds
 plant's film table warm; then rig_slow once more through the co-simulation master (:class:`StructureRig`, the
-path of a rig structure that is not all nfal FMUs). Per tick: ``reading`` + ``advance``, in wall time and in this thread's CPU time. A
-tick whose wall time exceeds the 500 us period but whose CPU time does not was the machine's (the thread
-was not running: another process, the hypervisor); a tick whose CPU time exceeds it is the rig model's own
-overrun; the plant's share is timed on its own (its ``do_step``, CPU time).
+path of a rig structure that is not all nfal FMUs). Per tick: ``reading`` + ``advance``, in wall time and in
+this thread's CPU time. A tick whose wall time exceeds the 500 us period but whose CPU time does not was the
+machine's (the thread was not running: another process, the hypervisor); a tick whose CPU time exceeds it is
+the rig model's own overrun; the plant's share is timed on its own (its ``do_step``, CPU time).
 """
 
 from __future__ import annotations
@@ -53,10 +53,11 @@ def tick_costs(rig) -> tuple[np.ndarray, np.ndarray]:
 
 
 def print_row(name: str, run: int, setup: float, costs: np.ndarray, cpu: np.ndarray, plant: np.ndarray | None) -> None:
-    plant_columns = "- | - | -" if plant is None else f"{plant.mean():.0f} | {plant.max():.0f} | {int(np.sum(plant > 500))}"
+    plant_columns = ("- | - | -" if plant is None
+                     else f"{plant.mean():.0f} | {plant.max():.0f} | {int(np.sum(plant > 500))}")
     print(f"| {name} | {run} | {setup:.2f} | {costs.mean():.0f} | {np.percentile(costs, 99):.0f} | {costs.max():.0f} | "
-          f"{int(np.sum(costs > 500))} | {cpu.mean():.0f} | {cpu.max():.0f} | {int(np.sum(cpu > 500))} | {plant_columns} |",
-          flush=True)
+          f"{int(np.sum(costs > 500))} | {cpu.mean():.0f} | {cpu.max():.0f} | {int(np.sum(cpu > 500))} | "
+          f"{plant_columns} |", flush=True)
 
 
 def main() -> None:

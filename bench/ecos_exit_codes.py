@@ -3,9 +3,10 @@
     python bench/ecos_exit_codes.py [--runs N] [--fmi 2 3] [--out DIR]
 
 Builds the FMUs (FMI 2.0 and FMI 3.0, ``nfal build``), then runs ``ecos simulate`` on each (0.01 s at
-0.5 ms, ``host_check.run_in_ecos``) with nothing set up (``env -i PATH=/usr/bin:/bin HOME=$HOME``), and prints a markdown table of exit codes per FMU: 0 is a
-clean exit, -11 a segmentation fault (issue 15, item 1: the embedded interpreter's teardown). The
-HardwareProxy is left out (it needs a rig). Needs ecospy and Debian's libtbb12.
+0.5 ms, ``host_check.run_in_ecos``) with nothing set up (``env -i PATH=/usr/bin:/bin HOME=$HOME``), and prints
+a markdown table of exit codes per FMU: 0 is a clean exit, -11 a segmentation fault (issue 15, item 1: the
+embedded interpreter's teardown). The HardwareProxy is left out (it needs a rig). Needs ecospy and Debian's
+libtbb12.
 """
 
 from __future__ import annotations

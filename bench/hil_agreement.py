@@ -43,8 +43,9 @@ def main() -> int:
         finally:
             emulator.terminate()
             emulator.communicate(timeout=30)
-        simulated = run_structure(archives["fig7_slow"], stop_time=STEP.duration_s, inputs={"Controller.reference": STEP},
-                                  parameters=TRUTH, plot=False, out_dir=Path(temp) / "sim")
+        simulated = run_structure(archives["fig7_slow"], stop_time=STEP.duration_s,
+                                  inputs={"Controller.reference": STEP}, parameters=TRUTH, plot=False,
+                                  out_dir=Path(temp) / "sim")
         t = hil.table().time
         difference = np.abs(np.asarray(hil[HARDWARE.measured]) - np.asarray(simulated[SIMULATED.measured]))
         [ours] = loop_metrics(hil.table(), STEP, HARDWARE)["steps"]

@@ -49,7 +49,8 @@ from nfal.orchestration.ssp_archive import pack
 FIG7_FMUS = list(SIMULATION_FMUS)
 #: The builders' own runtimes, per FMI version.
 STOCK_RUNTIMES = {2: Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64" / "libpythonfmu-export.so",
-                  3: Path(pythonfmu3.__file__).parent / "resources" / "binaries" / "x86_64-linux" / "libpythonfmu-export.so"}
+                  3: (Path(pythonfmu3.__file__).parent / "resources" / "binaries" / "x86_64-linux"
+                      / "libpythonfmu-export.so")}
 
 
 ENVIRONMENTS = ("bare", "other-python", "missing-python")
@@ -105,11 +106,12 @@ def c_host_runs(fmus: dict, folder: Path, runs: int, stop_s: float, stock: bool,
 
 def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, fmi_version: int, kind: str) -> None:
     env, _, missing = environment(kind, folder / "ecos-env")
-    archive = pack(structure_sources() / "fig7_slow.ssd", fmus["SlowPlant"].parent, folder / f"fig7_slow_fmi{fmi_version}.ssp")
+    archive = pack(structure_sources() / "fig7_slow.ssd", fmus["SlowPlant"].parent,
+                   folder / f"fig7_slow_fmi{fmi_version}.ssp")
     result = run_in_ecos(ecos_executable(folder), archive, folder / "ecos", runs=runs, stop_time=stop_s, env=env)
     if missing:
-        print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  killed by a signal {result.signals:3d}  exit codes "
-              f"{sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
+        print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  killed by a signal {result.signals:3d}  "
+              f"exit codes {sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
               f"{_logged_once(result, missing, _fmus_in(archive))}")
         return
     reference = pack(structure_sources() / "fig7_slow.ssd", fmus2["SlowPlant"].parent, folder / "fig7_slow_ours.ssp")
@@ -118,7 +120,8 @@ def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, f
     worst = max((np.max(np.abs(np.array(o["ResonanceTracker::drive_voltage"]) - ours[:len(o["time"])]))
                  for o in result.outputs), default=float("nan"))
     print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  crashes {result.crashes:3d}  exit codes "
-          f"{sorted(set(result.exit_codes))}  max |drive voltage - ours (FMI 2.0, Jacobi)| {worst:.2g} V over {stop_s} s")
+          f"{sorted(set(result.exit_codes))}  max |drive voltage - ours (FMI 2.0, Jacobi)| {worst:.2g} V "
+          f"over {stop_s} s")
 
 
 def main() -> None:

@@ -6,8 +6,8 @@
 fig7_slow over the Fig. 9-10 staircase with the emulator's default truth as its plant (eq. 17 and the
 rig-like excess damping, ``ssp/rig_truth.ssv``), sensor noise off: first the baseline, the paper's law
 (``PAPERS_LAW``: the continuous placement on eq. (6), no lift-off mode, lead or reference zero); then four
-Controllers with their defaults ("today's"): the continuous and the sampled placement, each on eq. (6) and given the damping through a
-calibration file. IAE ratios are against the baseline of the same run.
+Controllers with their defaults ("today's"): the continuous and the sampled placement, each on eq. (6) and
+given the damping through a calibration file. IAE ratios are against the baseline of the same run.
 Without ``--calibration`` that file is a perfect identification: ``ExcessDamping.rig_like()`` tabulated at
 7 heights over 50-200 um. ``--no-lag`` makes the transducer and analog filter transparent and turns the lead
 off (what is left of the overshoot is then the design's own).
@@ -33,8 +33,8 @@ from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, 
 from nfal.models.rig import RigParameters
 from nfal.models.table2 import NOISE_PEAK_M
 
-TRUTH = {"Plant.excess_damping_height": RIG_LIKE_EXCESS_HEIGHT, "Plant.excess_damping_exponent": RIG_LIKE_EXCESS_EXPONENT,
-         "SensorChain.noise_peak": 0.0}
+TRUTH = {"Plant.excess_damping_height": RIG_LIKE_EXCESS_HEIGHT,
+         "Plant.excess_damping_exponent": RIG_LIKE_EXCESS_EXPONENT, "SensorChain.noise_peak": 0.0}
 
 
 def perfect_identification(path: Path) -> Path:
@@ -54,14 +54,16 @@ def main() -> None:
     parser.add_argument("--levels", type=float, nargs="+", help="staircase levels [m] (default: Figs. 9-10's)")
     parser.add_argument("--hold", type=float, default=0.6, help="hold of each level [s] (default 0.6)")
     parser.add_argument("--noise-seed", type=int, metavar="SEED",
-                        help="sensor noise on (Table 2's 2 um peak) with this seed, and the noise RMS of each level printed")
+                        help="sensor noise on (Table 2's 2 um peak) with this seed, and the noise RMS of each level "
+                        "printed")
     args = parser.parse_args()
     reference = Staircase(tuple(args.levels), hold_s=args.hold) if args.levels else Staircase()
     extra_parameters = dict(parse_parameter(text) for text in args.param)
     with tempfile.TemporaryDirectory() as tmp:
         calibration = args.calibration or perfect_identification(Path(tmp) / "identified.json")
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
-        noise = {} if args.noise_seed is None else {"SensorChain.noise_peak": NOISE_PEAK_M, "SensorChain.seed": args.noise_seed}
+        noise = ({} if args.noise_seed is None
+                 else {"SensorChain.noise_peak": NOISE_PEAK_M, "SensorChain.seed": args.noise_seed})
         truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {}), **noise}
         rows = [("continuous", "eq. (6)", "paper's", PAPERS_LAW)]
         for placement in ("continuous", "sampled"):
@@ -79,8 +81,8 @@ def main() -> None:
             settling = ", ".join(f"{(step['settling_time_s'] or float('nan')) * 1e3:.0f}" for step in metrics["steps"])
             noise_rms = "" if args.noise_seed is None else "; " + ", ".join(f"{step['noise_rms_m'] * 1e9:.0f}"
                                                                            for step in metrics["steps"])
-            print(f"{placement:<11} {damping:<11} {law:<10} {metrics['iae'] * 1e6:>10.3f} {metrics['iae'] / baseline:>6.2f}"
-                  f"  {overshoots}; {settling}{noise_rms}", flush=True)
+            print(f"{placement:<11} {damping:<11} {law:<10} {metrics['iae'] * 1e6:>10.3f} "
+                  f"{metrics['iae'] / baseline:>6.2f}  {overshoots}; {settling}{noise_rms}", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The identified design against the emulator, from rest, back to back with the paper's law (issue 14; docs/hil.md).
 
     python bench/identified_hil.py                          # the default truth and a heavier load
-    python bench/identified_hil.py default damping-160-4 damping-115-8 calibration   # truths of bench/identify_truths.py
+    python bench/identified_hil.py default damping-160-4 damping-115-8 calibration  # truths of bench/identify_truths.py
     python bench/identified_hil.py --noise --repeats 3      # sensor noise on: how quiet each law holds the levels
 
 For each truth: ``nfal identify`` against ``nfal rig-emulator`` with that truth (bench/identify_truths.py), then
@@ -13,8 +13,8 @@ Printed per run: overshoot and 2 % settling per step, the highest height during 
 the IAE of the steps (ratio to the paper's law) and of the first level (``metrics.first_level`` of summary.json);
 then the identified loop simulated (fig7_slow with the truth as its plant, from rest). With ``--noise`` the
 emulator's sensor noise is on (its default 2 um peak), each pair of runs is repeated and the noise RMS of every
-level (measured h - r over the last quarter of its step, ``noise_rms_m``) is printed, pooled over the repeats. Runs ride through host pauses up to 0.1 s
-(``proxy.max_missed_samples=200``, docs/hil.md).
+level (measured h - r over the last quarter of its step, ``noise_rms_m``) is printed, pooled over the repeats.
+Runs ride through host pauses up to 0.1 s (``proxy.max_missed_samples=200``, docs/hil.md).
 """
 
 from __future__ import annotations
@@ -49,9 +49,11 @@ def hil_run(case: dict, folder: Path, name: str, controller: list[str], noise: b
                                  *quiet, *emulator_arguments(case)], stdout=subprocess.PIPE, text=True)
     try:
         emulator.stdout.readline()  # the port: the emulator is up
-        parameters = [f"proxy.port={link}", "proxy.max_missed_samples=200", f"Controller.mass={case['mass']}", *controller]
+        parameters = [f"proxy.port={link}", "proxy.max_missed_samples=200", f"Controller.mass={case['mass']}",
+                      *controller]
         done = subprocess.run([sys.executable, "-m", "nfal", "run", "fig7_hil", "--out", str(folder / name), "--json",
-                               *(item for p in parameters for item in ("--param", p))], capture_output=True, text=True, check=False)
+                               *(item for p in parameters for item in ("--param", p))],
+                              capture_output=True, text=True, check=False)
         if done.returncode != 0:
             return f"nfal run exited {done.returncode}: {done.stderr.strip().splitlines()[-1]}"
         return json.loads(done.stdout)
@@ -87,13 +89,15 @@ def row(label: str, summary: dict | str, baseline: float | None) -> str:
     return (f"| {label} | " + ", ".join(f"{s['overshoot_percent']:.1f}" for s in metrics["steps"]) + " | "
             + ", ".join(f"{(s['settling_time_s'] or float('nan')) * 1e3:.0f}" for s in metrics["steps"])
             + f" | {first['peak_m'] * 1e6:.1f} | {steps * 1e6:.2f}{ratio} | {first['iae_m_s'] * 1e6:.2f} |"
-            + f" {(summary.get('realtime') or {}).get('overruns', '')} | " + ", ".join(f"{s['noise_rms_m'] * 1e9:.0f}" for s in metrics["steps"])
+            + f" {(summary.get('realtime') or {}).get('overruns', '')} | "
+            + ", ".join(f"{s['noise_rms_m'] * 1e9:.0f}" for s in metrics["steps"])
             + " |")
 
 
 def pooled_noise(label: str, summaries: list) -> str:
     """The noise RMS per level over the runs that finished, pooled (the root of the mean square)."""
-    runs = [[s["noise_rms_m"] for s in summary["metrics"]["steps"]] for summary in summaries if isinstance(summary, dict)]
+    runs = [[s["noise_rms_m"] for s in summary["metrics"]["steps"]]
+            for summary in summaries if isinstance(summary, dict)]
     if not runs:
         return f"| {label}, pooled | no run finished | | | | | | |"
     pooled = np.sqrt(np.mean(np.square(runs), axis=0))
@@ -103,7 +107,8 @@ def pooled_noise(label: str, summaries: list) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("truths", nargs="*", default=list(TRUTHS), help=f"cases of bench/identify_truths.py (default: {' '.join(TRUTHS)})")
+    parser.add_argument("truths", nargs="*", default=list(TRUTHS),
+                        help=f"cases of bench/identify_truths.py (default: {' '.join(TRUTHS)})")
     parser.add_argument("--noise", action="store_true", help="the emulator's sensor noise on (default off)")
     parser.add_argument("--repeats", type=int, default=1, help="runs of each law per truth (default 1)")
     args = parser.parse_args()
@@ -122,8 +127,8 @@ def main() -> None:
         for repeat in range(args.repeats):  # back to back, so a slow phase of the machine hits both laws
             paper, label = hil_run(case, folder, f"{name}-paper-{repeat}", PAPER_LAW, args.noise), "paper's law"
             if isinstance(paper, str) and case["mass"] != NOMINAL_MASS:  # no such design for this load: the nominal one
-                paper = hil_run(case, folder, f"{name}-paper-nominal-{repeat}", [*PAPER_LAW, f"Controller.mass={NOMINAL_MASS}"],
-                                args.noise)
+                paper = hil_run(case, folder, f"{name}-paper-nominal-{repeat}",
+                                [*PAPER_LAW, f"Controller.mass={NOMINAL_MASS}"], args.noise)
                 label = f"paper's law designed for {NOMINAL_MASS} kg"
             identified = hil_run(case, folder, f"{name}-identified-{repeat}", [f"Controller.calibration={calibration}"],
                                  args.noise)

@@ -32,7 +32,8 @@ METRES_PER_VOLT = 1e-7
 def tilted_calibration(path: Path) -> Path:
     """A truth K that is not a quartic: eq. (17) times 0.85 + 0.3 exp(-sigma / 80), as a table."""
     sigma = np.geomspace(*PAPER_SIGMA_RANGE, 200)
-    TabulatedK(sigma, paper_calibration()(sigma) * (0.85 + 0.3 * np.exp(-sigma / 80)), name="tilted eq. (17)").save(path)
+    TabulatedK(sigma, paper_calibration()(sigma) * (0.85 + 0.3 * np.exp(-sigma / 80)),
+               name="tilted eq. (17)").save(path)
     return path
 
 
@@ -43,7 +44,8 @@ def cases(folder: Path) -> dict[str, dict]:
             "mass": {"mass": 0.18, "excess": rig_like, "calibration": None},
             "damping-160-4": {"mass": 0.1347, "excess": (160e-6, 4.0), "calibration": None},
             "damping-115-8": {"mass": 0.1347, "excess": (115e-6, 8.0), "calibration": None},
-            "calibration": {"mass": 0.1347, "excess": rig_like, "calibration": tilted_calibration(folder / "tilted.json")}}
+            "calibration": {"mass": 0.1347, "excess": rig_like,
+                            "calibration": tilted_calibration(folder / "tilted.json")}}
 
 
 def truth_parameters(case: dict) -> list[str]:
@@ -92,7 +94,8 @@ def compare(case: dict, document: dict) -> dict:
     factor_errors = np.array(damping["factors"]) / truth_factor - 1
     inside = [(lo <= t <= hi) for lo, t, hi in zip(damping["factors_low"], truth_factor, damping["factors_high"])]
     worst = int(np.argmax(np.abs(errors)))
-    return {"equilibrium_error_max_percent": 100 * float(np.max(np.abs(errors))), "worst_at_um": round(heights[worst] * 1e6),
+    return {"equilibrium_error_max_percent": 100 * float(np.max(np.abs(errors))),
+            "worst_at_um": round(heights[worst] * 1e6),
             "damping_error_max_percent": 100 * float(np.max(np.abs(factor_errors))),
             "damping_errors_percent": [round(100 * e, 1) for e in factor_errors],
             "truth_inside_interval": f"{sum(inside)}/{len(inside)}",

@@ -41,7 +41,8 @@ def main() -> None:
         runs = {name: run(archive, f"{tmp}/{name}", reference, algorithm=name) for name in ("causal", "jacobi")}
         for name, result in runs.items():
             lead = result.table().time < reference.lead_s
-            print(f"{name}: max |height - 60 um| in the lead {np.max(np.abs(result[HEIGHT][lead] - 60e-6)) * 1e6:.2f} um")
+            print(f"{name}: max |height - 60 um| in the lead "
+                  f"{np.max(np.abs(result[HEIGHT][lead] - 60e-6)) * 1e6:.2f} um")
         difference = np.max(np.abs(runs["causal"][HEIGHT] - runs["jacobi"][HEIGHT]))
         print(f"causal vs jacobi: max |height difference| {difference * 1e6:.2f} um")
 

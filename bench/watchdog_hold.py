@@ -48,14 +48,14 @@ def run(plant: FixedStepPlant, design: SimplifiedPlant, law: DiscreteControlLaw,
     heights = np.empty(samples)
     for k in range(samples):
         heights[k] = state.height
+        if hold_start is not None and k == hold_start:  # the last drive before the host stopped: the rig holds it
+            held_command = command
         held = hold_start is not None and hold_start <= k < hold_start + hold_samples
         if hold_start is not None and ramp and k >= hold_start + hold_samples:  # the watchdog's ramp, then 0
             fraction = min(1.0, (k - hold_start - hold_samples) * PERIOD_S / RAMP_S)
             command = held_command * (1 - fraction)
         elif not held:
             command, controller = law.step(controller, after if k >= 100 else before, state.height)
-        if hold_start is not None and k == hold_start:
-            held_command = command
         amplitude = command + (amplitude - command) * decay
         state = plant.advance(state, amplitude, PERIOD_S)
         if state.resting:

@@ -88,8 +88,8 @@ FREQUENCY_TOLERANCE = 1e-9
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "SlaveCallError", "UNITS", "RIG_PARAMETERS", "CALIBRATION_CHOICES",
-           "rig_parameter_values",
+__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "SlaveCallError", "UNITS", "RIG_PARAMETERS",
+           "CALIBRATION_CHOICES", "rig_parameter_values",
            "DefaultExperiment", "SAMPLE_TOLERANCE"]
 
 #: SI base-unit exponents of every unit an nfal FMU declares (FMI 2.0 ``<BaseUnit>`` attributes).
@@ -190,7 +190,8 @@ class _Declaration:
 
     def __init__(self, variable: ScalarVariable, unit: str | None, depends_on: tuple[str, ...], computed: bool,
                  tunable: bool) -> None:
-        self.variable, self.unit, self.depends_on, self.computed, self.tunable = variable, unit, depends_on, computed, tunable
+        self.variable, self.unit, self.depends_on = variable, unit, depends_on
+        self.computed, self.tunable = computed, tunable
 
 
 class NfalSlave(Fmi2Slave):
@@ -256,7 +257,8 @@ class NfalSlave(Fmi2Slave):
         """
         depends_on = tuple(depends_on)
         if getter is None and depends_on:
-            raise InvalidParameterError("depends_on", depends_on, "empty for an output read from an attribute (give a getter)")
+            raise InvalidParameterError("depends_on", depends_on,
+                                        "empty for an output read from an attribute (give a getter)")
         for source in depends_on:
             declared = self._declarations.get(source)
             if declared is None or declared.variable.causality != Fmi2Causality.input:
@@ -264,9 +266,11 @@ class NfalSlave(Fmi2Slave):
         if kind not in _PY_TYPES:
             raise InvalidParameterError("kind", kind, "float, int, bool or str")
         variability = Fmi2Variability.continuous if kind is float else Fmi2Variability.discrete
-        return self._declare(name, kind, Fmi2Causality.output, variability, unit, description, depends_on, getter, False)
+        return self._declare(name, kind, Fmi2Causality.output, variability, unit, description, depends_on, getter,
+                             False)
 
-    def _declare(self, name, start, causality, variability, unit, description, depends_on, getter, tunable) -> ScalarVariable:
+    def _declare(self, name, start, causality, variability, unit, description, depends_on, getter,
+                 tunable) -> ScalarVariable:
         if name in self._declarations:
             raise InvalidParameterError("name", name, "a variable name not declared before")
         if unit is not None and unit not in UNITS:
@@ -303,7 +307,8 @@ class NfalSlave(Fmi2Slave):
             if check_finite and not math.isfinite(value):
                 raise InvalidParameterError(name, value, "a finite number")
             if fixed and self.initialized:
-                raise InvalidParameterError(name, value, f"unchanged after initialisation (a fixed parameter, now {getattr(self, name)!r})")
+                raise InvalidParameterError(name, value, "unchanged after initialisation (a fixed parameter, now "
+                                            f"{getattr(self, name)!r})")
             setattr(self, name, value)
             self._settings_changed = True
         return setter
@@ -322,13 +327,15 @@ class NfalSlave(Fmi2Slave):
         ``excitation_amplitude`` and ``drive_frequency``; outputs ``height``, ``velocity``, ``resting``;
         parameters ``initial_height``, ``initial_velocity``, ``rest_gap`` and the rig."""
         self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
-        self.add_input("drive_frequency", RigParameters.frequency, unit="Hz", description="drive frequency f; sigma scales with it (eq. 2)")
+        self.add_input("drive_frequency", RigParameters.frequency, unit="Hz",
+                       description="drive frequency f; sigma scales with it (eq. 2)")
         self.add_output("height", unit="m", description="clearance hbar (slow, averaged over an excitation period)")
         self.add_output("velocity", unit="m/s", description="d hbar / dt")
         self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
         self.add_parameter("initial_height", STAIRCASE_LEVELS_M[0], unit="m", description="clearance at release")
         self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
-        self.add_parameter("rest_gap", DEFAULT_REST_GAP, unit="m", description="closest approach: the object lands and rests here")
+        self.add_parameter("rest_gap", DEFAULT_REST_GAP, unit="m",
+                           description="closest approach: the object lands and rests here")
         self.add_rig_parameters()
 
     def checked_release(self) -> tuple[float, float, float]:

@@ -92,7 +92,8 @@ HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "pro
 
 FMUS_DIR = Path(__file__).resolve().parent
 #: The package root's foundation modules (importable by every layer, docs/architecture.md): every FMU carries them.
-FOUNDATION_MODULES = tuple(Path(nfal.__file__).resolve().parent / name for name in ("errors.py", "csvdata.py", "realtime.py"))
+FOUNDATION_MODULES = tuple(Path(nfal.__file__).resolve().parent / name
+                           for name in ("errors.py", "csvdata.py", "realtime.py"))
 
 
 def _models_dir() -> Path:
@@ -135,7 +136,8 @@ def is_up_to_date(fmu: Path, name: str, fmi_version: int = 2) -> bool:
 
 
 def _minimal_package_init() -> str:
-    return ('"""nfal, as carried inside an FMU: its foundation modules, nfal.models and nfal.fmus.base only (see fmus/build.py)."""'
+    return ('"""nfal, as carried inside an FMU: its foundation modules, nfal.models and nfal.fmus.base only '
+            '(see fmus/build.py)."""'
             f'\n\n__version__ = "{nfal.__version__}"\n')
 
 

@@ -21,9 +21,9 @@ A thin adapter over :class:`~nfal.models.control_law.DiscreteControlLaw`:
 * ``drive_voltage`` = ``excitation_command`` / ``metres_per_volt`` (the voltage -> |a| map at
   resonance, an assumption of docs/cosimulation.md).
 * saturation: ``saturated_time`` is how long the held command has been at ``max_excitation`` (through
-  dips shorter than ``SATURATION_GAP_S``); once per such episode longer than ``saturation_warning_time`` a warning goes to the FMU log
-  (the reference is beyond what the film holds with this drive limit). ``nfal run`` lists the episodes in
-  summary.json (``metrics.saturation``).
+  dips shorter than ``SATURATION_GAP_S``); once per such episode longer than ``saturation_warning_time`` a
+  warning goes to the FMU log (the reference is beyond what the film holds with this drive limit). ``nfal run``
+  lists the episodes in summary.json (``metrics.saturation``).
 """
 
 from __future__ import annotations
@@ -67,28 +67,35 @@ class Controller(NfalSlave):
                         depends_on=("reference", "measured_height"), getter=self._command)
         self.add_parameter("design", "gain-scheduled", description="'gain-scheduled' (eqs. 23-24 over the work "
                            "range) or 'fixed' (the design at design_height everywhere)")
-        self.add_parameter("design_height", FIXED_DESIGN_HEIGHT_M, unit="m", description="design height of the fixed controller")
+        self.add_parameter("design_height", FIXED_DESIGN_HEIGHT_M, unit="m",
+                           description="design height of the fixed controller")
         self.add_parameter("placement", "sampled", description="poles placed for the 'sampled' loop the law "
                            "realises at sample_rate (default) or the 'continuous' one of eqs. (23)-(24) (the paper)")
         self.add_parameter("realizable_only", True, description="hold the gains below the lowest height the "
                            "sampled loop realises (Fig. 8; the sampled placement realises all)")
         self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="sampling rate (Table 2)")
-        self.add_parameter("closed_loop_cutoff", CLOSED_LOOP_CUTOFF_HZ, unit="Hz", description="closed-loop -3 dB bandwidth, eq. (23) (Table 2)")
-        self.add_parameter("filter_cutoff", FILTER_CUTOFF_HZ, unit="Hz", description="derivative filter cut-off, eq. (22) (Table 2)")
+        self.add_parameter("closed_loop_cutoff", CLOSED_LOOP_CUTOFF_HZ, unit="Hz",
+                           description="closed-loop -3 dB bandwidth, eq. (23) (Table 2)")
+        self.add_parameter("filter_cutoff", FILTER_CUTOFF_HZ, unit="Hz",
+                           description="derivative filter cut-off, eq. (22) (Table 2)")
         self.add_parameter("max_excitation", MAX_EXCITATION_M, unit="m", description="actuator saturation |a|max")
-        self.add_parameter("metres_per_volt", METRES_PER_VOLT, unit="m/V", description="|a| per volt at resonance (assumption)")
-        self.add_parameter("reference_filter_time", 0.0, unit="s", description="time constant of the "
-                           "critically damped pair the reference passes through (smoother steps); 0: the reference as given")
+        self.add_parameter("metres_per_volt", METRES_PER_VOLT, unit="m/V",
+                           description="|a| per volt at resonance (assumption)")
+        self.add_parameter("reference_filter_time", 0.0, unit="s", description="time constant of the critically "
+                           "damped pair the reference passes through (smoother steps); 0: the reference as given")
         self.add_parameter("lift_off_time", LIFT_OFF_TIME_S, unit="s", description="time constant of the lift-off "
-                           "reference pair when the first sample finds the object below reference_min; 0: no lift-off mode")
+                           "reference pair when the first sample finds the object below reference_min; "
+                           "0: no lift-off mode")
         self.add_parameter("actuator_lag", Transducer().time_constant_s(), unit="s", description="the transducer's "
                            "amplitude lag 2 Q / omega_r that a lead in the law cancels; 0: no lead (the paper's law)")
-        self.add_parameter("reference_zero", REFERENCE_ZERO_RATIO, description="the reference enters through a filter that cancels "
-                           "the PI zero and puts its own at this many slow-pole time constants (1: monotone steps); 0: off")
+        self.add_parameter("reference_zero", REFERENCE_ZERO_RATIO, description="the reference enters through a "
+                           "filter that cancels the PI zero and puts its own at this many slow-pole time constants "
+                           "(1: monotone steps); 0: off")
         self.add_parameter("reference_min", WORK_RANGE_M[0], unit="m", description="smallest accepted reference")
         self.add_parameter("reference_max", WORK_RANGE_M[1], unit="m", description="largest accepted reference")
-        self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) when the drive "
-                           "stays saturated at max_excitation this long: the reference is out of the film's reach")
+        self.add_parameter("saturation_warning_time", SATURATION_WARNING_S, unit="s", description="warn (FMU log) "
+                           "when the drive stays saturated at max_excitation this long: the reference is out of the "
+                           "film's reach")
         self.add_output("saturated_time", unit="s", description="how long the drive has been saturated at "
                         "max_excitation, through dips under 20 ms (0 when not saturated)", getter=self._saturated_time)
         self.add_rig_parameters()
@@ -121,17 +128,19 @@ class Controller(NfalSlave):
         if low >= high:
             raise InvalidParameterError("reference_max", high, f"> reference_min = {low:g} m")
         require_positive("saturation_warning_time", self.saturation_warning_time)
-        key = (self.design, design_height, bool(self.realizable_only), sample_rate, rig, str(self.calibration), spec, low, high)
+        key = (self.design, design_height, bool(self.realizable_only), sample_rate, rig, str(self.calibration), spec,
+               low, high)
         if self._gains is None or self._gains[0] != key:  # initialisation re-runs setup after every set
             self._gains = (key, self._design(design_height, sample_rate, rig, model, spec, (low, high)))
         gains = self._gains[1]
         require_plausible("metres_per_volt", require_positive("metres_per_volt", self.metres_per_volt),
                           MAX_METRES_PER_VOLT, "m/V")
-        lift_off, smoothing = (optional_positive(name, getattr(self, name)) for name in ("lift_off_time", "reference_filter_time"))
+        lift_off, smoothing = (optional_positive(name, getattr(self, name))
+                               for name in ("lift_off_time", "reference_filter_time"))
         self.law = DiscreteControlLaw(gains, sample_rate_hz=sample_rate,
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
-                                      reference_range_m=(low, high), reference_filter_s=smoothing, lift_off_time_s=lift_off,
-                                      actuator_lag_s=self.actuator_lag,
+                                      reference_range_m=(low, high), reference_filter_s=smoothing,
+                                      lift_off_time_s=lift_off, actuator_lag_s=self.actuator_lag,
                                       reference_zero_ratio=reference_zero)
         reference = self._checked_reference()
         equilibrium = float(SimplifiedPlant(rig, calibration).equilibrium_excitation(reference))
@@ -163,7 +172,8 @@ class Controller(NfalSlave):
     def _sample(self) -> tuple[float, ControllerState]:
         """law.step(state, reference, measured_height), once per (state, inputs)."""
         cache = self._cache
-        if cache is not None and cache[0] is self._state and cache[1] == self.reference and cache[2] == self.measured_height:
+        if cache is not None and cache[0] is self._state and cache[1] == self.reference \
+                and cache[2] == self.measured_height:
             return cache[3], cache[4]
         self._checked_reference()
         command, state = self.law.step(self._state, self.reference, self.measured_height)
@@ -200,10 +210,10 @@ class Controller(NfalSlave):
         if self._saturated_since is not None and not self._warned \
                 and now - self._saturated_since >= self.saturation_warning_time - 1e-12:
             self._warned = True
-            self.log(f"drive saturated at |a| = {self.max_excitation * 1e6:.3g} um for {now - self._saturated_since:.3g} s "
-                     f"(since t = {self._saturated_since:.4g} s): the reference {self.reference * 1e6:.4g} um is out of "
-                     f"reach (measured {self.measured_height * 1e6:.4g} um); the film cannot hold it with this drive "
-                     "limit", Fmi2Status.warning)
+            self.log(f"drive saturated at |a| = {self.max_excitation * 1e6:.3g} um for "
+                     f"{now - self._saturated_since:.3g} s (since t = {self._saturated_since:.4g} s): the reference "
+                     f"{self.reference * 1e6:.4g} um is out of reach (measured {self.measured_height * 1e6:.4g} um); "
+                     "the film cannot hold it with this drive limit", Fmi2Status.warning)
 
     def _saturated_time(self) -> float:
         return 0.0 if self._saturated_since is None else max(0.0, self.time - self._saturated_since)

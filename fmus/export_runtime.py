@@ -15,9 +15,10 @@ imports its own slave module; the ``PyState`` pointer is never destroyed by ``ex
 destructor does not release it a second time (a host aborted at exit, "corrupted double-linked list").
 FMI 2.0 only: the slave module's borrowed ``__dict__`` is no longer released (``findClass``), ``%`` is
 escaped (the FMI 2.0 logger takes a printf format; FMI 3.0's does not), and a second ``fmi2FreeInstance``
-of an instance does nothing (``fmi2.cpp`` keeps the set of live instances). FMI 3.0 only: the log queue is read after the exception is taken (it was read with the exception
-pending: SIGSEGV), an import failure is no longer printed away before it is reported, a NULL logger
-callback is allowed, two leaks are closed, and a failed reset leaves no dangling references.
+of an instance does nothing (``fmi2.cpp`` keeps the set of live instances). FMI 3.0 only: the log queue is
+read after the exception is taken (it was read with the exception pending: SIGSEGV), an import failure is no
+longer printed away before it is reported, a NULL logger callback is allowed, two leaks are closed, and a
+failed reset leaves no dangling references.
 
 :func:`runtime_library` builds one with CMake for the running Python (once; the result is cached by
 the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU as ``<model>_runtime.so``.
@@ -187,7 +188,8 @@ def _failure_value(returns: str, fmi_version: int) -> str:
 _POINTER_OUTPUTS = {
     "fmi2GetString": "for (size_t k = 0; a3 && k < a2; ++k) a3[k] = \"\";",
     "fmi3GetString": "for (size_t k = 0; values && k < nValues; ++k) values[k] = \"\";",
-    "fmi3GetBinary": "for (size_t k = 0; values && valueSizes && k < nValues; ++k) { values[k] = NULL; valueSizes[k] = 0; }",
+    "fmi3GetBinary": "for (size_t k = 0; values && valueSizes && k < nValues; ++k) "
+                     "{ values[k] = NULL; valueSizes[k] = 0; }",
 }
 
 
@@ -273,7 +275,8 @@ def _build_loader(runtime: Runtime, library: Path, target: Path, build: Path) ->
                                              encoding="utf-8")
     (build / "nfal_python_info.h").write_text(f"#define NFAL_PYTHON_INFO {json.dumps(PYTHON_INFO)}\n",
                                               encoding="utf-8")
-    command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation", "-fvisibility=hidden",
+    command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation",
+               "-fvisibility=hidden",
                f"-DNFAL_FMI_VERSION={runtime.fmi_version}", f"-I{build}", f"-I{runtime.function_types.parent}",
                "-o", str(target), str(LOADER_SOURCE), "-ldl", "-lpthread"]
     done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)

@@ -38,7 +38,8 @@ ROOT_ATTRIBUTES = ("modelName", "description", "author", "version", "copyright",
 COSIMULATION_ATTRIBUTES = {"modelIdentifier": "modelIdentifier", "needsExecutionTool": "needsExecutionTool",
                            "canBeInstantiatedOnlyOncePerProcess": "canBeInstantiatedOnlyOncePerProcess",
                            "canHandleVariableCommunicationStepSize": "canHandleVariableCommunicationStepSize",
-                           "canGetAndSetFMUstate": "canGetAndSetFMUState", "canSerializeFMUstate": "canSerializeFMUState"}
+                           "canGetAndSetFMUstate": "canGetAndSetFMUState",
+                           "canSerializeFMUstate": "canSerializeFMUState"}
 #: The independent variable FMI 3.0 requires (its value reference follows the slave's variables).
 TIME = "time"
 
@@ -66,7 +67,8 @@ class Fmi3Adapter:
         """The FMI 3.0 modelDescription of the slave (see the module docstring)."""
         fmi2 = super().to_xml(model_options)  # NfalSlave's FMI 2.0 description: options, units, structure
         attributes = {k: v for k, v in fmi2.attrib.items() if k in ROOT_ATTRIBUTES}
-        attributes["generationTool"] = f"{fmi2.get('generationTool')} and PythonFMU3 {PYTHONFMU3_VERSION} (nfal.fmus.fmi3)"
+        attributes["generationTool"] = (f"{fmi2.get('generationTool')} and PythonFMU3 {PYTHONFMU3_VERSION} "
+                                        "(nfal.fmus.fmi3)")
         root = Element("fmiModelDescription", {"fmiVersion": "3.0", **attributes,
                                                "instantiationToken": fmi2.get("guid")})
         cosimulation = {COSIMULATION_ATTRIBUTES[k]: v for k, v in fmi2.find("CoSimulation").attrib.items()
@@ -131,7 +133,8 @@ def _with_seconds(definitions: Element | None) -> Element:
 
 def fmi3_script(model: str, fmi2_module: str, docstring: str) -> str:
     """The pythonfmu3 slave script of ``model``: its FMI 2.0 slave class (from the bundle loader module
-    ``fmi2_module``) with :class:`Fmi3Adapter` before it, both from the FMU's own nfal. pythonfmu3 finds the class by the literal ``class X(... Fmi3Slave...)``."""
+    ``fmi2_module``) with :class:`Fmi3Adapter` before it, both from the FMU's own nfal. pythonfmu3 finds the
+    class by the literal ``class X(... Fmi3Slave...)``."""
     return (f'"""{model}, FMI 3.0 (nfal build --fmi 3): {docstring}"""\n\n'
             "from pythonfmu3 import Fmi3SlaveBase\n"
             "import sys\n\n"

@@ -63,14 +63,16 @@ class HardwareProxy(NfalSlave):
         self.add_input("drive_voltage", 0.0, unit="V", description="drive voltage amplitude V for the rig (>= 0)")
         self.add_output("measured_height", unit="m", description="the rig's measured clearance (newest sample)")
         self.add_output("drive_frequency", unit="Hz", description="drive frequency set by the rig's PLL")
-        self.add_output("applied_voltage", unit="V", description="voltage the rig applied (after its limit and watchdog)")
+        self.add_output("applied_voltage", unit="V",
+                        description="voltage the rig applied (after its limit and watchdog)")
         self.add_output("locked", kind=bool, description="the rig's PLL is locked")
         self.add_output("resting", kind=bool, description="the object rests on the driving surface")
         self.add_output("watchdog_tripped", kind=bool, description="the rig's watchdog has ramped the drive down")
         self.add_output("sensor_out_of_range", kind=bool, description="the rig's height sensor is saturated: "
                         "measured_height is its range limit")
         self.add_output("rig_time", unit="s", description="the rig's clock at the sample")
-        self.add_output("measurement_age", unit="s", description="host time since the sample arrived, at the step's end")
+        self.add_output("measurement_age", unit="s",
+                        description="host time since the sample arrived, at the step's end")
         self.add_output("fresh", kind=bool, description="a new sample arrived during the last step")
         self.add_output("link_ok", kind=bool, description="the session with the rig is up")
         self.add_output("samples_missed", kind=int, description="rig samples due since the newest one arrived "
@@ -89,11 +91,13 @@ class HardwareProxy(NfalSlave):
         self.add_parameter("port", "", description="the rig's serial port: a device path, a pty, socket://host:port, "
                            "or any pyserial URL")
         self.add_parameter("baud_rate", 2_000_000, description="line rate [baud] (ignored by ptys and sockets)")
-        self.add_parameter("connect_timeout", 2.0, unit="s", description="wait for the rig's HELLO_ACK and first sample")
+        self.add_parameter("connect_timeout", 2.0, unit="s",
+                           description="wait for the rig's HELLO_ACK and first sample")
         self.add_parameter("max_missed_samples", 20, description="samples the rig may miss in a row (by the wall "
                            "clock) before the step fails (20 = 10 ms at 2 kHz)")
         self.add_parameter("reconnect", True, description="reopen the port and say HELLO again after a lost link")
-        self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="the rig's sample rate, checked at connection")
+        self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz",
+                           description="the rig's sample rate, checked at connection")
         self._link: RigLink | None = None
         self._settings: tuple | None = None
         self._seen = 0

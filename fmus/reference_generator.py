@@ -50,7 +50,8 @@ def reference_of(parameters: Mapping[str, object], resources: str | None = None)
         return StepSequence.from_table(table, name="table")
     if str(values["times"]).strip():
         return StepSequence.from_text(str(values["times"]), str(values["levels"]))
-    return Staircase(numbers("levels", str(values["levels"])), hold_s=float(values["hold"]), lead_s=float(values["lead"]))
+    return Staircase(numbers("levels", str(values["levels"])), hold_s=float(values["hold"]),
+                     lead_s=float(values["lead"]))
 
 
 def _resource_text(name: str, resources: str | None) -> str:

@@ -41,11 +41,14 @@ class ResonanceTracker(NfalSlave):
                        description="shift of the transducer's resonance from resonance_frequency (e.g. thermal drift)")
         self.add_output("excitation_amplitude", unit="m", description="excitation magnitude ||a|| = |A|",
                         depends_on=INPUTS, getter=lambda: self._outputs().excitation_amplitude_m)
-        self.add_output("drive_frequency", unit="Hz", description="drive frequency set by the PLL (held between samples)",
+        self.add_output("drive_frequency", unit="Hz",
+                        description="drive frequency set by the PLL (held between samples)",
                         depends_on=INPUTS, getter=lambda: self._outputs().drive_frequency_hz)
-        self.add_output("locked", kind=bool, description="lock detector: |phase_error| < lock_threshold for lock_samples samples",
+        self.add_output("locked", kind=bool,
+                        description="lock detector: |phase_error| < lock_threshold for lock_samples samples",
                         depends_on=INPUTS, getter=lambda: self._outputs().locked)
-        self.add_output("phase_error", unit="rad", description="phase of the displacement relative to the drive + 90 deg, wrapped",
+        self.add_output("phase_error", unit="rad",
+                        description="phase of the displacement relative to the drive + 90 deg, wrapped",
                         depends_on=INPUTS, getter=lambda: self._outputs().phase_error_rad)
         self.add_parameter("resonance_frequency", RESONANCE_FREQUENCY_HZ, unit="Hz",
                            description="nominal resonance f_r of the transducer; the PLL's centre frequency")
@@ -87,9 +90,11 @@ class ResonanceTracker(NfalSlave):
 
     def _check_inputs(self) -> None:
         """``drive_voltage`` in [0, MAX_DRIVE_VOLTAGE_V] V; ``resonance_shift`` within half the resonance frequency."""
-        voltage = require_finite("drive_voltage", self.drive_voltage, f"a finite voltage in [0, {MAX_DRIVE_VOLTAGE_V:g}] V")
+        voltage = require_finite("drive_voltage", self.drive_voltage,
+                                 f"a finite voltage in [0, {MAX_DRIVE_VOLTAGE_V:g}] V")
         if not 0.0 <= voltage <= MAX_DRIVE_VOLTAGE_V:
-            raise InvalidParameterError("drive_voltage", voltage, f"in [0, {MAX_DRIVE_VOLTAGE_V:g}] V (a piezo driver's range)")
+            raise InvalidParameterError("drive_voltage", voltage,
+                                        f"in [0, {MAX_DRIVE_VOLTAGE_V:g}] V (a piezo driver's range)")
         limit = 0.5 * float(self.resonance_frequency)
         if not abs(require_finite("resonance_shift", self.resonance_shift)) < limit:
             raise InvalidParameterError("resonance_shift", self.resonance_shift,
@@ -130,4 +135,5 @@ class ResonanceTracker(NfalSlave):
             real, imag = (float(v) for v in state["envelope_m"])
             self._state = pll_model.TrackerState(complex(real, imag), pll_model.PllState(**state["pll"]))
         except (KeyError, TypeError, ValueError) as exc:
-            raise InvalidParameterError("FMU state", type(state).__name__, f"a ResonanceTracker state ({exc})") from None
+            raise InvalidParameterError("FMU state", type(state).__name__,
+                                        f"a ResonanceTracker state ({exc})") from None

@@ -4,10 +4,11 @@
 
 * ``harmonic_balance`` (default): the film's periodic steady state K(sigma, delta) by harmonic balance
   (``harmonics`` in the fast time, ``radial_nodes`` radial nodes, Richardson-extrapolated to twice the
-  nodes), tabulated once at set-up (and kept on disk: :func:`~nfal.models.film_force_table.cached_table`) (:class:`~nfal.models.film_force_table.FilmForceTable`), drives the
-  object's slow motion with the damping of eq. (6) (:class:`~nfal.models.averaged_plant.AveragedFilmPlant`,
-  stepped like the SlowPlant: RK4, the exact event-handling integrator near the surface or, with
-  ``near_surface`` = 'fast', the real-time one). Faster than real time.
+  nodes), tabulated once at set-up (and kept on disk: :func:`~nfal.models.film_force_table.cached_table`)
+  (:class:`~nfal.models.film_force_table.FilmForceTable`), drives the object's slow motion with the damping of
+  eq. (6) (:class:`~nfal.models.averaged_plant.AveragedFilmPlant`, stepped like the SlowPlant: RK4, the exact
+  event-handling integrator near the surface or, with ``near_surface`` = 'fast', the real-time one). Faster
+  than real time.
 * ``time_marching``: the reference, a thin adapter over the stepping API of
   :class:`~nfal.models.coupled.CoupledModel` (below). Per
 communication step every excitation period that starts in the step is marched in full with the held
@@ -55,9 +56,11 @@ class ReynoldsPlant(NfalSlave):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self.add_plant_interface()
-        self.add_output("oscillation_amplitude", unit="m", description="amplitude of the object's fast oscillation chi (eq. 1)")
+        self.add_output("oscillation_amplitude", unit="m",
+                        description="amplitude of the object's fast oscillation chi (eq. 1)")
         self.add_parameter("film_solver", "harmonic_balance", description="'harmonic_balance' (periodic film force, "
-                           "tabulated once; faster than real time) or 'time_marching' (the reference: every period marched)")
+                           "tabulated once; faster than real time) or 'time_marching' (the reference: every period "
+                           "marched)")
         self.add_parameter("radial_nodes", 41, description="radial finite-volume nodes of the film (>= 5)")
         self.add_parameter("harmonics", 6, description="harmonic balance: harmonics kept in the fast time (>= 1)")
         self.add_parameter("near_surface", "exact", description="harmonic balance: integrator below 3 rest gaps, "
@@ -111,7 +114,8 @@ class ReynoldsPlant(NfalSlave):
         excitation, frequency = self.checked_excitation(), self.checked_frequency()
         if self.frequency_changed(frequency, self._averaged.plant.rig.frequency):
             self._averaged = self._build_averaged(frequency)
-        if not self.resting and excitation * self._largest_excursion >= self.height:  # as the marched film: the gap closes
+        # as the marched film: the gap closes
+        if not self.resting and excitation * self._largest_excursion >= self.height:
             self.log(f"touchdown: the surface's excursion {excitation * self._largest_excursion * 1e6:.4g} um reaches "
                      f"the object at {self.height * 1e6:.4g} um")
             self.height, self.velocity, self.resting, self.oscillation_amplitude = self.rest_gap, 0.0, True, 0.0
@@ -177,6 +181,6 @@ class ReynoldsPlant(NfalSlave):
             return
         if state["frequency"] != self._model.rig.frequency:
             self._model = self._build_model(float(state["frequency"]))
-        self._state = CoupledState(np.array(state["vector"], dtype=float), float(state["time_s"]), float(state["epoch_s"]),
-                                   int(state["period_index"]), float(state["height"]), float(state["velocity"]),
-                                   float(state["oscillation"]))
+        self._state = CoupledState(np.array(state["vector"], dtype=float), float(state["time_s"]),
+                                   float(state["epoch_s"]), int(state["period_index"]), float(state["height"]),
+                                   float(state["velocity"]), float(state["oscillation"]))

@@ -28,13 +28,15 @@ class SensorChain(NfalSlave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.add_input("true_height", STAIRCASE_LEVELS_M[0], unit="m", description="true clearance h of the levitated object")
+        self.add_input("true_height", STAIRCASE_LEVELS_M[0], unit="m",
+                       description="true clearance h of the levitated object")
         self.add_output("measured_height", unit="m", description="sampled, filtered, quantised measurement (held)",
                         depends_on=("true_height",), getter=self._measured)
         self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz", description="sampling rate")
         self.add_parameter("noise_peak", NOISE_PEAK_M, unit="m",
                            description="maximal noise magnitude (3 standard deviations, clip level); 0: none")
-        self.add_parameter("noise_cutoff", NOISE_CUTOFF_HZ, unit="Hz", description="cut-off of the noise's colouring filter")
+        self.add_parameter("noise_cutoff", NOISE_CUTOFF_HZ, unit="Hz",
+                           description="cut-off of the noise's colouring filter")
         self.add_parameter("seed", 0, description="seed of the noise (>= 0)")
         self.add_parameter("analog_cutoff", ANALOG_FILTER_CUTOFF_HZ, unit="Hz",
                            description="cut-off of the analog 2nd-order Butterworth low-pass; 0: no filter")

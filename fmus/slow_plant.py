@@ -34,7 +34,8 @@ from nfal.models.plant import DampingModel, ExcessDamping, PlantState, Simplifie
 class SlowPlant(NfalSlave):
     """Eq. (13): m h'' = pi r0^2 p_a (|a|/h)^2 K(sigma(h)) - 3 pi mu r0^4 / (2 h^3) h' - m g, in SI."""
 
-    description = "Slow (time-averaged) levitation model, eq. (13), with touchdown and lift-off; inputs held over a step"
+    description = ("Slow (time-averaged) levitation model, eq. (13), with touchdown and lift-off; inputs held over "
+                   "a step")
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.1, step_size=5e-4)
 
     def __init__(self, **kwargs) -> None:

@@ -74,7 +74,8 @@ class PtyPort:
             os.close(master)
             os.close(slave)
             raise LinkError(f"cannot make the port's link {self.path}: {exc.strerror or exc}") from None
-        self._master, self._slave = master, slave  # the slave stays open here too: writes never fail for want of a reader
+        # the slave stays open here too: writes never fail for want of a reader
+        self._master, self._slave = master, slave
 
     def disconnect(self) -> None:
         """Close the pty (the host's reads fail) and remove the symlink (its reopen attempts fail)."""

@@ -16,7 +16,8 @@ Built with the rig (``FilmForceTable(..., rig=rig)``), the table includes the ob
 oscillation chi (first order in delta) in the gap, and so its effect on the mean force (2.2e-4 of the
 clearance for case a of Table 1, 2e-3 for a piston; docs/film_solvers.md). What it leaves out against
 :class:`~nfal.models.coupled.CoupledModel` (time marching, the reference): chi beyond first order, and
-the film's delay in following slow motion beyond eq. (6). Touchdown and lift-off are those of :class:`~nfal.models.plant.SimplifiedPlant`.
+the film's delay in following slow motion beyond eq. (6). Touchdown and lift-off are those of
+:class:`~nfal.models.plant.SimplifiedPlant`.
 """
 
 from __future__ import annotations

@@ -228,7 +228,8 @@ class RigCalibration:
         if self.rig is None:
             return
         differ = [f"{name} {self.rig[name]:g} there, {getattr(rig, name):g} here" for name in CHECKED_RIG_FIELDS
-                  if name in self.rig and not math.isclose(self.rig[name], getattr(rig, name), rel_tol=RIG_MATCH_TOLERANCE)]
+                  if name in self.rig
+                  and not math.isclose(self.rig[name], getattr(rig, name), rel_tol=RIG_MATCH_TOLERANCE)]
         if differ:
             raise DataFormatError(f"{source} was identified on another rig ({'; '.join(differ)}): identify this rig "
                                   "(nfal identify) or give its parameters")

@@ -148,9 +148,11 @@ class DiscreteControlLaw:
         self.gains = gains
         self.sample_rate_hz = require_positive("sample_rate_hz", sample_rate_hz)
         self.period_s = 1.0 / self.sample_rate_hz
-        self.max_excitation_m = require_plausible("max_excitation_m", require_positive("max_excitation_m", max_excitation_m),
+        self.max_excitation_m = require_plausible("max_excitation_m",
+                                                  require_positive("max_excitation_m", max_excitation_m),
                                                   PLAUSIBLE_EXCITATION_M, "m")
-        self.tracking_time_s = self.period_s if tracking_time_s is None else require_positive("tracking_time_s", tracking_time_s)
+        self.tracking_time_s = (self.period_s if tracking_time_s is None
+                                else require_positive("tracking_time_s", tracking_time_s))
         low, high = (float(v) for v in reference_range_m)
         if not (0.0 < low <= high < math.inf):
             raise InvalidParameterError("reference_range_m", reference_range_m, "0 < low <= high, finite [m]")
@@ -172,7 +174,8 @@ class DiscreteControlLaw:
         self.filter_rad_s = gains.omega_lpf * gains.omega  # omega_L [rad/s]
         if self.period_s * self.filter_rad_s >= 2.0:
             raise InvalidParameterError("sample_rate_hz", sample_rate_hz,
-                                        f"> {self.filter_rad_s / 2:.4g} Hz so that forward Euler of the filter is stable")
+                                        f"> {self.filter_rad_s / 2:.4g} Hz so that forward Euler of the filter "
+                                        "is stable")
         self.name = gains.name
 
     def initial_state(self, height_m: float, excitation_m: float) -> ControllerState:

@@ -134,7 +134,8 @@ def _march_coupled(state, amplitudes, eps_nodes, eps_faces, conductance, volumes
             s_now = amp * sines[j + 1]
             s_prev = amp * sines[j]
             for n in range(m):
-                hist[n] = -4.0 * (1.0 + u_now[n]) * (z_now - eps_nodes[n] * s_now) + (1.0 + u_prev[n]) * (z_prev - eps_nodes[n] * s_prev)
+                hist[n] = (-4.0 * (1.0 + u_now[n]) * (z_now - eps_nodes[n] * s_now)
+                           + (1.0 + u_prev[n]) * (z_prev - eps_nodes[n] * s_prev))
             z_hist = -4.0 * z_now + z_prev
             w_hist = -4.0 * w_now + w_prev
             s = amp * sines[j + 2]
@@ -420,7 +421,8 @@ class CoupledModel:
         vector = self._initial_state(height0 / h0, velocity0 / (h0 * omega), amplitude0 / h0)
         return CoupledState(vector, time0, time0, 0, height0, velocity0, 0.0)
 
-    def advance(self, state: CoupledState, amplitude: float, step_s: float, envelope: bool | None = None) -> CoupledState:
+    def advance(self, state: CoupledState, amplitude: float, step_s: float,
+                envelope: bool | None = None) -> CoupledState:
         """March from ``state.time_s`` to ``state.time_s + step_s`` with |a| = ``amplitude`` [m] held.
 
         Every excitation period whose start lies in the step is marched in full with ``amplitude``
@@ -440,7 +442,8 @@ class CoupledModel:
         if not isinstance(state, CoupledState):
             raise InvalidParameterError("state", type(state).__name__, "a CoupledState (from initial_state or advance)")
         if state.vector.shape != (2 * self.nodes + 4,):
-            raise InvalidParameterError("state", f"{state.vector.size} values", f"a state of a model with {self.nodes} nodes")
+            raise InvalidParameterError("state", f"{state.vector.size} values",
+                                        f"a state of a model with {self.nodes} nodes")
         step = require_positive("step_s", step_s)
         amplitude = require_finite("amplitude", amplitude, "a finite amplitude >= 0 m")
         if amplitude < 0:
@@ -472,7 +475,8 @@ class CoupledModel:
         are rescaled to the new time unit 1 / omega (first order in the step), and the next period
         starts where the previous model's next period would have started.
         """
-        if not isinstance(previous, CoupledModel) or (previous.nodes, previous.steps_per_period) != (self.nodes, self.steps_per_period) \
+        if not isinstance(previous, CoupledModel) \
+                or (previous.nodes, previous.steps_per_period) != (self.nodes, self.steps_per_period) \
                 or not np.array_equal(previous._eps_nodes, self._eps_nodes):
             raise InvalidParameterError("previous", previous, "a CoupledModel with the same nodes, steps and shape")
         if previous.rig.replace(frequency=self.rig.frequency) != self.rig:
@@ -499,9 +503,11 @@ class CoupledModel:
             t_fail = (start + marched + (step + 1) / steps) / rig.frequency
             if status == STATUS_GAP:
                 raise GapClosedError(
-                    f"the gap closed at t = {t_fail:.6g} s (object at z = {state[2 * nodes] * rig.reference_clearance * 1e6:.4g} um, "
+                    f"the gap closed at t = {t_fail:.6g} s (object at z = "
+                    f"{state[2 * nodes] * rig.reference_clearance * 1e6:.4g} um, "
                     f"|a| = {amplitudes[start + marched] * rig.reference_clearance * 1e6:.4g} um, max eps_hat = "
-                    f"{np.max(self._eps_nodes):.3g}): the full model has no contact model; use the simplified plant for touchdown")
+                    f"{np.max(self._eps_nodes):.3g}): the full model has no contact model; use the simplified plant "
+                    "for touchdown")
             raise ConvergenceError(f"Newton did not converge at t = {t_fail:.6g} s; try more steps_per_period")
 
     def _run_envelope(self, state: np.ndarray, amplitudes: np.ndarray, outputs, progress) -> int:
@@ -587,12 +593,14 @@ def _sample_excitation(excitation: Excitation, times: np.ndarray) -> np.ndarray:
         values = np.array([float(excitation(float(t))) for t in times])
         bad = np.flatnonzero(~np.isfinite(values) | (values < 0))
         if bad.size:
-            raise InvalidParameterError("excitation", values[bad[0]], f"finite amplitudes >= 0 m (at t = {times[bad[0]]:.6g} s)")
+            raise InvalidParameterError("excitation", values[bad[0]],
+                                        f"finite amplitudes >= 0 m (at t = {times[bad[0]]:.6g} s)")
         return values
     try:
         value = float(excitation)
     except (TypeError, ValueError):
-        raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time") from None
+        raise InvalidParameterError("excitation", excitation,
+                                    "a finite amplitude >= 0 m, or a function of time") from None
     if not (math.isfinite(value) and value >= 0):
         raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time")
     return np.full(times.size, value)

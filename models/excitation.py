@@ -89,8 +89,8 @@ class PlateModeShape(ExcitationShape):
 
     def __init__(self, n: int = 2, poisson_ratio: float = 0.3) -> None:
         if not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_NODAL_CIRCLES:
-            raise InvalidParameterError("n", n, f"a whole number in [1, {MAX_NODAL_CIRCLES}] (the count of nodal circles; "
-                                        "more are not resolved by the film's radial grid)")
+            raise InvalidParameterError("n", n, f"a whole number in [1, {MAX_NODAL_CIRCLES}] (the count of nodal "
+                                        "circles; more are not resolved by the film's radial grid)")
         if not 0.0 <= poisson_ratio < 0.5:
             raise InvalidParameterError("poisson_ratio", poisson_ratio, "in [0, 0.5)")
         self.n, self.poisson_ratio = int(n), float(poisson_ratio)
@@ -101,11 +101,13 @@ class PlateModeShape(ExcitationShape):
     @staticmethod
     def _root(n: int, nu: float) -> float:
         def moment(lam):
-            return -special.j0(lam) - special.j1(lam) * special.i0(lam) / special.i1(lam) + 2 * (1 - nu) * special.j1(lam) / lam
+            return (-special.j0(lam) - special.j1(lam) * special.i0(lam) / special.i1(lam)
+                    + 2 * (1 - nu) * special.j1(lam) / lam)
 
         grid = np.linspace(0.5, 4.0 * n + 6.0, 400 * n + 400)
         values = moment(grid)
-        roots = [optimize.brentq(moment, a, b) for a, b, fa, fb in zip(grid, grid[1:], values, values[1:]) if fa * fb < 0]
+        roots = [optimize.brentq(moment, a, b)
+                 for a, b, fa, fb in zip(grid, grid[1:], values, values[1:]) if fa * fb < 0]
         return float(roots[n - 1])
 
     def _raw(self, R):
@@ -127,13 +129,15 @@ class TabulatedShape(ExcitationShape):
     def __init__(self, radius, values, name: str = "table") -> None:
         radius, values = np.asarray(radius, dtype=float), np.asarray(values, dtype=float)
         if radius.ndim != 1 or radius.shape != values.shape or radius.size < 4:
-            raise DataFormatError(f"a tabulated shape needs >= 4 (R, eps_hat) pairs, got shapes {radius.shape} and {values.shape}")
+            raise DataFormatError(f"a tabulated shape needs >= 4 (R, eps_hat) pairs, got shapes {radius.shape} "
+                                  f"and {values.shape}")
         if not (np.all(np.isfinite(radius)) and np.all(np.isfinite(values))):
             raise DataFormatError("a tabulated shape contains NaN or infinite values")
         if np.any(np.diff(radius) <= 0):
             raise DataFormatError("R must increase strictly down the table")
         if abs(radius[0]) > 1e-9 or abs(radius[-1] - 1.0) > 1e-9:
-            raise DataFormatError(f"R must run from 0 to 1 (normalised radius r/r0); got {radius[0]:g} to {radius[-1]:g}")
+            raise DataFormatError("R must run from 0 to 1 (normalised radius r/r0); "
+                                  f"got {radius[0]:g} to {radius[-1]:g}")
         if not np.any(values):
             raise DataFormatError("a tabulated shape cannot be zero everywhere")
         self.name = name

@@ -139,7 +139,8 @@ def fit_calibration(rig: RigParameters, data: EquilibriumData, degree: int = FIT
         raise InvalidParameterError("degree", degree, "a whole number >= 0")
     sigma, K = measured_K(rig, data)
     if np.unique(sigma).size <= degree:
-        raise InvalidParameterError("degree", degree, f"below the number of distinct heights measured ({np.unique(sigma).size})")
+        raise InvalidParameterError("degree", degree,
+                                    f"below the number of distinct heights measured ({np.unique(sigma).size})")
     order = np.argsort(sigma)
     sigma, K = sigma[order], K[order]
     series = np.polynomial.Polynomial.fit(sigma, K, degree)  # scaled domain: well conditioned

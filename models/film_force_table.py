@@ -6,9 +6,10 @@ The period-averaged force of the film over an object at clearance hbar under |a|
 pi r0^2 p_a delta^2 K(sigma, delta) (eq. 12), with sigma(hbar) of eq. (2) and delta = |a| / hbar. K
 depends on delta only through delta^2 (delta -> -delta is the shift T -> T + pi), smoothly: so per
 squeeze number the table keeps K as a polynomial in delta^2 through ``DELTA_POINTS`` harmonic-balance
-solutions (:mod:`nfal.models.harmonic_balance`) at Chebyshev points in delta^2, and its coefficients are interpolated by a cubic spline in log sigma. Building it costs
-``sigmas`` x ``DELTA_POINTS`` Newton solves, once per shape and grid; :meth:`FilmForceTable.check` measures its
-interpolation error against direct solves between the table points.
+solutions (:mod:`nfal.models.harmonic_balance`) at Chebyshev points in delta^2, and its coefficients are
+interpolated by a cubic spline in log sigma. Building it costs ``sigmas`` x ``DELTA_POINTS`` Newton solves, once
+per shape and grid; :meth:`FilmForceTable.check` measures its interpolation error against direct solves between
+the table points.
 
 Outside the table (sigma beyond ``sigma_range``, delta beyond ``delta_max``) K is held at the
 nearest edge; the plant only goes there at touchdown and lift-off.
@@ -107,8 +108,8 @@ class FilmForceTable:
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
         coefficients = np.linalg.solve(powers, self.values.T).T  # K = sum_p c_p delta^(2p)
         self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
-        #: the same spline as arrays for compiled code (:mod:`nfal.models.piecewise`): breaks in log sigma, and per interval,
-        #: power of delta^2 and cubic coefficient (highest first)
+        #: the same spline as arrays for compiled code (:mod:`nfal.models.piecewise`): breaks in log sigma, and per
+        #: interval, power of delta^2 and cubic coefficient (highest first)
         self.breaks = np.ascontiguousarray(self._spline.x)
         self.pieces = np.ascontiguousarray(self._spline.c.transpose(1, 2, 0))
         self._curve = piecewise.curve(True, self.breaks, self.pieces, low, high, self.delta_max)

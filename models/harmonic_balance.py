@@ -142,7 +142,8 @@ class HarmonicBalanceFilm:
         sigma = float(sigmas[0])
         delta = float(delta)
         if not (np.isfinite(delta) and 0.0 < delta and delta * self.largest_eps < 1.0):
-            raise InvalidParameterError("delta", delta, f"a number with 0 < delta < 1 / max |eps_hat| = {1.0 / self.largest_eps:.4g}")
+            raise InvalidParameterError("delta", delta,
+                                        f"a number with 0 < delta < 1 / max |eps_hat| = {1.0 / self.largest_eps:.4g}")
         u = self.initial_guess(sigma, delta) if guess is None else np.array(guess, dtype=float)
         u[-1] = 0.0
         sine = np.sin(self.phases)

@@ -118,8 +118,10 @@ def fit_step(times: np.ndarray, heights: np.ndarray, excitation_before: float, e
     times, heights = np.asarray(times, dtype=float), np.asarray(heights, dtype=float)
     before = times < 0
     if before.sum() < 3 or (~before).sum() < 20:
-        raise DataFormatError(f"a step fit needs samples before and after the step ({before.sum()} and {(~before).sum()})")
-    a1, a2 = require_positive("excitation_before", excitation_before), require_positive("excitation_after", excitation_after)
+        raise DataFormatError(f"a step fit needs samples before and after the step ({before.sum()} and "
+                              f"{(~before).sum()})")
+    a1, a2 = (require_positive("excitation_before", excitation_before),
+              require_positive("excitation_after", excitation_after))
     force_step = rig.mass * rig.gravity * (a2**2 - a1**2) / ((a1**2 + a2**2) / 2)
     start = heights[before].mean()
     lag = max(float(lag_s), 1e-9)
@@ -162,7 +164,8 @@ def damping_table(fits_by_height: list[list[StepFit]], confidence: float = 0.95)
 
 
 def simulate_step(times: np.ndarray, start_height: float, excitation_before: float, excitation_after: float,
-                  rig: RigParameters, calibration: CalibrationFunction, damping_factor: Callable[[np.ndarray], np.ndarray],
+                  rig: RigParameters, calibration: CalibrationFunction,
+                  damping_factor: Callable[[np.ndarray], np.ndarray],
                   lag_s: float = AMPLITUDE_TIME_CONSTANT_S) -> np.ndarray:
     """Eq. (13) (SI) from rest at ``start_height`` [m] after |a| steps from ``excitation_before`` to
     ``excitation_after`` [m] at t = 0 through the amplitude lag, with eq. (6)'s damping times
@@ -240,7 +243,8 @@ class IdentificationPlan:
         for name in ("max_hold_s", "move_timeout_s"):
             require_duration(name, getattr(self, name), LONGEST_HOLD_S)
         if self.max_hold_s <= self.settle_window_s:
-            raise InvalidParameterError("max_hold_s", self.max_hold_s, f"> the settling window {self.settle_window_s:g} s")
+            raise InvalidParameterError("max_hold_s", self.max_hold_s,
+                                        f"> the settling window {self.settle_window_s:g} s")
 
     def holds(self) -> int:
         """Open-loop holds in the plan: one per equilibrium, 1 + ``steps`` per damping height."""

@@ -42,7 +42,8 @@ def continuous_loop_matrix(plant: LPVCoefficients, gains, omega_lpf: float) -> n
 
 
 def held_plant(plant: LPVCoefficients, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """(Phi, Gamma): eq. (20) over one sample of ``step`` with its input held, (H, V)_{k+1} = Phi (H, V)_k + Gamma du_k."""
+    """(Phi, Gamma): eq. (20) over one sample of ``step`` with its input held,
+    (H, V)_{k+1} = Phi (H, V)_k + Gamma du_k."""
     augmented = np.zeros((3, 3))
     augmented[:2, :2] = [[0.0, 1.0], [-float(plant.alpha0), -float(plant.alpha1)]]
     augmented[1, 2] = float(plant.beta0)

@@ -75,8 +75,8 @@ class ColouredNoise:
     True
     """
 
-    def __init__(self, sample_rate_hz: float = SAMPLING_RATE_HZ, cutoff_hz: float = NOISE_CUTOFF_HZ, peak_m: float = NOISE_PEAK_M,
-                 seed: int | None = 0) -> None:
+    def __init__(self, sample_rate_hz: float = SAMPLING_RATE_HZ, cutoff_hz: float = NOISE_CUTOFF_HZ,
+                 peak_m: float = NOISE_PEAK_M, seed: int | None = 0) -> None:
         self.sample_rate_hz, self.cutoff_hz, self.peak_m = _check_settings(sample_rate_hz, cutoff_hz, peak_m)
         if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0):
             raise InvalidParameterError("seed", seed, "a whole number >= 0 or None")
@@ -154,7 +154,8 @@ class ColouredNoise:
             rng = np.random.default_rng()
             rng.bit_generator.state = bit_generator
         except (KeyError, TypeError, ValueError) as exc:
-            raise InvalidParameterError("state", type(state).__name__, f"a state from ColouredNoise.get_state ({exc})") from None
+            raise InvalidParameterError("state", type(state).__name__,
+                                        f"a state from ColouredNoise.get_state ({exc})") from None
         if not 0 <= position <= buffer.size:
             raise InvalidParameterError("state['position']", position, f"within [0, {buffer.size}]")
         self._rng, self._zi, self._buffer, self._position = rng, zi, buffer, position

@@ -55,7 +55,8 @@ def as_squeeze_numbers(sigma) -> np.ndarray:
     return values
 
 
-def first_order_pressure(shape: ExcitationShape, sigma: float, nodes: int = DEFAULT_NODES) -> tuple[np.ndarray, np.ndarray]:
+def first_order_pressure(shape: ExcitationShape, sigma: float,
+                         nodes: int = DEFAULT_NODES) -> tuple[np.ndarray, np.ndarray]:
     """The O(delta) pressure amplitude Pi = Pi_1 - i Pi_2 of eq. (10) on the radial nodes.
 
     Returns ``(R, Pi)``; the pressure is P = 1 + delta Re(Pi exp(i T)) + O(delta^2).
@@ -68,7 +69,8 @@ def first_order_pressure(shape: ExcitationShape, sigma: float, nodes: int = DEFA
     banded = np.zeros((3, unknown), dtype=complex)
     banded[0, 1:] = conductance[: unknown - 1]
     banded[2, :-1] = conductance[: unknown - 1]
-    banded[1] = -conductance[:unknown] - np.concatenate(([0.0], conductance[: unknown - 1])) - 1j * sigma * volumes[:unknown]
+    banded[1] = (-conductance[:unknown] - np.concatenate(([0.0], conductance[: unknown - 1]))
+                 - 1j * sigma * volumes[:unknown])
     rhs = -sigma * volumes[:unknown] * shape(R[:unknown])
     amplitude = np.zeros(nodes, dtype=complex)
     amplitude[:unknown] = linalg.solve_banded((1, 1), banded, rhs.astype(complex))

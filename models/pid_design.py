@@ -189,7 +189,8 @@ class PIDDesign:
 def characteristic_polynomial(lpv: LPVCoefficients, kp, ki, kd, omega_lpf: float) -> np.ndarray:
     """[1, C3, C2, C1, C0] of eq. (24) (non-dimensional; ``lpv`` at one equilibrium)."""
     a0, a1, b0, wl = float(lpv.alpha0), float(lpv.alpha1), float(lpv.beta0), omega_lpf
-    return np.array([1.0, a1 + wl, a1 * wl + a0 + b0 * kp + b0 * wl * kd, a0 * wl + b0 * wl * kp + b0 * ki, b0 * wl * ki])
+    return np.array([1.0, a1 + wl, a1 * wl + a0 + b0 * kp + b0 * wl * kd, a0 * wl + b0 * wl * kp + b0 * ki,
+                     b0 * wl * ki])
 
 
 def closed_loop_transfer_function(lpv: LPVCoefficients, kp, ki, kd, omega_lpf: float) -> control.TransferFunction:
@@ -259,9 +260,10 @@ def design_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> PID
     if step is not None and not np.any(np.isfinite(placed(grid)[0])):
         # the fast pair cannot be a real double pole: seen when the filter's forward-Euler pole 1 - T_s omega_L < 0
         raise InvalidParameterError("sample_rate_hz", spec.sample_rate_hz,
-                                    f"fast enough for a critically damped sampled loop at {float(lpv.height_m) * 1e6:.1f} um "
-                                    f"with the {spec.filter_cutoff_hz:g} Hz filter (here T_s omega_L = {step * wl:.2f}; Table 2's "
-                                    "2 kHz and 300 Hz give 0.94), or the continuous placement")
+                                    "fast enough for a critically damped sampled loop at "
+                                    f"{float(lpv.height_m) * 1e6:.1f} um with the {spec.filter_cutoff_hz:g} Hz filter "
+                                    f"(here T_s omega_L = {step * wl:.2f}; Table 2's 2 kHz and 300 Hz give 0.94), "
+                                    "or the continuous placement")
     slow = _slow_pole_for_cutoff(lambda p: placed(p)[0], bandwidth, grid, spec.omega_cutoff(rig), spec, lpv, rig)
     kp, ki, kd, fast = (float(v) for v in placed(slow))
     if not math.isfinite(fast):
@@ -295,7 +297,8 @@ def _slow_pole_for_cutoff(kp_of, bandwidth_of, grid: np.ndarray, cutoff: float, 
 
 
 def design_pid(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
-               spec: DesignSpec | None = None, *, derivative: str = "exact", damping: DampingModel | None = None) -> PIDDesign:
+               spec: DesignSpec | None = None, *, derivative: str = "exact",
+               damping: DampingModel | None = None) -> PIDDesign:
     """The local PID of eqs. (21)-(24) designed at the equilibrium of clearance ``height_m`` [m].
 
     Parameters
@@ -314,7 +317,8 @@ def design_pid(height_m: float, rig: RigParameters | None = None, calibration: C
     rig = rig or RigParameters()
     if np.ndim(height_m) != 0:
         raise InvalidParameterError("height_m", height_m, "one clearance [m] (use design_schedule for many)")
-    lpv = lpv_coefficients(float(height_m), rig, calibration or paper_calibration(), derivative=derivative, damping=damping)
+    lpv = lpv_coefficients(float(height_m), rig, calibration or paper_calibration(), derivative=derivative,
+                           damping=damping)
     return design_at(lpv, spec or DesignSpec(), rig)
 
 
@@ -435,7 +439,8 @@ _DESIGN_NUMBERS = ("kp", "ki", "kd", "slow_pole", "fast_pole", "bandwidth")
 
 def _designs_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> list[PIDDesign]:
     """:func:`design_at` at every equilibrium of ``lpv``, kept in the user-wide cache: a design is a pure function
-    of the equilibrium, the spec, the rig and this code (2 s for Table 2's 31 heights; an FMU designs at each set-up)."""
+    of the equilibrium, the spec, the rig and this code (2 s for Table 2's 31 heights; an FMU designs at each
+    set-up)."""
     points = [lpv.at(i) for i in range(np.size(lpv.height_m))]
 
     def design() -> np.ndarray:
@@ -453,7 +458,8 @@ def _designs_at(lpv: LPVCoefficients, spec: DesignSpec, rig: RigParameters) -> l
                                              for name in ("height_m", "excitation_m", "alpha0", "alpha1", "beta0")))
     numbers = cached_array("pid_designs", key, design, check=check)
     step = None if spec.sample_rate_hz is None else rig.omega / spec.sample_rate_hz
-    return [PIDDesign(point, spec.omega_lpf(rig), *(float(v) for v in row), step) for point, row in zip(points, numbers)]
+    return [PIDDesign(point, spec.omega_lpf(rig), *(float(v) for v in row), step)
+            for point, row in zip(points, numbers)]
 
 
 def fixed_design(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,

@@ -13,7 +13,8 @@ import numpy as np
 
 
 def curve(log_axis: bool, breaks, pieces, low: float, high: float, delta_max: float) -> tuple:
-    """A curve with the types every curve has (fresh float64 C arrays, floats): one compiled specialisation serves all."""
+    """A curve with the types every curve has (fresh float64 C arrays, floats): one compiled specialisation
+    serves all."""
     pieces = np.array(pieces, dtype=float, order="C")
     return (bool(log_axis), np.array(breaks, dtype=float), pieces.reshape(pieces.shape[0], -1, pieces.shape[-1]),
             float(low), float(high), float(delta_max))

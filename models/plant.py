@@ -128,7 +128,8 @@ class SimplifiedPlant:
         self.rest_gap = require_positive("rest_gap", rest_gap)
         self.weight = rig.mass * rig.gravity
         if excess_damping is not None and not isinstance(excess_damping, (ExcessDamping, DampingCorrection)):
-            raise InvalidParameterError("excess_damping", excess_damping, "an ExcessDamping, a DampingCorrection or None")
+            raise InvalidParameterError("excess_damping", excess_damping,
+                                        "an ExcessDamping, a DampingCorrection or None")
         self.excess_damping = excess_damping
 
     # --- forces -------------------------------------------------------------------------------
@@ -185,7 +186,8 @@ class SimplifiedPlant:
         """
         excitation = require_positive("excitation", excitation)
         sigma_low, sigma_high = self.calibration.sigma_range
-        heights = np.geomspace(max(self.rig.clearance_at(sigma_high), self.rest_gap), self.rig.clearance_at(sigma_low), 2000)
+        heights = np.geomspace(max(self.rig.clearance_at(sigma_high), self.rest_gap), self.rig.clearance_at(sigma_low),
+                               2000)
         net = self.levitation_force(heights, excitation) - self.weight
         falling = np.flatnonzero((net[:-1] > 0) & (net[1:] <= 0))
         if falling.size == 0:
@@ -193,7 +195,8 @@ class SimplifiedPlant:
                 "excitation", excitation,
                 f"one whose equilibrium lies in the calibrated range {heights[0] * 1e6:.1f}-{heights[-1] * 1e6:.1f} um")
         i = falling[0]
-        return float(optimize.brentq(lambda h: self.levitation_force(h, excitation) - self.weight, heights[i], heights[i + 1], xtol=1e-15, rtol=1e-13))
+        return float(optimize.brentq(lambda h: self.levitation_force(h, excitation) - self.weight, heights[i],
+                                     heights[i + 1], xtol=1e-15, rtol=1e-13))
 
     # --- time response ----------------------------------------------------------------------------
     def simulate(self, duration: float, excitation: Excitation, initial: PlantState | float,
@@ -235,7 +238,8 @@ class SimplifiedPlant:
         if not np.isfinite(state.velocity):
             raise InvalidParameterError("velocity", state.velocity, "a finite number (m/s)")
 
-    def _integrate(self, state: PlantState, excitation: Callable[[float], float], times: np.ndarray, rtol: float) -> Trajectory:
+    def _integrate(self, state: PlantState, excitation: Callable[[float], float], times: np.ndarray,
+                   rtol: float) -> Trajectory:
         """Piecewise integration: free flight until touchdown, rest until lift-off, and so on."""
         scale = self.rig.reference_clearance  # integrate h / h0 and v / h0 (order-one numbers)
         t0, t_end = float(times[0]), float(times[-1])
@@ -255,7 +259,8 @@ class SimplifiedPlant:
                 y = np.array([self.rest_gap / scale, 0.0])
                 event = lambda t, _y: self._net_resting_force(t, excitation)  # noqa: E731
                 event.direction, event.terminal = 1.0, True
-                solution = integrate.solve_ivp(lambda t, _y: np.zeros(2), (t0, t_end), y, events=event, t_eval=pending, rtol=rtol)
+                solution = integrate.solve_ivp(lambda t, _y: np.zeros(2), (t0, t_end), y, events=event, t_eval=pending,
+                                               rtol=rtol)
             else:
                 # touchdown: at rest_gap moving down. Zero where the height reaches it (v < 0), and positive
                 # while rising, so that a lift-off from rest_gap (v = 0, film beats gravity) is no touchdown
@@ -278,7 +283,8 @@ class SimplifiedPlant:
             y = solution.y_events[0][0].copy()
             events += 1
             if events > MAX_EVENTS:
-                raise ConvergenceError(f"more than {MAX_EVENTS} touchdowns and lift-offs by t = {t0:.6g} s (chattering)")
+                raise ConvergenceError(f"more than {MAX_EVENTS} touchdowns and lift-offs by t = {t0:.6g} s "
+                                       "(chattering)")
             if resting:  # lift-off: from the first instant the film pushes harder than gravity
                 nudge = 1e-12 * max(1.0, t_end)
                 while t0 < t_end and self._net_resting_force(t0, excitation) <= 0:

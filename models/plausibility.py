@@ -50,10 +50,12 @@ _HINTS = {"m": "did you give µm or mm as m?", "kg": "did you give grams as kg?"
 
 def require_plausible(name: str, value: float, ceiling: float, unit: str, floor: float = -math.inf) -> float:
     """Return ``value`` if it is at most ``ceiling`` (and at least ``floor``) [unit], else raise
-    :class:`InvalidParameterError` with a hint at the likely unit slip. ``value`` is expected finite (checked before)."""
+    :class:`InvalidParameterError` with a hint at the likely unit slip. ``value`` is expected finite (checked
+    before)."""
     if value > ceiling or value < floor:
         bounds = f"at most {ceiling:g} {unit}" if floor == -math.inf else f"within {floor:g}–{ceiling:g} {unit}"
-        raise InvalidParameterError(name, value, f"{bounds} for a levitation rig ({_HINTS.get(unit, 'check the unit')})")
+        raise InvalidParameterError(name, value,
+                                    f"{bounds} for a levitation rig ({_HINTS.get(unit, 'check the unit')})")
     return value
 
 

@@ -197,7 +197,8 @@ class PhaseLockedLoop:
         pull = centre * PULL_RANGE_FRACTION if self.pull_range_hz is None else self.pull_range_hz
         pull = require_positive("pull_range_hz", pull)
         if pull >= centre:
-            raise InvalidParameterError("pull_range_hz", self.pull_range_hz, f"below the centre frequency {centre:g} Hz")
+            raise InvalidParameterError("pull_range_hz", self.pull_range_hz,
+                                        f"below the centre frequency {centre:g} Hz")
         object.__setattr__(self, "pull_range_hz", pull)
         if not isinstance(self.enabled, (bool, np.bool_)):
             raise InvalidParameterError("enabled", self.enabled, "True or False")

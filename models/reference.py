@@ -100,7 +100,8 @@ class StepSequence:
                     continue
                 raise DataFormatError(f"{name}: row {i + 1} {row!r} is not two numbers time_s,reference_m") from None
             if len(values) != 2:
-                raise DataFormatError(f"{name}: row {i + 1} {row!r} has {len(values)} fields, expected time_s,reference_m")
+                raise DataFormatError(f"{name}: row {i + 1} {row!r} has {len(values)} fields, "
+                                      "expected time_s,reference_m")
             times.append(values[0])
             levels.append(values[1])
         if not times:

@@ -238,7 +238,8 @@ def _check_settings(delta, nodes, steps_per_period, tolerance, max_periods) -> t
     return delta_value, int(nodes), int(steps_per_period), tol, int(max_periods)
 
 
-def discrete_mean_correction(shape: ExcitationShape, amplitude: np.ndarray, R: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def discrete_mean_correction(shape: ExcitationShape, amplitude: np.ndarray, R: np.ndarray,
+                             faces: np.ndarray) -> np.ndarray:
     """Pi_5 of eq. (11) for this finite-volume scheme, from the first-order amplitude Pi.
 
     The period average of the face flux vanishes, which at O(delta^2) gives per face
@@ -316,7 +317,8 @@ def periodic_film(shape: ExcitationShape, sigma: float, delta: float = 0.01, nod
             change = abs(K_value - K_last) * factor
             settled = change <= tol * max(abs(K_value), K_SCALE_FLOOR)
             if settled and previous_settled:
-                logger.debug("sigma %g: K = %.10g after %d periods, %d extrapolations", sigma, K_value, period, extrapolations)
+                logger.debug("sigma %g: K = %.10g after %d periods, %d extrapolations", sigma, K_value, period,
+                             extrapolations)
                 return PeriodicFilm(sigma, delta, float(K_value), R, dt * np.arange(1, steps + 1), 1.0 + record,
                                     period, extrapolations, float(change))
             previous_settled = settled
@@ -376,7 +378,8 @@ def reduced_rank_extrapolation(states: np.ndarray) -> np.ndarray:
     return states[1:].T @ weights
 
 
-def slowest_period_ratio(R: np.ndarray, faces: np.ndarray, volumes: np.ndarray, sigma: float, gap_swing: float) -> float:
+def slowest_period_ratio(R: np.ndarray, faces: np.ndarray, volumes: np.ndarray, sigma: float,
+                         gap_swing: float) -> float:
     """Contraction per period of the film's slowest mode, exp(-2 pi lambda_1 / sigma) (lambda_1 ~ 5.78).
 
     lambda_1 is the smallest eigenvalue of the finite-volume diffusion operator with a closed axis and

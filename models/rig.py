@@ -15,8 +15,8 @@ from .plausibility import (FREQUENCY_RANGE_HZ, MAX_CLEARANCE_M, MAX_GRAVITY_M_S2
 #: Every field's plausible range (:mod:`nfal.models.plausibility`): name -> (ceiling, unit[, floor]).
 _RANGES = {"mass": (MAX_MASS_KG, "kg"), "radius": (MAX_RADIUS_M, "m"),
            "frequency": (FREQUENCY_RANGE_HZ[1], "Hz", FREQUENCY_RANGE_HZ[0]), "viscosity": (MAX_VISCOSITY_PA_S, "Pa.s"),
-           "ambient_pressure": (PRESSURE_RANGE_PA[1], "Pa", PRESSURE_RANGE_PA[0]), "gravity": (MAX_GRAVITY_M_S2, "m/s2"),
-           "reference_clearance": (MAX_CLEARANCE_M, "m")}
+           "ambient_pressure": (PRESSURE_RANGE_PA[1], "Pa", PRESSURE_RANGE_PA[0]),
+           "gravity": (MAX_GRAVITY_M_S2, "m/s2"), "reference_clearance": (MAX_CLEARANCE_M, "m")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,7 +92,8 @@ class RigParameters:
     @property
     def damping_coefficient(self) -> float:
         """C_d = 3 pi mu r0^4 / (2 m omega h0^3), eq. (14)."""
-        return 3.0 * math.pi * self.viscosity * self.radius**4 / (2.0 * self.mass * self.omega * self.reference_clearance**3)
+        return (3.0 * math.pi * self.viscosity * self.radius**4
+                / (2.0 * self.mass * self.omega * self.reference_clearance**3))
 
     @property
     def gravity_term(self) -> float:

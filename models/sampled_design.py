@@ -48,7 +48,8 @@ class SampledLoop:
         The law's reference zero rho; None: the reference as given.
     """
 
-    def __init__(self, lpv: LPVCoefficients, omega_lpf: float, step: float, reference_zero: float | None = None) -> None:
+    def __init__(self, lpv: LPVCoefficients, omega_lpf: float, step: float,
+                 reference_zero: float | None = None) -> None:
         self.lpv, self.omega_lpf, self.step = lpv, float(omega_lpf), float(step)
         self.reference_zero = reference_zero
         # A_d and its characteristic polynomial are affine in the gains: keep the offset and the slopes

@@ -17,7 +17,8 @@ class ScalarSpline:
 
     def __init__(self, spline) -> None:
         self.knots = np.asarray(spline.x, dtype=float).tolist()
-        self._pieces = np.moveaxis(np.asarray(spline.c, dtype=float), 0, -1).tolist()  # per interval, highest power first
+        # per interval, highest power first
+        self._pieces = np.moveaxis(np.asarray(spline.c, dtype=float), 0, -1).tolist()
 
     def piece(self, x: float) -> tuple[int, float]:
         """(interval, offset into it) of ``x``, clamped to the knots."""

@@ -87,15 +87,16 @@ class SensorChain:
     """
 
     def __init__(self, *, sample_rate_hz: float = SAMPLING_RATE_HZ, noise_peak_m: float = NOISE_PEAK_M,
-                 noise_cutoff_hz: float = NOISE_CUTOFF_HZ, seed: int = 0, analog_cutoff_hz: float = ANALOG_FILTER_CUTOFF_HZ,
-                 resolution_m: float = 0.0) -> None:
+                 noise_cutoff_hz: float = NOISE_CUTOFF_HZ, seed: int = 0,
+                 analog_cutoff_hz: float = ANALOG_FILTER_CUTOFF_HZ, resolution_m: float = 0.0) -> None:
         self.sample_rate_hz = require_positive("sample_rate_hz", sample_rate_hz)
         self.noise = ColouredNoise(self.sample_rate_hz, noise_cutoff_hz, noise_peak_m, seed)
         self.analog_cutoff_hz = _non_negative("analog_cutoff_hz", analog_cutoff_hz, "Hz")
         self.resolution_m = require_plausible("resolution_m", _non_negative("resolution_m", resolution_m, "m"),
                                               MAX_CLEARANCE_M, "m")
         omega = 2.0 * math.pi * self.analog_cutoff_hz
-        self._dynamics = np.array([[0.0, 1.0, 0.0], [-omega ** 2, -math.sqrt(2.0) * omega, omega ** 2], [0.0, 0.0, 0.0]])
+        self._dynamics = np.array([[0.0, 1.0, 0.0], [-omega ** 2, -math.sqrt(2.0) * omega, omega ** 2],
+                                   [0.0, 0.0, 0.0]])
         self._cache: tuple[float, np.ndarray, np.ndarray] | None = None
 
     @property
@@ -174,7 +175,8 @@ class SensorChain:
                                 float(sensor["measured_m"]))
             noise = saved["noise"]
         except (KeyError, TypeError, ValueError) as exc:
-            raise InvalidParameterError("saved", type(saved).__name__, f"a state from SensorChain.get_state ({exc})") from None
+            raise InvalidParameterError("saved", type(saved).__name__,
+                                        f"a state from SensorChain.get_state ({exc})") from None
         self.noise.set_state(noise)
         return state
 

@@ -1,4 +1,5 @@
-"""Compiled kernels of eq. (13)'s fixed-step integration (numba), for :class:`~nfal.models.fixed_step_plant.FixedStepPlant`.
+"""Compiled kernels of eq. (13)'s fixed-step integration (numba), for
+:class:`~nfal.models.fixed_step_plant.FixedStepPlant`.
 
 Every K this package has is one piecewise polynomial, a *curve* ``(log_axis, breaks, pieces, low, high,
 delta_max)``: the argument x is clamped to [low, high] (and taken as log x when ``log_axis``), and in the
@@ -18,9 +19,10 @@ c(h) h^3 / m, g, K curve, damping correction)``.
 In plain Python the slow truth's RK4 cost the rig emulator ~105 us of its 500 us tick (bench/bench_rig_truth.py).
 
 Every curve and model has the same numba types (float64 C arrays, floats, an int kind: curves are made by
-:func:`nfal.models.piecewise.curve`), so one compiled specialisation serves all; :func:`load` loads it at import. Loading later, from numba's cache, re-imports this
-module by name (numba rebuilds the kernels' environment so): inside an FMU, after its bundle loader has set
-its copy of nfal aside (fmus/bundle_loader.py), that import would put a second copy into the host's process.
+:func:`nfal.models.piecewise.curve`), so one compiled specialisation serves all; :func:`load` loads it at
+import. Loading later, from numba's cache, re-imports this module by name (numba rebuilds the kernels'
+environment so): inside an FMU, after its bundle loader has set its copy of nfal aside
+(fmus/bundle_loader.py), that import would put a second copy into the host's process.
 """
 
 from __future__ import annotations

@@ -47,7 +47,8 @@ class StabilityMap:
     placement: str = "continuous"
 
     def to_dict(self) -> dict:
-        return {"design_height_m": self.design_height_m.tolist(), "operating_height_m": self.operating_height_m.tolist(),
+        return {"design_height_m": self.design_height_m.tolist(),
+                "operating_height_m": self.operating_height_m.tolist(),
                 "max_pole_modulus": self.max_pole_modulus.tolist()}
 
 
@@ -103,7 +104,8 @@ def diagonal_moduli(schedule: GainSchedule, rig: RigParameters | None = None, *,
 
 
 def realizable_schedule(schedule: GainSchedule, rig: RigParameters | None = None, *,
-                        sample_rate_hz: float = SAMPLING_RATE_HZ, discretisation: str = "forward_euler") -> GainSchedule:
+                        sample_rate_hz: float = SAMPLING_RATE_HZ,
+                        discretisation: str = "forward_euler") -> GainSchedule:
     """``schedule`` cut to the heights where the digital loop realises the continuous design.
 
     Keeps the designs from the lowest height h_f upwards such that every design at or above h_f is
@@ -116,10 +118,12 @@ def realizable_schedule(schedule: GainSchedule, rig: RigParameters | None = None
     first = 0 if unstable.size == 0 else int(unstable[-1]) + 1
     if len(schedule.designs) - first < 4:
         raise InvalidParameterError("schedule", f"{len(schedule.designs) - first} realisable designs",
-                                    f"at least 4 designs whose {discretisation} loop at {sample_rate_hz:g} Hz is stable")
+                                    f"at least 4 designs whose {discretisation} loop at {sample_rate_hz:g} Hz "
+                                    "is stable")
     if first:
-        logger.info("digital loop at %g Hz cannot realise the designs below %.1f um (%s |z| up to %.3g): gains held there",
-                       sample_rate_hz, schedule.heights_m[first] * 1e6, discretisation, moduli[:first].max())
+        logger.info("digital loop at %g Hz cannot realise the designs below %.1f um (%s |z| up to %.3g): "
+                    "gains held there", sample_rate_hz, schedule.heights_m[first] * 1e6, discretisation,
+                    moduli[:first].max())
     trimmed = GainSchedule(schedule.designs[first:])
     trimmed.name = f"gain-scheduled from {schedule.heights_m[first] * 1e6:.0f} um"
     return trimmed

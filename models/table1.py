@@ -68,7 +68,8 @@ class Table1Result:
 def slow_time_constant(plant: SimplifiedPlant, height: float, excitation: float) -> float:
     """The slowest time constant [s] of eq. (13) linearised at an equilibrium (central differences)."""
     dh, dv = 1e-6 * height, 1e-6
-    a_h = (plant.acceleration(height + dh, 0.0, excitation) - plant.acceleration(height - dh, 0.0, excitation)) / (2 * dh)
+    a_h = (plant.acceleration(height + dh, 0.0, excitation)
+           - plant.acceleration(height - dh, 0.0, excitation)) / (2 * dh)
     a_v = (plant.acceleration(height, dv, excitation) - plant.acceleration(height, -dv, excitation)) / (2 * dv)
     rates = np.linalg.eigvals(np.array([[0.0, 1.0], [float(a_h), float(a_v)]]))
     return 1.0 / float(np.min(np.abs(rates.real)))

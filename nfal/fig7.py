@@ -80,7 +80,7 @@ def generated_reference(system) -> GeneratedReference | None:
     # on use: the FMU's slave module (pythonfmu) loads only when a structure is read
     from nfal.fmus.reference_generator import PARAMETERS, reference_of
 
-    link = next((l for l in system.links if l.target.path == REFERENCE), None)
+    link = next((candidate for candidate in system.links if candidate.target.path == REFERENCE), None)
     if link is None:
         return None
     element = next(e for e in system.elements if e.name == link.source.element)
@@ -119,8 +119,9 @@ def response_panels(columns: LoopColumns = SIMULATED) -> list:
 
 def loop_run(table, name: str = "fmu loop", columns: LoopColumns = SIMULATED) -> ClosedLoopRun:
     """The Fig. 7 columns of a result table as a :class:`ClosedLoopRun` (for :func:`step_metrics`)."""
-    return ClosedLoopRun(name, np.asarray(table.time), np.asarray(table[columns.reference]), np.asarray(table[columns.height]),
-                         np.asarray(table[columns.measured]), np.asarray(table[columns.excitation]))
+    return ClosedLoopRun(name, np.asarray(table.time), np.asarray(table[columns.reference]),
+                         np.asarray(table[columns.height]), np.asarray(table[columns.measured]),
+                         np.asarray(table[columns.excitation]))
 
 
 def step_reference(reference, start_s: float, stop_s: float) -> tuple[object | None, str | None]:
@@ -193,8 +194,8 @@ def _unreached_levels(table, reference, columns: LoopColumns) -> list[Finding]:
         levels = [r.level_m for r in reach]
         what = "never lifted off to" if height.max() < min(levels) else "never reached"
         return [Finding(f"the object {what} the reference: its height stayed within {height.min() * 1e6:.3g}-"
-                        f"{height.max() * 1e6:.3g} um, and no level ({min(levels) * 1e6:.4g}-{max(levels) * 1e6:.4g} um) "
-                        "was reached in its hold", failure=True)]
+                        f"{height.max() * 1e6:.3g} um, and no level "
+                        f"({min(levels) * 1e6:.4g}-{max(levels) * 1e6:.4g} um) was reached in its hold", failure=True)]
     return [Finding(f"the reference's level {r.level_m * 1e6:.4g} um ({r.start_s:g}-{r.end_s:g} s) was never reached: "
                     f"the height stayed within {r.lowest_m * 1e6:.4g}-{r.highest_m * 1e6:.4g} um, not within "
                     f"{r.band_m * 1e6:.3g} um of it ({REACHED_BAND:.0%} of the step into it)") for r in missed]

@@ -13,8 +13,8 @@ import dataclasses
 PROXY = "proxy"
 #: The Controller's reference input (what ``--reference`` drives) and its outputs.
 REFERENCE = "Controller.reference"
-#: The element that feeds REFERENCE in the Fig. 7 structures (the experiment in the archive; fmus/reference_generator.py),
-#: its FMU's model identifier and its output.
+#: The element that feeds REFERENCE in the Fig. 7 structures (the experiment in the archive;
+#: fmus/reference_generator.py), its FMU's model identifier and its output.
 REFERENCE_GENERATOR = "ReferenceGenerator"
 GENERATED_REFERENCE = f"{REFERENCE_GENERATOR}.reference"
 EXCITATION_COMMAND = "Controller.excitation_command"

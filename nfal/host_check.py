@@ -179,5 +179,6 @@ def read_ecos_csv(path: Path) -> dict[str, list[float]]:
     with open(path, newline="", encoding="utf-8") as handle:
         rows = list(csv.reader(handle, skipinitialspace=True))
     header = [name.strip() for name in rows[0]]
-    columns = {name.removesuffix("[REAL]"): i for i, name in enumerate(header) if name.endswith("[REAL]") or name == "time"}
+    columns = {name.removesuffix("[REAL]"): i for i, name in enumerate(header)
+               if name.endswith("[REAL]") or name == "time"}
     return {name: [float(row[i]) for row in rows[1:] if row] for name, i in columns.items()}

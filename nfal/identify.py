@@ -57,7 +57,8 @@ MAX_SILENCE_S = 0.5
 SILENCE_CHECK_S = 0.01
 #: The drive's ramp to 0 V after the experiments or a fault [s].
 RAMP_DOWN_S = 0.3
-#: A move has arrived when the mean height over this time is within tolerance [s]; its drive is the mean command over it.
+#: A move has arrived when the mean height over this time is within tolerance [s]; its drive is the mean command
+#: over it.
 ARRIVAL_S = 0.2
 #: The settling and arrival tests run this often [s] (not at every sample: the host must keep up with the rig).
 CHECK_EVERY_S = 0.01
@@ -226,8 +227,8 @@ def recorder_capacity(plan: IdentificationPlan, sample_period_s: float = 1 / SAM
     capacity = int(1.05 * longest / sample_period_s) + 4096
     if capacity * SAMPLE_BYTES > MAX_RECORDER_BYTES:
         raise PlanError(f"the plan's longest run (every move and hold to its limit) is {longest:,.0f} s of samples, "
-                        f"{capacity * SAMPLE_BYTES / 2**30:,.1f} GiB held in memory; at most {MAX_RECORDER_BYTES >> 30} "
-                        "GiB: fewer heights or steps, or a shorter hold limit")
+                        f"{capacity * SAMPLE_BYTES / 2**30:,.1f} GiB held in memory; "
+                        f"at most {MAX_RECORDER_BYTES >> 30} GiB: fewer heights or steps, or a shorter hold limit")
     return capacity
 
 
@@ -256,7 +257,8 @@ def move_law(plan: IdentificationPlan, *, metres_per_volt: float, max_voltage: f
     given: design it before the port opens, it takes 0.3 s), its limit at ``max_voltage``."""
     heights = plan.equilibrium_heights_m + plan.damping_heights_m
     return DiscreteControlLaw(schedule or realizable_schedule(design_schedule()),
-                              max_excitation_m=max_voltage * metres_per_volt, reference_range_m=(min(heights), max(heights)))
+                              max_excitation_m=max_voltage * metres_per_volt,
+                              reference_range_m=(min(heights), max(heights)))
 
 
 class Experiments:
@@ -288,8 +290,8 @@ class Experiments:
         self.law = law or move_law(plan, metres_per_volt=metres_per_volt, max_voltage=max_voltage)
         self.on_hold = on_hold or (lambda: None)
         self.stop_request = stop_request
-        # before the first DRIVE arms the rig's watchdog: the design model's excitations at the plan's heights (the first
-        # root-finding call took 56 ms, 2.8 watchdog periods) and a first step of the law
+        # before the first DRIVE arms the rig's watchdog: the design model's excitations at the plan's heights (the
+        # first root-finding call took 56 ms, 2.8 watchdog periods) and a first step of the law
         self._design = SimplifiedPlant(RigParameters(), paper_calibration())
         self._guesses = {h: self._guess(h) for h in plan.equilibrium_heights_m + plan.damping_heights_m}
         height = plan.equilibrium_heights_m[0]
@@ -365,17 +367,19 @@ class Experiments:
                                           "--max-voltage or --metres-per-volt too small?)")
             if now - start > self.plan.move_timeout_s:
                 raise ExperimentError(f"{label}: the closed-loop move did not reach {height * 1e6:.1f} um within "
-                                      f"{self.plan.move_timeout_s:g} s (at {current * 1e6:.1f} um, drive {self.voltage:.3g} V)")
+                                      f"{self.plan.move_timeout_s:g} s (at {current * 1e6:.1f} um, "
+                                      f"drive {self.voltage:.3g} V)")
 
     def _window(self, column: int, low: float, high: float) -> np.ndarray:
-        """A column's samples with rig time in [low, high) (a view; found by bisection: the cost does not grow with the run)."""
+        """A column's samples with rig time in [low, high) (a view; found by bisection: the cost does not grow
+        with the run)."""
         times = self.recorder.column(TIME)
         first, last = np.searchsorted(times, (low, high))
         return self.recorder.column(column)[first:last]
 
     def _held_at_limit(self, height: float) -> bool:
-        """Over the last LIMITED_S the drive is at the limit at least a fifth of the time (the rest is the law's answer to
-        the sensor's noise) and the mean height is short of ``height`` by more than the tolerance."""
+        """Over the last LIMITED_S the drive is at the limit at least a fifth of the time (the rest is the law's
+        answer to the sensor's noise) and the mean height is short of ``height`` by more than the tolerance."""
         now = self.recorder.last(TIME)
         window = (now - LIMITED_S, np.inf)
         short = self._window(HEIGHT, *window).mean() < height * (1 - self.plan.move_tolerance)
@@ -407,9 +411,10 @@ class Experiments:
             if samples[-1].time_s - start > self.plan.max_hold_s:
                 window = heights[times >= times[-1] - self.plan.settle_window_s]
                 raise ExperimentError(f"{label}: the height did not settle at {self.voltage:.4g} V within "
-                                      f"{self.plan.max_hold_s:g} s: it moved {np.ptp(window) * 1e6:.2f} um over the last "
-                                      f"{self.plan.settle_window_s:g} s (limit: halves' means within "
-                                      f"{self.plan.settle_drift * 100:g} % of the height); a drifting or oscillating rig")
+                                      f"{self.plan.max_hold_s:g} s: it moved {np.ptp(window) * 1e6:.2f} um over "
+                                      f"the last {self.plan.settle_window_s:g} s (limit: halves' means within "
+                                      f"{self.plan.settle_drift * 100:g} % of the height); a drifting or "
+                                      "oscillating rig")
 
     def ramp_down(self) -> bool:
         """Lower the drive to 0 V over RAMP_DOWN_S (the object lands softly). False if the link failed meanwhile:
@@ -435,8 +440,8 @@ class Experiments:
             self.stop_request.check()
         for sample in samples:
             if sample.watchdog_tripped:
-                raise ExperimentError(f"{label}: the rig's watchdog tripped at rig time {sample.time_s:.3f} s (no DRIVE "
-                                      "reached it in time: the host or the link stalled)")
+                raise ExperimentError(f"{label}: the rig's watchdog tripped at rig time {sample.time_s:.3f} s "
+                                      "(no DRIVE reached it in time: the host or the link stalled)")
             low = sample.resting or sample.height_m < TOUCHDOWN_M
             if self.lifted and low:
                 raise ExperimentError(f"{label}: the object touched down (height {sample.height_m * 1e6:.1f} um, "
@@ -489,6 +494,7 @@ def analyse(equilibria: list[Equilibrium], steps: list[list[DriveStep]], rig: Ri
     data = EquilibriumData(np.array([p.height for p in equilibria]),
                            metres_per_volt * np.array([p.voltage for p in equilibria]), np.zeros(len(equilibria)))
     calibration = fit_calibration(rig, data, degree)
-    fits = [[fit_step(s.times, s.heights, metres_per_volt * s.voltage_before, metres_per_volt * s.voltage_after, rig, lag_s)
+    fits = [[fit_step(s.times, s.heights, metres_per_volt * s.voltage_before, metres_per_volt * s.voltage_after, rig,
+                      lag_s)
              for s in at_height] for at_height in steps]
     return Identification(calibration, equilibria, damping_table(fits), rig, fits, steps, metres_per_volt)

@@ -177,7 +177,8 @@ def realtime_section(*, lock: bool = True) -> Iterator[SlackCollector]:
     one changes nothing: its collector's safe points collect as the outer one's do."""
     if not gc.isenabled() and gc.get_freeze_count():
         locked = _locked_kib() > 0
-        yield SlackCollector(memory_locked=locked, memory_lock_note="" if locked else "inside another real-time section")
+        yield SlackCollector(memory_locked=locked,
+                             memory_lock_note="" if locked else "inside another real-time section")
         return
     collector = SlackCollector()
     was_enabled, switch_interval = gc.isenabled(), sys.getswitchinterval()
@@ -210,7 +211,8 @@ class BackgroundWriter:
         self.error: OSError | None = None
         self._pending: list[str] = []
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._drain, name=f"nfal-writer {getattr(file, 'name', '')}", daemon=True)
+        self._thread = threading.Thread(target=self._drain, name=f"nfal-writer {getattr(file, 'name', '')}",
+                                        daemon=True)
         self._thread.start()
 
     def write(self, text: str) -> None:

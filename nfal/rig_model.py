@@ -43,7 +43,8 @@ class StructureRig:
         ``"Element.variable" -> value`` overrides, as for ``nfal run --param``.
     """
 
-    def __init__(self, path: str | os.PathLike, period_s: float, parameters: Mapping[str, object] | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, period_s: float,
+                 parameters: Mapping[str, object] | None = None) -> None:
         self.voltage = 0.0
         self._stack = contextlib.ExitStack()
         try:
@@ -115,7 +116,7 @@ def _resolved(path, parameters):
 
 def in_process_capable(system) -> bool:
     """Whether every element is an nfal FMU :class:`InProcessRig` can run, wired as :data:`RIG_LINKS`."""
-    links = {(l.source.element, l.source.name, l.target.element, l.target.name) for l in system.links}
+    links = {(link.source.element, link.source.name, link.target.element, link.target.name) for link in system.links}
     plain = all(link.transformation is None for link in system.links)  # InProcessRig wires without transformations
     return links == RIG_LINKS and plain and all(e.model_description.coSimulation.modelIdentifier in SLAVE_CLASSES
                                                 for e in system.elements)
@@ -131,7 +132,8 @@ class InProcessRig:
 
     def __init__(self, system, period_s: float) -> None:
         if not in_process_capable(system):
-            raise InvalidParameterError("rig structure", system.name, "ResonanceTracker -> Plant -> SensorChain of nfal FMUs")
+            raise InvalidParameterError("rig structure", system.name,
+                                        "ResonanceTracker -> Plant -> SensorChain of nfal FMUs")
         self.period_s = require_positive("period_s", period_s)
         self.voltage = 0.0
         self.time = 0.0

@@ -119,8 +119,8 @@ def calibration_task(run: RunSpec, _structure: None = None) -> dict:
     """K(sigma) by the perturbation route for the run's shape: K at the spec's sigma, K's least and greatest
     value on the grid, and the first sigma where K changes sign (NaN if it does not)."""
     s = {**run.settings, **run.parameters}
-    calibration = perturbation_calibration(parse_shape(str(s["shape"])), tuple(s["sigma_range"]), points=int(s["points"]),
-                                           nodes=int(s["nodes"]))
+    calibration = perturbation_calibration(parse_shape(str(s["shape"])), tuple(s["sigma_range"]),
+                                           points=int(s["points"]), nodes=int(s["nodes"]))
     values = np.asarray(calibration(np.asarray(run.settings["sigma"], dtype=float)), dtype=float)
     grid = np.geomspace(*(float(v) for v in s["sigma_range"]), int(s["points"]))
     on_grid = np.asarray(calibration(grid), dtype=float)
@@ -202,8 +202,8 @@ def _check_ssp_settings(settings: dict, swept: list[str]) -> None:
     run_time = ssp_run_time(settings)
     if run_time is not None and run_time / settings["step_size"] > MAX_STEPS:  # every run would be refused at its start
         raise SweepSpecError(f"[run] a run of {run_time:g} s at step_size = {settings['step_size']:g} s is "
-                             f"{run_time / settings['step_size']:,.0f} steps; at most {MAX_STEPS:,} (a shorter stop_time "
-                             "or a longer step)")
+                             f"{run_time / settings['step_size']:,.0f} steps; at most {MAX_STEPS:,} "
+                             "(a shorter stop_time or a longer step)")
 
 
 def _check_ssp_name(name: str, table: str) -> None:

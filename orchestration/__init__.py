@@ -27,6 +27,6 @@ __all__ = [
     "ALGORITHMS", "AlgebraicLoopError", "CausalityError", "Finding", "FmuCallError", "Master", "MissingFmuError",
     "OrchestrationError", "PiecewiseConstant", "PlotPanel", "ResolvedSystem", "ResultTable", "RunCheckError",
     "RunResult", "SignalError", "SimulationError", "StructureError", "SystemStructure", "TypeMismatchError",
-    "UnitMismatchError", "UnknownConnectorError", "UnknownElementError", "UnsupportedFeatureError", "csv_signal", "read_results",
-    "read_ssp", "resolve", "run_structure", "signal_from_spec", "staircase", "step",
+    "UnitMismatchError", "UnknownConnectorError", "UnknownElementError", "UnsupportedFeatureError", "csv_signal",
+    "read_results", "read_ssp", "resolve", "run_structure", "signal_from_spec", "staircase", "step",
 ]

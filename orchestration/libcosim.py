@@ -155,7 +155,8 @@ def _libcosimpy():
             f"OSP libcosim's Python bindings are not installed ({error}): pip install libcosimpy "
             "(or pip install 'nfal[test]')") from None
     except OSError as error:  # the bundled libcosimc.so failed to load
-        raise LibcosimUnavailableError(f"libcosimpy is installed but its libcosimc library cannot load: {error}") from None
+        raise LibcosimUnavailableError("libcosimpy is installed but its libcosimc library cannot load: "
+                                       f"{error}") from None
     return CosimExecution, CosimLogging, CosimManipulator, CosimObserver, get_last_error_message
 
 
@@ -250,7 +251,8 @@ def run_ssp(archive: str | Path, stop_time: float | None = None, *, step_size: f
         variable = variables.lookup(name, "parameter")
         _set_initial(execution, variable, _convert(value, variable.type, name), name)
     driven = [(name, variables.lookup(name, "input", numeric=True),
-               signal if callable(signal) else (lambda t, value=signal: value)) for name, signal in (inputs or {}).items()]
+               signal if callable(signal) else (lambda t, value=signal: value))
+              for name, signal in (inputs or {}).items()]
     if observe is None:
         observe = [name for name, v in variables.items() if v.causality == 2 and v.type != _STRING]
     watched = [(name, variables.lookup(name, "observed variable", numeric=True)) for name in observe]

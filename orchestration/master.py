@@ -378,7 +378,7 @@ class Master:
     # -- planning (no FMU loaded) ---------------------------------------------------------------------
     def _plan_columns(self, inputs: dict[str, object]) -> None:
         """Columns: time, external inputs, every recordable output; and who sets each driven input."""
-        linked = {(l.target.element, l.target.name): l for l in self.system.links}
+        linked = {(link.target.element, link.target.name): link for link in self.system.links}
         self.overridden: list = []  # connections an external input replaces
         self.columns: list[Column] = [Column("time", "s")]
         self.signals: list[tuple[int, Callable[[float], float], Callable]] = []
@@ -452,7 +452,8 @@ class Master:
         outputs = {e: [o for (el, o) in self.output_columns if el == e] for e in names}
         inputs = {e: [i for (el, i) in self.sources if el == e] for e in names}
         if self.algorithm == "causal":
-            links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.links]
+            links = [((link.source.element, link.source.name), (link.target.element, link.target.name))
+                     for link in self.links]
             feedthrough = {e.name: e.feedthrough for e in self.system.elements}
             self.plan: tuple[Action, ...] = causal_sweep(names, outputs, inputs, links, feedthrough)
         else:
@@ -463,7 +464,8 @@ class Master:
                 logger.info("algebraic loop %s: broken by jacobi's one-step delay", loop)
 
     def _loop_under_jacobi(self, names, outputs, inputs) -> str | None:
-        links = [((l.source.element, l.source.name), (l.target.element, l.target.name)) for l in self.links]
+        links = [((link.source.element, link.source.name), (link.target.element, link.target.name))
+                 for link in self.links]
         try:
             causal_sweep(names, outputs, inputs, links, {e.name: e.feedthrough for e in self.system.elements})
         except AlgebraicLoopError as exc:

@@ -151,7 +151,8 @@ class RealTimePacer:
         self._started_at = 0.0
 
     def start(self) -> None:
-        """Make now the wall time of step 0's release (t0) (and sharpen this thread's sleeps: :func:`fine_timer_slack`)."""
+        """Make now the wall time of step 0's release (t0) (and sharpen this thread's sleeps:
+        :func:`fine_timer_slack`)."""
         fine_timer_slack()
         self.start_time = self.clock()
 

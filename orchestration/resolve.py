@@ -302,7 +302,8 @@ def resolve(structure: SystemStructure, parameters: Mapping[str, object] | None 
         How to read outputs that declare no ``dependencies`` (see the module docstring).
     """
     if undeclared_dependencies not in UNDECLARED_DEPENDENCIES:
-        raise InvalidParameterError("undeclared_dependencies", undeclared_dependencies, f"one of {UNDECLARED_DEPENDENCIES}")
+        raise InvalidParameterError("undeclared_dependencies", undeclared_dependencies,
+                                    f"one of {UNDECLARED_DEPENDENCIES}")
     return _Resolver(structure, undeclared_dependencies).run(dict(parameters or {}))
 
 
@@ -365,13 +366,15 @@ class _Resolver:
         variable = self.variables[name].get(connector.name)
         where = f"element {name!r}: connector {connector.name!r}"
         if variable is None:
-            raise UnknownConnectorError(f"{where} is not in the FMU's modelDescription ({self.components[name].source.name}"
+            raise UnknownConnectorError(f"{where} is not in the FMU's modelDescription "
+                                        f"({self.components[name].source.name}"
                                         f"; its inputs: {self._names(name, 'input')}; outputs: "
                                         f"{self._names(name, 'output')})")
         kind = connector.kind
         if kind != variable.causality and not (kind == "parameter" and variable.causality == "input") \
                 and not (kind == "input" and variable.causality == "parameter"):
-            raise CausalityError(f"{where}: the SSD says kind={kind!r}, the FMU declares causality={variable.causality!r}")
+            raise CausalityError(f"{where}: the SSD says kind={kind!r}, "
+                                 f"the FMU declares causality={variable.causality!r}")
         if connector.type is not None and TRANSPORT.get(connector.type) != TRANSPORT.get(variable.type):
             raise TypeMismatchError(f"{where}: the SSD says {connector.type}, the FMU declares {variable.type}")
         fmu_unit = variable_unit(variable)
@@ -503,7 +506,8 @@ class _Resolver:
         if component is not None:
             candidates = list(self.variables[component])
         else:
-            candidates = [f"{element}.{variable}" for element, variables in self.variables.items() for variable in variables]
+            candidates = [f"{element}.{variable}" for element, variables in self.variables.items()
+                          for variable in variables]
         close = difflib.get_close_matches(name, candidates, n=1, cutoff=MISSPELLING_CUTOFF)
         if close:
             raise UnknownConnectorError(f"{origin}: {name!r} matches no variable; did you mean {close[0]!r}?")
@@ -541,9 +545,9 @@ class _Resolver:
         if owner in self.components and name in self.variables[owner]:
             variable = self.variables[owner][name]
             if not settable_before_initialization(variable):
-                raise CausalityError(f"{where}: {owner}.{name} ({variable.causality}, {variable.variability}) cannot be "
-                                     "set before initialisation (FMI 2.0: parameters, inputs and variables with "
-                                     "initial='exact' or 'approx' can)")
+                raise CausalityError(f"{where}: {owner}.{name} ({variable.causality}, {variable.variability}) "
+                                     "cannot be set before initialisation (FMI 2.0: parameters, inputs and variables "
+                                     "with initial='exact' or 'approx' can)")
             typed = coerce_value(variable, value, where, strict_type=declared.type if declared else None)
             if declared is not None and declared.unit is not None:
                 value_units = {**self.structure.units, **(binding.parameter_set.units if binding else {})}

@@ -104,7 +104,8 @@ class CsvWriter:
     def _refused(self, exc: OSError) -> ResultsWriteError:
         """The error for a refused write; from then on ``rows`` counts what reached the disk."""
         self.rows = self.rows_on_disk()
-        return ResultsWriteError(f"{self.path}: cannot write the results ({exc.strerror or exc}): {self.rows} rows kept")
+        return ResultsWriteError(f"{self.path}: cannot write the results ({exc.strerror or exc}): "
+                                 f"{self.rows} rows kept")
 
     def __enter__(self) -> "CsvWriter":
         return self

@@ -80,7 +80,8 @@ def _step_count(start: float, stop: float, step: float) -> int:
         logger.warning("stop time %g s is not a whole number of %g s steps from %g s: the run ends at %g s",
                        stop, step, start, start + count * step)
     if count < 1:
-        raise InvalidParameterError("stop_time", stop, f"at least one step ({step:g} s) after the start time {start:g} s")
+        raise InvalidParameterError("stop_time", stop,
+                                    f"at least one step ({step:g} s) after the start time {start:g} s")
     return count
 
 
@@ -284,7 +285,7 @@ def _opening_summary(path, system, master: Master, algorithm: str, start: float,
         "stop_time_s": start + steps * step, "step_size_s": step, "steps": steps, "steps_completed": 0,
         "status": "running", "error": None, "started_at": started_at,
         "elements": {e.name: {"fmu": str(e.source), "start_values": dict(e.start_values)} for e in system.elements},
-        "connections": [f"{l.source.path} -> {l.target.path}" for l in system.links],
+        "connections": [f"{link.source.path} -> {link.target.path}" for link in system.links],
         "exchange_order": master.order, "inputs": {k: _describe(v) for k, v in dict(inputs or {}).items()},
         "rt_priority": rt_priority, "parameters": dict(parameters or {}),
         "unmatched_parameters": list(system.unmatched_parameters),

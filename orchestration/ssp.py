@@ -292,7 +292,8 @@ def _locate_ssd(path: Path, ssd_name: str, temporary: list) -> Path:
     if path.is_dir():
         ssd = path / ssd_name
         if not ssd.is_file():
-            raise StructureError(f"{path}: a folder without {ssd_name}; expected an SSP folder, .ssp archive or .ssd file")
+            raise StructureError(f"{path}: a folder without {ssd_name}; "
+                                 "expected an SSP folder, .ssp archive or .ssd file")
         return ssd
     if not path.is_file():
         raise StructureError(f"{path}: not a regular file" if path.exists() else f"{path}: no such file or folder")
@@ -324,9 +325,9 @@ def _check_archive(path: Path, archive: zipfile.ZipFile) -> None:
         raise StructureError(f"{path}: encrypted entries ({', '.join(encrypted[:3])}); SSP archives are not encrypted")
     total = sum(entry.file_size for entry in entries)
     if total > MAX_UNPACKED_BYTES:
-        raise StructureError(f"{path}: unpacks to {total / 2**20:,.0f} MiB, more than the {MAX_UNPACKED_BYTES / 2**20:,.0f} "
-                             "MiB an SSP archive may hold (FMUs are a few MiB); unzip it yourself and run the folder "
-                             "if it is right")
+        raise StructureError(f"{path}: unpacks to {total / 2**20:,.0f} MiB, "
+                             f"more than the {MAX_UNPACKED_BYTES / 2**20:,.0f} MiB an SSP archive may hold "
+                             "(FMUs are a few MiB); unzip it yourself and run the folder if it is right")
 
 
 def _q(namespace: str, tag: str) -> str:
@@ -401,7 +402,8 @@ def read_parameter_set(element, *, source: Path | None = None, where: str = "") 
     """Parse an ``ssv:ParameterSet`` element (of an .ssv file, or inline in a binding)."""
     where = where or (str(source) if source else "ParameterSet")
     if element.tag != _q(SSV_NS, "ParameterSet"):
-        raise StructureError(f"{where}: expected an ssv:ParameterSet ({SSV_NS}), found {etree.QName(element).localname} "
+        raise StructureError(f"{where}: expected an ssv:ParameterSet ({SSV_NS}), "
+                             f"found {etree.QName(element).localname} "
                              f"in namespace {etree.QName(element).namespace!r}")
     values = []
     parameters = element.find(_q(SSV_NS, "Parameters"))
@@ -446,7 +448,8 @@ class _SsdReader:
     def read(self, ssd_path: Path) -> SystemStructure:
         ssd_path = ssd_path.resolve()
         if len(self._stack) >= MAX_NESTING:
-            raise StructureError(f"{ssd_path}: nested more than {MAX_NESTING} deep ({' -> '.join(p.name for p in self._stack)})")
+            raise StructureError(f"{ssd_path}: nested more than {MAX_NESTING} deep "
+                                 f"({' -> '.join(p.name for p in self._stack)})")
         if ssd_path in self._stack:
             raise StructureError(f"{ssd_path}: references itself (through {' -> '.join(p.name for p in self._stack)})")
         self._stack.append(ssd_path)
@@ -475,8 +478,8 @@ class _SsdReader:
         for holder in self.temporary:
             root = Path(holder.name).resolve()
             if base.resolve().is_relative_to(root) and not path.resolve().is_relative_to(root):
-                raise StructureError(f"{where}: {path} is outside the .ssp archive; an archive loads only its own files "
-                                     "(unzip it to a folder to use files beside it)")
+                raise StructureError(f"{where}: {path} is outside the .ssp archive; an archive loads only its own "
+                                     "files (unzip it to a folder to use files beside it)")
         return path
 
     def _merge_units(self, units: Mapping[str, Unit], where: Path) -> None:
@@ -556,7 +559,8 @@ class _SsdReader:
         if kind in (SSD_TYPE, SSP_TYPE) or path.suffix.lower() in (".ssd", ".ssp"):
             return self._referenced_system(element, name, path, here)
         if kind != FMU_TYPE:
-            raise UnsupportedFeatureError(f"{here}: component type {kind!r}; only FMUs ({FMU_TYPE}) and SSDs are supported")
+            raise UnsupportedFeatureError(f"{here}: component type {kind!r}; "
+                                          f"only FMUs ({FMU_TYPE}) and SSDs are supported")
         if not path.exists():
             raise MissingFmuError(f"{here}: FMU {source!r} not found (looked for {path})")
         if not (path.is_file() or path.is_dir()):
@@ -564,7 +568,8 @@ class _SsdReader:
         implementation = element.get("implementation", "any")
         if implementation == "ModelExchange":
             raise UnsupportedFeatureError(f"{here}: implementation='ModelExchange'; only co-simulation FMUs are run")
-        return Component(name, path, self._connectors(element, here), self._bindings(element, base, here), implementation)
+        return Component(name, path, self._connectors(element, here), self._bindings(element, base, here),
+                         implementation)
 
     def _referenced_system(self, element, name: str, path: Path, where: str) -> System:
         """A component that references another SSD/SSP: that system, renamed, with the component's bindings last."""

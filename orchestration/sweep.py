@@ -279,7 +279,8 @@ def _client(scheduler: str | None, workers: int | None):
         try:
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address (no port, unknown protocol)
-            raise SweepError(f"cannot reach the Dask scheduler at {scheduler!r} (expected tcp://host:port): {exc}") from None
+            raise SweepError(f"cannot reach the Dask scheduler at {scheduler!r} (expected tcp://host:port): "
+                             f"{exc}") from None
     if workers == 0:  # in this process, one thread: no cluster to start (tests, a debugger's breakpoints)
         cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None,
                                silence_logs=logging.ERROR)

@@ -277,7 +277,8 @@ def _files(kind: SweepKind, settings: dict, grid: dict, base_dir: Path, source: 
     """The files the settings' and the grid's values name (the kind's ``file_in``), resolved from ``base_dir``."""
     if kind.file_in is None:
         return {}
-    values = [*string_values(settings), *((name, v) for name, values in grid.items() for v in values if isinstance(v, str))]
+    values = [*string_values(settings),
+              *((name, v) for name, values in grid.items() for v in values if isinstance(v, str))]
     files = {}
     for name, value in values:
         named = kind.file_in(name, value)

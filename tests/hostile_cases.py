@@ -547,11 +547,11 @@ def cli_cases() -> list[Case]:
         Case("run-param-calibration-binary", "cli-run", RUN + ["--param", "Controller.calibration=k.json"],
              setup=write("k.json", os.urandom(512))),
         Case("run-param-calibration-k-zero", "cli-run", RUN + ["--param", "Plant.calibration=k.json"],
-             setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "zero", "sigma": [1, 10, 100, 1000],
-                                               "K": [0, 0, 0, 0]}))),
+             setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "zero",
+                                               "sigma": [1, 10, 100, 1000], "K": [0, 0, 0, 0]}))),
         Case("run-param-calibration-k-negative", "cli-run", RUN + ["--param", "Controller.calibration=k.json"],
-             setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "neg", "sigma": [1, 10, 100, 1000],
-                                               "K": [-1, -1, -1, -1]}))),
+             setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "neg",
+                                               "sigma": [1, 10, 100, 1000], "K": [-1, -1, -1, -1]}))),
         Case("run-param-calibration-list", "cli-run", RUN + ["--param", "Controller.calibration=k.json"],
              setup=write("k.json", "[1, 2, 3]")),
         Case("run-param-calibration-dev-zero", "cli-run", RUN + ["--param", "Controller.calibration=/dev/zero"],
@@ -577,8 +577,10 @@ def cli_cases() -> list[Case]:
         Case("run-input-huge-shift", "cli-run", RUN + ["--input", "ResonanceTracker.resonance_shift=constant:1e300"]),
         Case("run-input-parameter", "cli-run", RUN + ["--input", "Plant.mass=constant:0.1"]),
         Case("run-reference-missing-csv", "cli-run", RUN + ["--reference", "ref.csv"]),
-        Case("run-reference-binary-csv", "cli-run", RUN + ["--reference", "ref.csv"], setup=write("ref.csv", os.urandom(300))),
-        Case("run-reference-mm", "cli-run", RUN + ["--reference", "ref.csv"], setup=write("ref.csv", "time_s,reference_m\n0,0.1\n")),
+        Case("run-reference-binary-csv", "cli-run", RUN + ["--reference", "ref.csv"],
+             setup=write("ref.csv", os.urandom(300))),
+        Case("run-reference-mm", "cli-run", RUN + ["--reference", "ref.csv"],
+             setup=write("ref.csv", "time_s,reference_m\n0,0.1\n")),
         Case("run-reference-negative", "cli-run", RUN + ["--reference", "ref.csv"],
              setup=write("ref.csv", "time_s,reference_m\n0,-1e-4\n")),
         Case("run-reference-nan", "cli-run", RUN + ["--reference", "ref.csv"], setup=write("ref.csv", "0,nan\n")),
@@ -592,13 +594,15 @@ def cli_cases() -> list[Case]:
         Case("run-generator-one-level", "cli-run", RUN + ["--param", "ReferenceGenerator.levels=60e-6"]),
         Case("run-generator-hold-negative", "cli-run", RUN + ["--param", "ReferenceGenerator.hold=-0.6"]),
         Case("run-generator-table-nan", "cli-run", RUN + ["--param", "ReferenceGenerator.table=0,60e-6;0.01,nan"]),
-        Case("run-generator-table-outside", "cli-run", RUN + ["--param", "ReferenceGenerator.table=../../../etc/x.csv"]),
+        Case("run-generator-table-outside", "cli-run",
+             RUN + ["--param", "ReferenceGenerator.table=../../../etc/x.csv"]),
         Case("run-rt-priority-without-realtime", "cli-run", RUN + ["--rt-priority", "50"]),
         Case("run-rt-priority-200", "cli-run", RUN + ["--realtime", "--rt-priority", "200"]),
         Case("run-hil-without-port", "cli-run", ["run", "fig7_hil", "--build-dir", "{build}", "--out", "out"]),
-        Case("run-hil-missing-port", "cli-run", ["run", "fig7_hil", "--build-dir", "{build}", "--stop-time", "0.1", "--out",
-                                                 "out", "--param", "proxy.port=/nonexistent/tty"], timeout=60),
-        Case("run-readonly-build-dir", "cli-run", ["run", "--build-dir", "ro/build", "--stop-time", "0.02", "--out", "out"],
+        Case("run-hil-missing-port", "cli-run", ["run", "fig7_hil", "--build-dir", "{build}", "--stop-time", "0.1",
+                                                 "--out", "out", "--param", "proxy.port=/nonexistent/tty"], timeout=60),
+        Case("run-readonly-build-dir", "cli-run",
+             ["run", "--build-dir", "ro/build", "--stop-time", "0.02", "--out", "out"],
              needs_permissions=True, setup=readonly_folder),
         Case("run-build-dir-is-file", "cli-run", ["run", "--build-dir", "f", "--stop-time", "0.02", "--out", "out"],
              setup=write("f", "mine\n"), protect=("f",)),
@@ -607,7 +611,8 @@ def cli_cases() -> list[Case]:
         Case("run-short-ok", "cli-run", RUN, expect="ok", why="a valid short run"),
     ]
     for word in NAN_WORDS:
-        cases.append(Case(f"run-stop-time-{word or 'empty'}", "cli-run", RUN[:-4] + [f"--stop-time={word}", "--out", "out"]))
+        cases.append(Case(f"run-stop-time-{word or 'empty'}", "cli-run",
+                          RUN[:-4] + [f"--stop-time={word}", "--out", "out"]))
         cases.append(Case(f"run-start-time-{word or 'empty'}", "cli-run", RUN + [f"--start-time={word}"]))
     # results folders
     cases += [
@@ -658,10 +663,14 @@ def physics_cases() -> list[Case]:
         ("plate-1000", "plate:1000"), ("plate-neg", "plate:-1"), ("plate-word", "plate:x"), ("bogus", "bogus"),
         ("missing-csv", "scan.csv"), ("dir", "."), ("dev-zero", "/dev/zero")]]
     cases += [
-        Case("calibrate-shape-binary-csv", "cli-calibrate", cal + ["--shape", "s.csv"], setup=write("s.csv", os.urandom(400))),
-        Case("calibrate-shape-zero", "cli-calibrate", cal + ["--shape", "s.csv"], setup=write("s.csv", "0,0\n0.3,0\n0.6,0\n1,0\n")),
-        Case("calibrate-shape-nan", "cli-calibrate", cal + ["--shape", "s.csv"], setup=write("s.csv", "0,1\n0.5,nan\n1,0\n")),
-        Case("calibrate-shape-r-beyond-1", "cli-calibrate", cal + ["--shape", "s.csv"], setup=write("s.csv", "0,1\n1,0.7\n2,0.5\n4,0\n")),
+        Case("calibrate-shape-binary-csv", "cli-calibrate", cal + ["--shape", "s.csv"],
+             setup=write("s.csv", os.urandom(400))),
+        Case("calibrate-shape-zero", "cli-calibrate", cal + ["--shape", "s.csv"],
+             setup=write("s.csv", "0,0\n0.3,0\n0.6,0\n1,0\n")),
+        Case("calibrate-shape-nan", "cli-calibrate", cal + ["--shape", "s.csv"],
+             setup=write("s.csv", "0,1\n0.5,nan\n1,0\n")),
+        Case("calibrate-shape-r-beyond-1", "cli-calibrate", cal + ["--shape", "s.csv"],
+             setup=write("s.csv", "0,1\n1,0.7\n2,0.5\n4,0\n")),
         Case("calibrate-shape-one-row", "cli-calibrate", cal + ["--shape", "s.csv"], setup=write("s.csv", "0,1\n")),
         Case("calibrate-shape-unsorted", "cli-calibrate", cal + ["--shape", "s.csv"],
              setup=write("s.csv", "1,0\n0,1\n0.5,0.5\n0.5,0.2\n")),
@@ -671,28 +680,32 @@ def physics_cases() -> list[Case]:
         Case("calibrate-sigma-nan", "cli-calibrate", cal + ["--sigma", "nan"]),
         Case("calibrate-nodes-0", "cli-calibrate", cal + ["--nodes", "0"]),
         Case("calibrate-nodes-huge", "cli-calibrate", cal + ["--nodes", "2147483647"]),
-        Case("calibrate-tm-steps-huge", "cli-calibrate", cal + ["--method", "time-marching", "--steps-per-period", "2147483647"]),
+        Case("calibrate-tm-steps-huge", "cli-calibrate",
+             cal + ["--method", "time-marching", "--steps-per-period", "2147483647"]),
         Case("calibrate-tm-delta-2", "cli-calibrate", cal + ["--method", "time-marching", "--delta", "2"]),
         Case("calibrate-tm-delta-negative", "cli-calibrate", cal + ["--method", "time-marching", "--delta", "-0.1"]),
         Case("calibrate-delta-nan", "cli-calibrate", cal + ["--delta", "nan"]),
     ]
     exp = ["calibrate", "experimental", "eq.csv"]
     good = "height_m,excitation_m\n" + "".join(f"{h:.3e},{a:.3e}\n" for h, a in
-                                                [(60e-6, 2e-6), (90e-6, 3e-6), (120e-6, 4.2e-6), (150e-6, 5.5e-6), (180e-6, 7e-6),
-                                                 (70e-6, 2.3e-6)])
+                                                [(60e-6, 2e-6), (90e-6, 3e-6), (120e-6, 4.2e-6), (150e-6, 5.5e-6),
+                                                 (180e-6, 7e-6), (70e-6, 2.3e-6)])
     for name, text in [
         ("binary", os.urandom(500)), ("empty", ""), ("header-only", "height_m,excitation_m\n"),
         ("no-columns", "a,b\n1,2\n3,4\n"), ("duplicate-column", "height_m,height_m,excitation_m\n6e-5,7e-5,2e-6\n"),
         ("mm-heights", good.replace("e-05", "e-02")), ("negative-height", good.replace("6.000e-05", "-6.000e-05")),
         ("nan", good.replace("6.000e-05", "nan")), ("words", "height_m,excitation_m\nx,y\n"),
-        ("excitation-above-gap", good.replace("2.000e-06", "2.000e-03")), ("one-row", "height_m,excitation_m\n6e-5,2e-6\n"),
+        ("excitation-above-gap", good.replace("2.000e-06", "2.000e-03")),
+        ("one-row", "height_m,excitation_m\n6e-5,2e-6\n"),
     ]:
         cases.append(Case(f"calibrate-experimental-{name}", "csv", exp, setup=write("eq.csv", text)))
     volts = "height_m,voltage_v\n" + "".join(f"{h:.3e},{v}\n" for h, v in [(60e-6, 20), (90e-6, 30), (120e-6, 42),
                                                                              (150e-6, 55), (180e-6, 70), (70e-6, 23)])
     cases += [
-        Case("calibrate-experimental-mpv-1e300", "csv", exp + ["--metres-per-volt", "1e300"], setup=write("eq.csv", volts)),
-        Case("calibrate-experimental-mpv-negative", "csv", exp + ["--metres-per-volt=-1e-7"], setup=write("eq.csv", volts)),
+        Case("calibrate-experimental-mpv-1e300", "csv", exp + ["--metres-per-volt", "1e300"],
+             setup=write("eq.csv", volts)),
+        Case("calibrate-experimental-mpv-negative", "csv", exp + ["--metres-per-volt=-1e-7"],
+             setup=write("eq.csv", volts)),
         Case("calibrate-experimental-mpv-zero", "csv", exp + ["--metres-per-volt", "0"], setup=write("eq.csv", volts)),
         Case("calibrate-experimental-no-map", "csv", exp, setup=write("eq.csv", volts)),
         Case("calibrate-experimental-voltage-map-binary", "csv", exp + ["--voltage-map", "m.csv"],
@@ -700,7 +713,8 @@ def physics_cases() -> list[Case]:
         Case("calibrate-experimental-degree-negative", "csv", exp + ["--degree", "-1"], setup=write("eq.csv", good)),
         Case("calibrate-experimental-degree-huge", "csv", exp + ["--degree", "100000"], setup=write("eq.csv", good)),
         Case("calibrate-experimental-magnetic-nan", "csv", exp,
-             setup=write("eq.csv", "height_m,excitation_m,magnetic_force_n\n6e-5,2e-6,nan\n9e-5,3e-6,0\n1.2e-4,4.2e-6,0\n")),
+             setup=write("eq.csv", "height_m,excitation_m,magnetic_force_n\n"
+                                   "6e-5,2e-6,nan\n9e-5,3e-6,0\n1.2e-4,4.2e-6,0\n")),
         Case("calibrate-experimental-good", "csv", exp, setup=write("eq.csv", good), expect="ok",
              why="six plausible equilibria"),
     ]
@@ -727,7 +741,8 @@ def control_cases() -> list[Case]:
         ("pressure-negative", ["--ambient-pressure", "-1"]), ("calibration-missing", ["--calibration", "none.json"]),
         ("placement-bogus", ["--placement", "bogus"]), ("discretisation-bogus", ["--discretisation", "bogus"]),
         ("reference-clearance-mm", ["--reference-clearance", "10"])]]
-    cases += [Case(f"design-{name}", "cli-design", ["design", *argv], check=error_leads_with(f"nfal design: error: {lead}"))
+    cases += [Case(f"design-{name}", "cli-design", ["design", *argv],
+                   check=error_leads_with(f"nfal design: error: {lead}"))
               for name, argv, lead in [  # unit slips (issue 26): they went on to a 6-line array of heights
                   ("frequency-khz", ["--frequency", "28.5"], "frequency = 28.5 is invalid"),
                   ("pressure-kpa", ["--ambient-pressure", "101.325"], "ambient_pressure = 101.325 is invalid"),
@@ -737,14 +752,16 @@ def control_cases() -> list[Case]:
              setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000],
                                                "K": [0, 0, 0, 0]}))),
         Case("design-calibration-version-99", "calibration", ["design", "--calibration", "k.json"],
-             setup=write("k.json", json.dumps({"version": 99, "kind": "table", "name": "z", "sigma": [1, 10], "K": [1, 2]}))),
+             setup=write("k.json", json.dumps({"version": 99, "kind": "table", "name": "z", "sigma": [1, 10],
+                                               "K": [1, 2]}))),
         Case("design-calibration-kind-bogus", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", json.dumps({"version": 1, "kind": "bogus"}))),
         Case("design-calibration-sigma-unsorted", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "z", "sigma": [100, 10, 1000, 30],
                                                "K": [1, 2, 3, 4]}))),
         Case("design-calibration-nan", "calibration", ["design", "--calibration", "k.json"],
-             setup=write("k.json", '{"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000], "K": [1, NaN, 3, 4]}')),
+             setup=write("k.json", '{"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000], '
+                                   '"K": [1, NaN, 3, 4]}')),
         Case("design-calibration-length-mismatch", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", json.dumps({"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000],
                                                "K": [1, 2, 3]}))),
@@ -753,13 +770,15 @@ def control_cases() -> list[Case]:
         Case("design-calibration-deep-json", "calibration", ["design", "--calibration", "k.json"],
              setup=write("k.json", "[" * 100000 + "]" * 100000)),
         *(Case(f"design-calibration-{name}", "calibration", ["design", "--calibration", "k.json"],
-               setup=write("k.json", calibration_file(**changes)), check=error_leads_with(f"nfal design: error: {lead}"))
+               setup=write("k.json", calibration_file(**changes)),
+               check=error_leads_with(f"nfal design: error: {lead}"))
           for name, changes, lead in [
               ("damping-um", {"damping": UM_DAMPING}, "calibration k.json: damping.heights_m = [49.2, 80.0"),
               ("version-true", {"version": True}, "calibration k.json: version = true is invalid"),
               ("factor-true", {"damping": {"heights_m": [5e-5, 1e-4], "factors": [1.0, True]}},
                "calibration k.json: damping.factors[1] = true is invalid: must be a finite number"),
-              ("coefficient-string", {"coefficients": [1.2348, "0.02"]}, 'calibration k.json: coefficients[1] = "0.02"'),
+              ("coefficient-string", {"coefficients": [1.2348, "0.02"]},
+               'calibration k.json: coefficients[1] = "0.02"'),
               ("rig-grams", {"rig": {"mass": 134.7}}, "calibration k.json: rig.mass = 134.7 is invalid"),
               ("rig-khz", {"rig": {"frequency": 28.5}}, "calibration k.json: rig.frequency = 28.5 is invalid"),
               ("entry-misspelt", {"dampin": {}}, "calibration k.json: unknown entries ['dampin']"),
@@ -769,7 +788,8 @@ def control_cases() -> list[Case]:
              setup=write("k.json", calibration_file()), expect="ok",
              why="a calibration file as nfal identify writes it: every field in its range"),
         Case("design-calibration-huge-number", "calibration", ["design", "--calibration", "k.json"],
-             setup=write("k.json", '{"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000], "K": [1, 1e999, 3, 4]}')),
+             setup=write("k.json", '{"version": 1, "kind": "table", "name": "z", "sigma": [1, 10, 100, 1000], '
+                                   '"K": [1, 1e999, 3, 4]}')),
     ]
     compare = ["compare", "--controllers"]
     cases += [Case(f"compare-{name}", "cli-compare", argv) for name, argv in [
@@ -777,14 +797,17 @@ def control_cases() -> list[Case]:
         ("controllers-negative", ["compare", "--controllers=-80"]), ("controllers-mm", compare + ["gs,80000"]),
         ("levels-mm", ["compare", "--levels", "60,100"]), ("hold-zero", ["compare", "--hold", "0"]),
         ("hold-huge", ["compare", "--hold", "1e9"]), ("noise-negative", ["compare", "--noise-peak", "-1"]),
-        ("noise-cutoff-zero", ["compare", "--noise-cutoff", "0"]), ("max-excitation-zero", ["compare", "--max-excitation", "0"]),
+        ("noise-cutoff-zero", ["compare", "--noise-cutoff", "0"]),
+        ("max-excitation-zero", ["compare", "--max-excitation", "0"]),
         ("max-excitation-1m", ["compare", "--max-excitation", "1"]), ("seed-negative", ["compare", "--seed", "-1"]),
         ("seed-2pow64", ["compare", "--seed", str(2 ** 64)])]]
     cases[-1].expect, cases[-1].why = "ok", "numpy seeds from any whole number >= 0 without truncation (SeedSequence)"
-    cases.append(Case("compare-noise-um", "cli-compare", ["compare", "--noise-peak", "2"],  # was a numpy repr of a height
+    # was a numpy repr of a height
+    cases.append(Case("compare-noise-um", "cli-compare", ["compare", "--noise-peak", "2"],
                       check=error_leads_with("nfal compare: error: peak_m = 2.0 is invalid")))
     # an option with no effect in the mode chosen (issue 26): refused, naming it, before anything is built or run
-    short, rig = ["compare", "--controllers", "gs", "--levels", "100e-6,120e-6", "--hold", "0.1"], ["--port", "/nonexistent/port"]
+    short = ["compare", "--controllers", "gs", "--levels", "100e-6,120e-6", "--hold", "0.1"]
+    rig = ["--port", "/nonexistent/port"]
     cases += [Case(f"compare-{name}", "cli-compare", short + argv, check=error_names(f"{flag} has no effect"))
               for name, flag, argv in [
                   ("runs-dir-without-port", "--runs-dir", ["--runs-dir", "runs"]),
@@ -793,8 +816,9 @@ def control_cases() -> list[Case]:
                   ("seed-with-port", "--seed", rig + ["--seed", "3"]),
                   ("noise-peak-with-port", "--noise-peak", rig + ["--noise-peak", "0"]),
                   ("full-schedule-sampled", "--full-schedule", ["--full-schedule"])]]
-    cases.append(Case("compare-full-schedule-continuous", "cli-compare", short + ["--placement", "continuous",
-                      "--full-schedule"], expect="ok", why="--full-schedule where it has an effect: the continuous placement"))
+    cases.append(Case("compare-full-schedule-continuous", "cli-compare",
+                      short + ["--placement", "continuous", "--full-schedule"], expect="ok",
+                      why="--full-schedule where it has an effect: the continuous placement"))
     return cases
 
 
@@ -809,20 +833,26 @@ def sweep_cases() -> list[Case]:
     cal = '[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 20\nnodes = 41\n'
     cases = [Case(f"sweep-{name}", "toml", built if name in fig7_slow else sweep, setup=spec(text), timeout=120)
              for name, text in [
-        ("binary", os.urandom(300)), ("empty", ""), ("not-toml", "[[[\n"), ("name-escapes", '[sweep]\nname = "../../x"\n' + cal
-                                                                           + '[grid]\nshape = ["piston"]\n'),
+        ("binary", os.urandom(300)), ("empty", ""), ("not-toml", "[[[\n"),
+        ("name-escapes", '[sweep]\nname = "../../x"\n' + cal + '[grid]\nshape = ["piston"]\n'),
         ("name-absolute", '[sweep]\nname = "/tmp/x"\n' + cal + '[grid]\nshape = ["piston"]\n'),
         ("kind-bogus", '[run]\nkind = "bogus"\n[grid]\nx = [1]\n'), ("no-grid", cal),
-        ("grid-empty-list", cal + "[grid]\nshape = []\n"), ("grid-huge", cal + "[grid]\nnodes = [" + ",".join(
-            str(41 + 2 * i) for i in range(400)) + "]\nshape = [" + ",".join(f'"plate:{i}"' for i in range(1, 400)) + "]\n"),
+        ("grid-empty-list", cal + "[grid]\nshape = []\n"),
+        ("grid-huge", cal + "[grid]\nnodes = [" + ",".join(str(41 + 2 * i) for i in range(400))
+         + "]\nshape = [" + ",".join(f'"plate:{i}"' for i in range(1, 400)) + "]\n"),
         ("grid-nan", '[run]\nkind = "ssp"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [nan]\n'),
         ("grid-unknown-key", cal + "[grid]\nbogus = [1, 2]\n"),
-        ("random-negative-draws", cal + '[random]\ndraws = -1\nseed = 1\nnodes = {distribution = "integers", low = 41, high = 61}\n'),
-        ("random-inverted", cal + '[random]\ndraws = 2\nseed = 1\nnodes = {distribution = "integers", low = 61, high = 41}\n'),
-        ("random-bogus-distribution", cal + '[random]\ndraws = 2\nseed = 1\nnodes = {distribution = "cauchy", low = 1, high = 2}\n'),
+        ("random-negative-draws",
+         cal + '[random]\ndraws = -1\nseed = 1\nnodes = {distribution = "integers", low = 41, high = 61}\n'),
+        ("random-inverted",
+         cal + '[random]\ndraws = 2\nseed = 1\nnodes = {distribution = "integers", low = 61, high = 41}\n'),
+        ("random-bogus-distribution",
+         cal + '[random]\ndraws = 2\nseed = 1\nnodes = {distribution = "cauchy", low = 1, high = 2}\n'),
         ("ssp-stop-negative", '[run]\nkind = "ssp"\nstop_time = -1\n[grid]\n"Plant.mass" = [0.13]\n'),
-        ("ssp-structure-missing", '[run]\nkind = "ssp"\nstructure = "none.ssp"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [0.13]\n'),
-        ("ssp-structure-absolute-outside", '[run]\nkind = "ssp"\nstructure = "/etc/passwd"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [0.13]\n'),
+        ("ssp-structure-missing",
+         '[run]\nkind = "ssp"\nstructure = "none.ssp"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [0.13]\n'),
+        ("ssp-structure-absolute-outside",
+         '[run]\nkind = "ssp"\nstructure = "/etc/passwd"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [0.13]\n'),
         ("unknown-table", cal + "[grid]\nshape = [\"piston\"]\n[extra]\nx = 1\n"),
         ("shape-bogus", cal + '[grid]\nshape = ["bogus"]\n'), ("shape-plate-0", cal + '[grid]\nshape = ["plate:0"]\n'),
         ("ssp-mass-grams", '[run]\nkind = "ssp"\nstop_time = 0.01\n[grid]\n"Plant.mass" = [134.7]\n'),
@@ -831,17 +861,20 @@ def sweep_cases() -> list[Case]:
     for case in cases:
         if case.id in ("sweep-shape-plate-0", "sweep-ssp-mass-grams"):
             case.expect, case.exit_code = "ok", 1
-            case.why = "the run is a row with its error, named at the end; the sweep exits 1 (a grid's other runs go on)"
+            case.why = ("the run is a row with its error, named at the end; the sweep exits 1 (a grid's other runs "
+                        "go on)")
             case.check = _failure_named
     cases += [
-        Case("sweep-scheduler-bogus", "toml", remote + ["--scheduler", "bogus"], setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
+        Case("sweep-scheduler-bogus", "toml", remote + ["--scheduler", "bogus"],
+             setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
         Case("sweep-scheduler-unreachable", "toml", remote + ["--scheduler", "tcp://127.0.0.1:9"],
              setup=spec(cal + '[grid]\nshape = ["piston"]\n'), timeout=120),
-        Case("sweep-workers-negative", "toml", sweep + ["--workers", "-1"], setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
+        Case("sweep-workers-negative", "toml", sweep + ["--workers", "-1"],
+             setup=spec(cal + '[grid]\nshape = ["piston"]\n')),
         Case("sweep-workers-zero", "toml", sweep + ["--workers", "0"], setup=spec(cal + '[grid]\nshape = ["piston"]\n'),
              expect="ok", why="0 workers: the runs in this process, one thread (for debugging)"),
-        Case("sweep-out-is-file", "toml", sweep, setup=chain(spec(cal + '[grid]\nshape = ["piston"]\n'), write("out", "mine\n")),
-             protect=("out",)),
+        Case("sweep-out-is-file", "toml", sweep,
+             setup=chain(spec(cal + '[grid]\nshape = ["piston"]\n'), write("out", "mine\n")), protect=("out",)),
         Case("sweep-spec-missing", "toml", ["sweep", "none.toml"]),
         Case("sweep-spec-dev-zero", "toml", ["sweep", "/dev/zero"], timeout=60),
         Case("sweep-spec-folder", "toml", ["sweep", "."]),
@@ -849,7 +882,8 @@ def sweep_cases() -> list[Case]:
     # plans (issue 26): too long unless accepted, runs that cannot start, settings and options without effect
     ssp = '[run]\nkind = "ssp"\nstop_time = 0.15\n'
     masses = '[grid]\n"Plant.mass" = [' + ", ".join(f"{0.12 + 0.01 * i:.2f}" for i in range(10)) + "]\n"
-    cases += [Case(f"sweep-{name}", "toml", argv, setup=spec(text), check=error_names(named)) for name, argv, text, named in [
+    cases += [Case(f"sweep-{name}", "toml", argv, setup=spec(text), check=error_names(named))
+              for name, argv, text, named in [
         ("long-1050-runs", sweep, cal + f"[grid]\nnodes = {list(range(41, 83, 2))}\npoints = {list(range(20, 70))}\n",
          "--accept-long-plan"),
         ("long-4000-s-simulated", built, ssp.replace("0.15", "400") + masses, "--accept-long-plan"),
@@ -869,12 +903,14 @@ def sweep_cases() -> list[Case]:
     cases += [
         Case("sweep-shape-file-beside-spec", "toml", beside, setup=files(spec__s_DOT_toml=cal + '[grid]\nshape = '
              '["scan.csv", "piston"]\n', spec__scan_DOT_csv=scan), expect="ok", timeout=120,
-             why="a path in a spec is relative to the spec's folder; the file goes to the workers as the structure does"),
+             why="a path in a spec is relative to the spec's folder; the file goes to the workers as the structure "
+                 "does"),
         Case("sweep-calibration-file-beside-spec", "toml", beside + ["--build-dir", "{build}"], setup=files(
              spec__s_DOT_toml=ssp + '[grid]\n"Controller.calibration" = ["k.json"]\n',
              spec__k_DOT_json=json.dumps({"version": 1, "kind": "polynomial", "name": "eq. 17", "coefficients": [
                  1.2348, 0.022928, -0.0001301, 2.9826e-07, -2.4985e-10], "sigma_range": [10.0, 500.0]})),
-             expect="ok", timeout=120, why="a Controller.calibration file beside the spec: read from there by the runs"),
+             expect="ok", timeout=120,
+             why="a Controller.calibration file beside the spec: read from there by the runs"),
     ]
     return cases
 
@@ -892,7 +928,8 @@ def ssp_cases() -> list[Case]:
     cases = [Case(f"ssd-{name}", "ssp", argv, setup=setup) for name, argv, setup in [
         ("source-dev-zero", run, ssd('source="resources/SlowPlant.fmu"', 'source="/dev/zero"')),
         ("source-outside", run, ssd('source="resources/SlowPlant.fmu"', 'source="../../SlowPlant.fmu"')),
-        ("source-absolute", run, lambda f, b: ssd('source="resources/SlowPlant.fmu"', f'source="{b}/SlowPlant.fmu"')(f, b)),
+        ("source-absolute", run,
+         lambda f, b: ssd('source="resources/SlowPlant.fmu"', f'source="{b}/SlowPlant.fmu"')(f, b)),
         ("source-absolute-in-archive", ["run", "x.ssp", "--stop-time", "0.02", "--out", "out"],
          lambda f, b: _packed(f, b, 'source="resources/SlowPlant.fmu"', f'source="{b}/SlowPlant.fmu"')),
         ("source-outside-archive", ["run", "x.ssp", "--stop-time", "0.02", "--out", "out"],
@@ -932,7 +969,8 @@ def ssp_cases() -> list[Case]:
         Case("ssv-mass-nan", "ssv", run, setup=chain(unpacked_fig7(), lambda f, b: _edit(
             f / "fig7/resources/paper_rig.ssv", 'value="0.1347"', 'value="NaN"'))),
         Case("ssv-mass-string", "ssv", run, setup=chain(unpacked_fig7(), lambda f, b: _edit(
-            f / "fig7/resources/paper_rig.ssv", '<ssv:Real value="0.1347" unit="kg"/>', '<ssv:String value="heavy"/>'))),
+            f / "fig7/resources/paper_rig.ssv", '<ssv:Real value="0.1347" unit="kg"/>',
+            '<ssv:String value="heavy"/>'))),
         Case("ssv-mass-wrong-unit", "ssv", run, setup=chain(unpacked_fig7(), lambda f, b: _edit(
             f / "fig7/resources/paper_rig.ssv", 'value="0.1347" unit="kg"', 'value="0.1347" unit="m"'))),
         Case("ssv-binary", "ssv", run, setup=chain(unpacked_fig7(), lambda f, b: (f / "fig7/resources/paper_rig.ssv")
@@ -996,7 +1034,8 @@ def _xxe(text: str) -> str:
 
 def _laughs(text: str) -> str:
     text = text.split("?>", 1)[1] if text.startswith("<?xml") else text
-    entities = '<!ENTITY a0 "lol">' + "".join(f'<!ENTITY a{i} "{("&a" + str(i - 1) + ";") * 10}">' for i in range(1, 10))
+    entities = '<!ENTITY a0 "lol">' + "".join(f'<!ENTITY a{i} "{("&a" + str(i - 1) + ";") * 10}">'
+                                              for i in range(1, 10))
     return f'<?xml version="1.0"?>\n<!DOCTYPE x [{entities}]>\n' + text.replace('name="Plant"', 'name="&a9;"', 1)
 
 
@@ -1096,7 +1135,8 @@ def hil_cases() -> list[Case]:
     emulator = ["rig-emulator", "--build-dir", "{build}"]
     cases = [Case(f"rig-emulator-{name}", "hil", emulator + argv, setup=setup, protect=protect)
              for name, argv, setup, protect in [
-                 ("link-existing-file", ["--link", "mine.txt", "--duration", "1"], write("mine.txt", "mine\n"), ("mine.txt",)),
+                 ("link-existing-file", ["--link", "mine.txt", "--duration", "1"], write("mine.txt", "mine\n"),
+                  ("mine.txt",)),
                  ("link-existing-folder", ["--link", "d", "--duration", "1"], lambda f, b: (f / "d").mkdir(), ("d",)),
                  ("link-missing-folder", ["--link", "no/such/link", "--duration", "1"], None, ()),
                  ("link-with-url", ["--port", "loop://", "--link", "x", "--duration", "1"], None, ()),
@@ -1109,13 +1149,15 @@ def hil_cases() -> list[Case]:
                  ("max-voltage-negative", ["--max-voltage", "-5", "--duration", "1"], None, ()),
                  ("duration-negative", ["--duration", "-1"], None, ()),
                  ("duration-inf", ["--duration", "inf"], None, ()),
-                 ("reconnect-after-word", ["--disconnect-at", "1", "--reconnect-after", "soon", "--duration", "1"], None, ()),
+                 ("reconnect-after-word", ["--disconnect-at", "1", "--reconnect-after", "soon", "--duration", "1"],
+                  None, ()),
                  ("disconnect-negative", ["--disconnect-at", "-1", "--duration", "1"], None, ()),
                  ("truth-missing", ["--truth", "none.ssp", "--duration", "1"], None, ()),
                  ("truth-binary", ["--truth", "t.ssp", "--duration", "1"], write("t.ssp", os.urandom(300)), ()),
                  ("param-mass-grams", ["--param", "Plant.mass=134.7", "--duration", "1"], None, ()),
                  ("param-unknown", ["--param", "Plant.mas=0.1", "--duration", "1"], None, ()),
-                 ("record-existing-folder", ["--record", "r.csv", "--duration", "1"], lambda f, b: (f / "r.csv").mkdir(), ()),
+                 ("record-existing-folder", ["--record", "r.csv", "--duration", "1"],
+                  lambda f, b: (f / "r.csv").mkdir(), ()),
                  ("record-bad-extension", ["--record", "r.txt", "--duration", "1"], None, ()),
                  ("port-bogus-url", ["--port", "bogus://x", "--duration", "1"], None, ()),
                  ("port-missing-device", ["--port", "/dev/nonexistent-tty", "--duration", "1"], None, ()),
@@ -1124,12 +1166,14 @@ def hil_cases() -> list[Case]:
              ]]
     garbage = [os.urandom(256) for _ in range(8)] + [b"\xa5" * 4096, b"\x7e" + b"\xff" * 3000]
     cases += [
-        Case("rig-emulator-garbage-from-host", "hil", emulator + ["--duration", "1.5"], during=emulator_fed_garbage(garbage),
-             expect="ok", why="random bytes and oversized frames from the host are dropped and counted; the rig runs on"),
+        Case("rig-emulator-garbage-from-host", "hil", emulator + ["--duration", "1.5"],
+             during=emulator_fed_garbage(garbage), expect="ok",
+             why="random bytes and oversized frames from the host are dropped and counted; the rig runs on"),
         Case("rig-emulator-c-firmware-garbage-from-host", "hil", emulator + ["--firmware", "c", "--duration", "1.5"],
              during=emulator_fed_garbage(garbage), expect="ok",
              why="the C reference firmware drops and counts the same garbage (bounded buffers) and runs on"),
-        Case("rig-emulator-c-firmware-with-faults", "hil", emulator + ["--firmware", "c", "--drop", "0.1", "--duration", "1"],
+        Case("rig-emulator-c-firmware-with-faults", "hil",
+             emulator + ["--firmware", "c", "--drop", "0.1", "--duration", "1"],
              why="faults are injected by the Python side into its own pty: refused with the C firmware, naming why"),
         Case("rig-emulator-sigterm", "hil", emulator + ["--duration", "30"], expect="ok",
              why="SIGTERM ends the emulator after its tick, with its report, the symlink removed",
@@ -1150,7 +1194,8 @@ def hil_cases() -> list[Case]:
         cases.append(Case(f"run-hil-rig-{name}", "hil", hil_run, setup=garbage_server(payload, close),
                           check=summary_failed_with_reason, timeout=60))
     cases += [Case(f"identify-{name}", "cli-identify", ["identify", "--dry-run", *argv]) for name, argv in [
-        ("steps-odd", ["--steps", "3"]), ("steps-negative", ["--steps", "-2"]), ("step-size-nan", ["--step-size", "nan"]),
+        ("steps-odd", ["--steps", "3"]), ("steps-negative", ["--steps", "-2"]),
+        ("step-size-nan", ["--step-size", "nan"]),
         ("step-size-huge", ["--step-size", "50"]), ("max-hold-negative", ["--max-hold", "-1"]),
         ("max-voltage-inf", ["--max-voltage", "inf"]), ("metres-per-volt-zero", ["--metres-per-volt", "0"]),
         ("metres-per-volt-1e300", ["--metres-per-volt", "1e300"]), ("equilibria-mm", ["--equilibria", "50:200:12"]),
@@ -1169,10 +1214,12 @@ def hil_cases() -> list[Case]:
                   ("damping-one-height", ["--dry-run", "--damping-heights", "1e-4"], "--damping-heights"),
                   ("damping-one-height-run", [*no_rig, "--damping-heights", "1e-4"], "--damping-heights"),
                   ("damping-duplicates", ["--dry-run", "--damping-heights", "8e-5,8e-5,1.2e-4"], "--damping-heights"),
-                  ("damping-100000-heights", ["--dry-run", "--damping-heights", "5e-5:2e-4:100000"], "--damping-heights"),
+                  ("damping-100000-heights", ["--dry-run", "--damping-heights", "5e-5:2e-4:100000"],
+                   "--damping-heights"),
                   ("steps-1000", ["--dry-run", "--steps", "1000"], "--accept-long-plan"),
                   ("steps-1000-run", [*no_rig, "--steps", "1000"], "--accept-long-plan"),
-                  ("steps-10000-accepted", ["--dry-run", "--steps", "10000", "--accept-long-plan"], "GiB held in memory")]]
+                  ("steps-10000-accepted", ["--dry-run", "--steps", "10000", "--accept-long-plan"],
+                   "GiB held in memory")]]
     cases += [
         Case("identify-steps-1000-accepted", "cli-identify", ["identify", "--dry-run", "--steps", "1000",
              "--accept-long-plan"], expect="ok", why="a plan of 1.1 h the user accepted: printed with its duration"),
@@ -1198,9 +1245,9 @@ def hil_cases() -> list[Case]:
 
 def running_emulator(folder: Path, build: Path) -> dict:
     """A rig emulator for the case (stopped after it): ``{port}`` is its pty link."""
-    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--build-dir", str(build), "--watchdog", "1",
-                                 "--duration", "120"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                start_new_session=True)
+    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--build-dir", str(build),
+                                 "--watchdog", "1", "--duration", "120"], cwd=folder, stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL, text=True, start_new_session=True)
 
     def stop():
         emulator.terminate()
@@ -1253,7 +1300,8 @@ def fmu_cases() -> list[Case]:
         (slow, "radius-mm", {"radius": 50.0}, {}), (slow, "initial-height-negative", {"initial_height": -1e-5}, {}),
         (slow, "initial-height-um", {"initial_height": 60.0}, {}), (slow, "rest-gap-zero", {"rest_gap": 0.0}, {}),
         (slow, "viscosity-negative", {"viscosity": -1.0}, {}), (slow, "pressure-zero", {"ambient_pressure": 0.0}, {}),
-        (slow, "gravity-nan", {"gravity": float("nan")}, {}), (slow, "calibration-missing", {"calibration": "none.json"}, {}),
+        (slow, "gravity-nan", {"gravity": float("nan")}, {}),
+        (slow, "calibration-missing", {"calibration": "none.json"}, {}),
         (slow, "calibration-dev-zero", {"calibration": "/dev/zero"}, {}),
         (slow, "near-surface-bogus", {"near_surface": "bogus"}, {}),
         (slow, "excess-damping-nan", {"excess_damping_exponent": float("nan")}, {}),
@@ -1270,26 +1318,37 @@ def fmu_cases() -> list[Case]:
         (reynolds, "radial-nodes-negative", {"radial_nodes": -5}, {}),
         (reynolds, "steps-per-period-2pow31", {"steps_per_period": 2 ** 31 - 1, "film_solver": "time_marching"}, {}),
         (reynolds, "harmonics-huge", {"harmonics": 2 ** 31 - 1}, {}), (reynolds, "harmonics-0", {"harmonics": 0}, {}),
-        (reynolds, "film-solver-bogus", {"film_solver": "bogus"}, {}), (reynolds, "shape-bogus", {"shape": "bogus"}, {}),
-        (reynolds, "shape-plate-1000", {"shape": "plate:1000"}, {}), (reynolds, "excitation-1m", {}, {"excitation_amplitude": 1.0}),
+        (reynolds, "film-solver-bogus", {"film_solver": "bogus"}, {}),
+        (reynolds, "shape-bogus", {"shape": "bogus"}, {}),
+        (reynolds, "shape-plate-1000", {"shape": "plate:1000"}, {}),
+        (reynolds, "excitation-1m", {}, {"excitation_amplitude": 1.0}),
         (reynolds, "excitation-nan", {}, {"excitation_amplitude": float("nan")}),
-        (tracker, "drive-1e300", {}, {"drive_voltage": 1e300}), (tracker, "drive-nan", {}, {"drive_voltage": float("nan")}),
-        (tracker, "drive-negative", {}, {"drive_voltage": -1e6}), (tracker, "shift-huge", {}, {"resonance_shift": 1e12}),
+        (tracker, "drive-1e300", {}, {"drive_voltage": 1e300}),
+        (tracker, "drive-nan", {}, {"drive_voltage": float("nan")}),
+        (tracker, "drive-negative", {}, {"drive_voltage": -1e6}),
+        (tracker, "shift-huge", {}, {"resonance_shift": 1e12}),
         (tracker, "q-zero", {"quality_factor": 0.0}, {}), (tracker, "q-negative", {"quality_factor": -500.0}, {}),
         (tracker, "mpv-1e300", {"metres_per_volt": 1e300}, {}), (tracker, "pll-rate-zero", {"pll_rate": 0.0}, {}),
-        (tracker, "resonance-zero", {"resonance_frequency": 0.0}, {}), (tracker, "lock-samples-negative", {"lock_samples": -1}, {}),
-        ("SensorChain", "noise-negative", {"noise_peak": -1.0}, {}), ("SensorChain", "noise-inf", {"noise_peak": float("inf")}, {}),
-        ("SensorChain", "cutoff-zero", {"noise_cutoff": 0.0}, {}), ("SensorChain", "sample-rate-negative", {"sample_rate": -1.0}, {}),
+        (tracker, "resonance-zero", {"resonance_frequency": 0.0}, {}),
+        (tracker, "lock-samples-negative", {"lock_samples": -1}, {}),
+        ("SensorChain", "noise-negative", {"noise_peak": -1.0}, {}),
+        ("SensorChain", "noise-inf", {"noise_peak": float("inf")}, {}),
+        ("SensorChain", "cutoff-zero", {"noise_cutoff": 0.0}, {}),
+        ("SensorChain", "sample-rate-negative", {"sample_rate": -1.0}, {}),
         ("SensorChain", "resolution-negative", {"resolution": -1e-9}, {}),
         ("SensorChain", "true-height-nan", {}, {"true_height": float("nan")}),
         ("SensorChain", "true-height-1e300", {}, {"true_height": 1e300}),
-        ("Controller", "design-bogus", {"design": "bogus"}, {}), ("Controller", "placement-bogus", {"placement": "bogus"}, {}),
-        ("Controller", "sample-rate-zero", {"sample_rate": 0.0}, {}), ("Controller", "cutoff-negative", {"closed_loop_cutoff": -1.0}, {}),
-        ("Controller", "max-excitation-1m", {"max_excitation": 1.0}, {}), ("Controller", "mass-grams", {"mass": 134.7}, {}),
+        ("Controller", "design-bogus", {"design": "bogus"}, {}),
+        ("Controller", "placement-bogus", {"placement": "bogus"}, {}),
+        ("Controller", "sample-rate-zero", {"sample_rate": 0.0}, {}),
+        ("Controller", "cutoff-negative", {"closed_loop_cutoff": -1.0}, {}),
+        ("Controller", "max-excitation-1m", {"max_excitation": 1.0}, {}),
+        ("Controller", "mass-grams", {"mass": 134.7}, {}),
         ("Controller", "reference-nan", {}, {"reference": float("nan")}),
         ("Controller", "measured-height-inf", {}, {"measured_height": float("inf")}),
         ("Controller", "calibration-binary", {"calibration": "/bin/sh"}, {}),
-        ("HardwareProxy", "port-empty", {"port": ""}, {}), ("HardwareProxy", "port-missing", {"port": "/nonexistent"}, {}),
+        ("HardwareProxy", "port-empty", {"port": ""}, {}),
+        ("HardwareProxy", "port-missing", {"port": "/nonexistent"}, {}),
         ("HardwareProxy", "baud-negative", {"baud_rate": -9600, "port": "loop://"}, {}),
         ("HardwareProxy", "connect-timeout-nan", {"connect_timeout": float("nan"), "port": "loop://"}, {}),
         ("HardwareProxy", "missed-samples-negative", {"max_missed_samples": -1, "port": "loop://"}, {}),

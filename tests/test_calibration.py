@@ -16,14 +16,16 @@ def test_paper_eq17_values():
     assert K(100.0) == pytest.approx(1.2348 + 2.2928 - 1.301 + 0.29826 - 0.024985, rel=1e-12)
 
 
-@pytest.mark.parametrize("calibration", [paper_calibration(), perturbation_calibration(PistonShape(), (1, 1e4), 120)], ids=repr)
+@pytest.mark.parametrize("calibration", [paper_calibration(), perturbation_calibration(PistonShape(), (1, 1e4), 120)],
+                         ids=repr)
 def test_derivative_is_exact(calibration):
     sigma = np.array([20.0, 80.0, 300.0])
     numeric = (calibration(sigma * (1 + 1e-6)) - calibration(sigma * (1 - 1e-6))) / (2e-6 * sigma)
     np.testing.assert_allclose(calibration.derivative(sigma), numeric, rtol=1e-6)
 
 
-@pytest.mark.parametrize("calibration", [paper_calibration(), perturbation_calibration(PistonShape(), (1, 1e4), 120)], ids=repr)
+@pytest.mark.parametrize("calibration", [paper_calibration(), perturbation_calibration(PistonShape(), (1, 1e4), 120)],
+                         ids=repr)
 def test_the_scalar_path_equals_the_array_path(calibration):
     """The plants' inner loops call ``scalar`` (plain floats; scipy's spline call was 9x the slow plant's tick with a
     tabulated K); it must be the same function, held outside the range, to rounding."""
@@ -45,7 +47,8 @@ def test_perturbation_table_interpolates_the_exact_piston():
     np.testing.assert_allclose(table(sigma), piston_K_exact(sigma), rtol=2e-4)
 
 
-@pytest.mark.parametrize("calibration", [paper_calibration(), TabulatedK([1, 2, 3, 4], [0.1, 0.4, 0.6, 0.7], name="t")], ids=repr)
+@pytest.mark.parametrize("calibration", [paper_calibration(), TabulatedK([1, 2, 3, 4], [0.1, 0.4, 0.6, 0.7], name="t")],
+                         ids=repr)
 def test_save_and_load_round_trip(tmp_path, calibration):
     path = tmp_path / "k.json"
     calibration.save(path)

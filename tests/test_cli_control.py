@@ -11,7 +11,8 @@ STEP_KEYS = {"from_m", "to_m", "rise_time_s", "overshoot_percent", "settling_tim
 
 def test_design_json_and_plot(capsys, tmp_path):
     png = tmp_path / "map.png"
-    assert main(["design", "--heights", "60e-6:200e-6:8", "--placement", "continuous", "--json", "--plot", str(png)]) == 0
+    assert main(["design", "--heights", "60e-6:200e-6:8", "--placement", "continuous", "--json",
+                 "--plot", str(png)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert len(data["height_m"]) == len(data["kp"]) == len(data["ki"]) == len(data["kd"]) == 8
     grid = data["stability_map"]

@@ -48,11 +48,13 @@ def test_run_from_a_reference_csv_of_steps_prints_the_step_table(capsys, tmp_pat
 @pytest.mark.slow  # whole runs of the loop
 def test_run_from_a_reference_csv_not_of_steps_prints_the_iae_and_why(capsys, tmp_path, fig7_archives):
     csv = tmp_path / "sine.csv"
-    csv.write_text("time_s,reference_m\n" + "".join(f"{k * 1e-3},{70e-6 + 5e-6 * np.sin(k * 0.03)}\n" for k in range(100)))
+    csv.write_text("time_s,reference_m\n"
+                   + "".join(f"{k * 1e-3},{70e-6 + 5e-6 * np.sin(k * 0.03)}\n" for k in range(100)))
     assert main(["run", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.1",
                  "--out", str(tmp_path / "run")]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[1].startswith("IAE ") and lines[2].startswith("no step table: the reference is not a sequence of steps")
+    assert lines[1].startswith("IAE ")
+    assert lines[2].startswith("no step table: the reference is not a sequence of steps")
     metrics = json.loads((tmp_path / "run" / "summary.json").read_text())["metrics"]
     assert metrics["steps"] is None and metrics["iae"] > 0
 

@@ -16,7 +16,8 @@ def run_json(capsys, *argv):
 
 
 def test_calibrate_numerical_json(capsys):
-    out = run_json(capsys, "calibrate", "numerical", "--shape", "piston", "--sigma", "1,10,100", "--nodes", "801", "--json")
+    out = run_json(capsys, "calibrate", "numerical", "--shape", "piston", "--sigma", "1,10,100", "--nodes", "801",
+                   "--json")
     assert out["sigma"] == [1.0, 10.0, 100.0]
     np.testing.assert_allclose(out["K"], piston_K_exact(out["sigma"]), rtol=1e-4)
 
@@ -37,7 +38,8 @@ def test_calibrate_experimental_recovers_eq17(tmp_path, capsys):
     data.write_text("# synthetic\nheight_m,excitation_m\n" + "\n".join(
         f"{float(h)!r},{float(a)!r}" for h, a in zip(heights, plant.equilibrium_excitation(heights))))
     png = tmp_path / "fit.png"
-    out = run_json(capsys, "calibrate", "experimental", str(data), "--json", "--plot", str(png), "--out", str(tmp_path / "c.json"))
+    out = run_json(capsys, "calibrate", "experimental", str(data), "--json", "--plot", str(png),
+                   "--out", str(tmp_path / "c.json"))
     np.testing.assert_allclose(out["coefficients"], paper_calibration().coefficients, rtol=1e-6)
     assert png.exists() and (tmp_path / "c.json").exists()
 

@@ -92,7 +92,8 @@ def test_noise_of_zero_peak_is_zero():
 
 
 @pytest.mark.parametrize("kwargs", [{"samples": 0}, {"samples": 10, "cutoff_hz": 1500}, {"samples": 10, "peak_m": -1.0},
-                                    {"samples": 2.5}, {"samples": 10, "seed": -1}, {"samples": 10, "sample_rate_hz": 0.0}])
+                                    {"samples": 2.5}, {"samples": 10, "seed": -1},
+                                    {"samples": 10, "sample_rate_hz": 0.0}])
 def test_bad_noise_settings_raise(kwargs):
     samples = kwargs.pop("samples")
     with pytest.raises(InvalidParameterError):
@@ -238,8 +239,10 @@ def test_fixed_step_advance_matches_adaptive_advance_over_random_states():
     assert max(errors) < 1e-10
 
 
-@pytest.mark.parametrize("stop_s, levels", [(None, 7), (3.7, 7), (0.7, 2), (1.29, 2), (1.3, 3), (0.5, None), (0.05, None)])
+@pytest.mark.parametrize("stop_s, levels", [(None, 7), (3.7, 7), (0.7, 2), (1.29, 2), (1.3, 3), (0.5, None),
+                                            (0.05, None)])
 def test_staircase_completed_by(stop_s, levels):
     """The steps whose holds end by the stop time: what a shortened run can report metrics for."""
     cut = Staircase().completed_by(stop_s)
-    assert (cut is None) if levels is None else (len(cut.levels_m) == levels and cut.duration_s <= (stop_s or 3.7) + 1e-9)
+    assert (cut is None) if levels is None else (len(cut.levels_m) == levels
+                                                 and cut.duration_s <= (stop_s or 3.7) + 1e-9)

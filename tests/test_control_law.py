@@ -44,7 +44,8 @@ def test_linearisation_equals_the_linear_controller_designed_there(height):
     """No hidden coupling: about an equilibrium the scheduled law's Jacobian equals the fixed-gain law's (1e-6)."""
     fixed = DiscreteControlLaw(fixed_design(height))
     x = (3e-6, 0.0, height)
-    np.testing.assert_allclose(_jacobian(LAW, x, height, height), _jacobian(fixed, x, height, height), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(_jacobian(LAW, x, height, height), _jacobian(fixed, x, height, height),
+                               rtol=1e-6, atol=1e-9)
 
 
 def test_one_step_is_forward_euler_of_eqs_21_22():
@@ -161,7 +162,8 @@ def test_lift_off_from_rest_does_not_pass_the_first_level_by_more_than_ten_perce
     assert heights.max() <= 66e-6 and abs(heights[-1] - 60e-6) < 0.3e-6  # measured: 60.0 um, within 1 um after 0.35 s
     assert not state.lifting and state.reference_pair_m is None  # lifted off: the reference as given again
     abrupt, _ = _from_rest(DiscreteControlLaw(SAMPLED, actuator_lag_s=lag_s), plant, lag_s=lag_s)
-    assert abrupt.max() > 70e-6  # the law without lift-off, from rest (measured: 74.6 um; 82.2 um with the lag; with it: 60.0, 60.0 um)
+    # the law without lift-off, from rest (measured: 74.6 um; 82.2 um with the lag; with it: 60.0, 60.0 um)
+    assert abrupt.max() > 70e-6
 
 
 def test_lift_off_starts_only_below_the_work_range():
@@ -249,7 +251,8 @@ def test_the_reference_zero_sets_the_overshoot_of_a_small_step(ratio):
     (measured 0.00, 0.05 and 1.18 %)."""
     assert _step_overshoot(DiscreteControlLaw(SAMPLED), 62e-6, 60e-6) > 3.5
     expected = 0.0 if ratio == 1.0 else 100.0 * (ratio - 1.0) * math.exp(-ratio / (ratio - 1.0))
-    assert _step_overshoot(DiscreteControlLaw(SAMPLED, reference_zero_ratio=ratio), 62e-6, 60e-6) == pytest.approx(expected, abs=0.1)
+    overshoot = _step_overshoot(DiscreteControlLaw(SAMPLED, reference_zero_ratio=ratio), 62e-6, 60e-6)
+    assert overshoot == pytest.approx(expected, abs=0.1)
 
 
 def test_the_state_survives_a_round_trip_as_a_list():
@@ -263,8 +266,9 @@ def test_the_state_survives_a_round_trip_as_a_list():
     assert isinstance(read.integrator_m, float) and isinstance(read.reference_pair_m[0], float) and read.lifting is True
 
 
-@pytest.mark.parametrize("kwargs", [{"lift_off_time_s": 0.0}, {"reference_filter_s": -1.0}, {"actuator_lag_s": float("nan")},
-                                    {"actuator_lag_s": 2.0}, {"reference_zero_ratio": 0.0}])
+@pytest.mark.parametrize("kwargs", [{"lift_off_time_s": 0.0}, {"reference_filter_s": -1.0},
+                                    {"actuator_lag_s": float("nan")}, {"actuator_lag_s": 2.0},
+                                    {"reference_zero_ratio": 0.0}])
 def test_bad_additions_raise(kwargs):
     with pytest.raises(InvalidParameterError):
         DiscreteControlLaw(SCHEDULE, **kwargs)

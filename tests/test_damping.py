@@ -21,7 +21,8 @@ RIG = RigParameters()
 HEIGHTS = np.array([50e-6, 75e-6, 100e-6, 130e-6, 160e-6, 200e-6])
 #: A table sampled from the rig-like ExcessDamping, as an identification would measure it.
 RIG_LIKE = ExcessDamping.rig_like()
-TABLE = DampingCorrection(HEIGHTS, RIG_LIKE.factor(HEIGHTS), 0.9 * RIG_LIKE.factor(HEIGHTS), 1.1 * RIG_LIKE.factor(HEIGHTS))
+TABLE = DampingCorrection(HEIGHTS, RIG_LIKE.factor(HEIGHTS), 0.9 * RIG_LIKE.factor(HEIGHTS),
+                          1.1 * RIG_LIKE.factor(HEIGHTS))
 
 
 def test_table_passes_through_its_points_and_holds_outside():
@@ -66,8 +67,8 @@ def test_bad_tables_raise(heights, factors, low, high, reason):
 # --- in the plants and the LPV model -------------------------------------------------------------------
 def test_plants_take_the_table_like_the_parametric_correction():
     plant = SimplifiedPlant(RIG, paper_calibration(), excess_damping=TABLE)
-    assert plant.squeeze_film_damping(130e-6) == pytest.approx(RIG.squeeze_film_damping(130e-6) * RIG_LIKE.factor(130e-6),
-                                                               rel=1e-12)
+    assert plant.squeeze_film_damping(130e-6) == pytest.approx(
+        RIG.squeeze_film_damping(130e-6) * RIG_LIKE.factor(130e-6), rel=1e-12)
     state, excitation = PlantState(150e-6, 1e-3), float(plant.equilibrium_excitation(150e-6))
     exact, fast = plant.advance(state, excitation, 5e-4), FixedStepPlant(plant).advance(state, excitation, 5e-4)
     assert fast.height == pytest.approx(exact.height, abs=1e-10)

@@ -47,11 +47,13 @@ def test_none_gives_the_same_trajectory(excitation, start):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
 
 
-@pytest.mark.parametrize("height, velocity, excitation", [(60e-6, 0.0, 1.6e-6), (190e-6, 2e-3, 5e-6), (20e-6, -3e-3, 0.0)])
+@pytest.mark.parametrize("height, velocity, excitation",
+                         [(60e-6, 0.0, 1.6e-6), (190e-6, 2e-3, 5e-6), (20e-6, -3e-3, 0.0)])
 def test_none_gives_the_same_steps_and_forces(height, velocity, excitation):
     state = PlantState(height, velocity)
     assert NONE.advance(state, excitation, STEP) == PLAIN.advance(state, excitation, STEP)
-    assert FixedStepPlant(NONE).advance(state, excitation, STEP) == FixedStepPlant(PLAIN).advance(state, excitation, STEP)
+    assert FixedStepPlant(NONE).advance(state, excitation, STEP) == \
+        FixedStepPlant(PLAIN).advance(state, excitation, STEP)
     # eq. (6) exactly as the rig gives it
     assert NONE.damping_force(height, velocity) == -RIG.squeeze_film_damping(height) * velocity
     assert NONE.acceleration(height, velocity, excitation) == PLAIN.acceleration(height, velocity, excitation)
@@ -90,12 +92,15 @@ def test_corrected_damping_in_every_form(height):
     """damping_force, acceleration and eq. (13) in the paper's variables all carry the factor."""
     velocity, excitation = 2e-3, 4e-6
     factor = RIG_LIKE.factor(height)
-    assert CORRECTED.damping_force(height, velocity) == pytest.approx(factor * PLAIN.damping_force(height, velocity), rel=1e-14)
-    expected = PLAIN.acceleration(height, velocity, excitation) + (factor - 1) * PLAIN.damping_force(height, velocity) / RIG.mass
+    assert CORRECTED.damping_force(height, velocity) == pytest.approx(factor * PLAIN.damping_force(height, velocity),
+                                                                      rel=1e-14)
+    expected = (PLAIN.acceleration(height, velocity, excitation)
+                + (factor - 1) * PLAIN.damping_force(height, velocity) / RIG.mass)
     assert CORRECTED.acceleration(height, velocity, excitation) == pytest.approx(expected, rel=1e-12, abs=1e-12)
     scale = RIG.reference_clearance
     nondim = CORRECTED.rhs_nondimensional(0.0, (height / scale, velocity / (scale * RIG.omega)), excitation / scale)[1]
-    assert nondim * scale * RIG.omega**2 == pytest.approx(CORRECTED.acceleration(height, velocity, excitation), rel=1e-10, abs=1e-12)
+    assert nondim * scale * RIG.omega**2 == pytest.approx(CORRECTED.acceleration(height, velocity, excitation),
+                                                          rel=1e-10, abs=1e-12)
 
 
 # --- FixedStepPlant with the correction -----------------------------------------------------------------

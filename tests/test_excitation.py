@@ -8,7 +8,8 @@ from nfal.models.excitation import PistonShape, PlateModeShape, TabulatedShape, 
 R = np.linspace(0.0, 1.0, 20001)
 
 
-@pytest.mark.parametrize("shape", [PistonShape(), PlateModeShape(1), PlateModeShape(2), PlateModeShape(3), paper_shape()], ids=repr)
+@pytest.mark.parametrize("shape", [PistonShape(), PlateModeShape(1), PlateModeShape(2), PlateModeShape(3),
+                                   paper_shape()], ids=repr)
 def test_unit_norm_eq7(shape):
     assert integrate.trapezoid(shape(R) ** 2, R) == pytest.approx(1.0, abs=1e-7)
 

@@ -1,4 +1,5 @@
-"""The experiment travels with the archive (issue 24): the ReferenceGenerator FMU, the SSD's stop time, FMI 3.0 end to end.
+"""The experiment travels with the archive (issue 24): the ReferenceGenerator FMU, the SSD's stop time, FMI 3.0 end
+to end.
 
 * The ReferenceGenerator (fmus/reference_generator.py over models/reference.py) gives the value the master's
   staircase gives at every communication point, so ``nfal run`` with it equals ``nfal run --reference staircase``
@@ -81,7 +82,8 @@ def test_a_bad_table_is_refused_by_name(text, error, named):
 def test_explicit_steps_and_their_staircase():
     steps = StepSequence.from_text("0 0.1 0.7", "60e-6, 100e-6, 140e-6")
     assert steps(0.5) == 100e-6 and steps.duration_s == 0.7
-    assert staircase_of(StepSequence.from_staircase(Staircase())).step_times_s == pytest.approx(Staircase().step_times_s)
+    assert staircase_of(StepSequence.from_staircase(Staircase())).step_times_s == \
+        pytest.approx(Staircase().step_times_s)
     assert staircase_of(StepSequence.from_text("0 0.1 0.2 0.7", "1e-4 2e-4 1e-4 2e-4")) is None  # unequal holds
     with pytest.raises(InvalidParameterError, match="2 times, 3 levels"):
         StepSequence.from_text("0 0.1", "1e-4 2e-4 1e-4")
@@ -107,7 +109,8 @@ def _run(slave: ReferenceGenerator, stop_s: float) -> list[float]:
 
 def test_the_slave_gives_the_papers_staircase_by_default():
     assert _run(_slave(), 3.7) == [as_signal(Staircase())(k * STEP) for k in range(7401)]
-    assert reference_of({}) == Staircase() and PARAMETERS["levels"] == "6e-05 0.0001 0.00014 0.00018 0.00014 0.0001 6e-05"
+    assert reference_of({}) == Staircase()
+    assert PARAMETERS["levels"] == "6e-05 0.0001 0.00014 0.00018 0.00014 0.0001 6e-05"
 
 
 def test_the_slave_takes_steps_a_table_and_a_file_in_its_resources(tmp_path):
@@ -130,7 +133,9 @@ def test_bad_parameters_fail_initialisation_by_name(tmp_path, parameters, named)
 
 
 def test_stop_time_the_ssd_governs_and_the_run_says_where_the_reference_differs():
-    args = lambda stop=None: argparse.Namespace(stop_time=stop)
+    def args(stop=None):
+        return argparse.Namespace(stop_time=stop)
+
     assert _stop_time(args(), 3.7, Staircase()) == (3.7, None)
     stop, note = _stop_time(args(), 0.25, Staircase())
     assert stop == 0.25 and "stopTime (0.25 s) governs, before the reference's end" in note and "3.7 s" in note
@@ -171,8 +176,10 @@ def test_each_structure_carries_the_staircase_nfal_run_used_to_feed(fig7_archive
 def test_a_bad_generator_parameter_on_the_command_line_is_refused_by_name(fig7_archives, tmp_path, capsys):
     archive = str(fig7_archives["fig7_slow"])
     assert main(["run", archive, "--param", "ReferenceGenerator.levels=60e-6", "--out", str(tmp_path / "a")]) == 2
-    assert "levels_m = (6e-05,) is invalid: must be at least two levels" in capsys.readouterr().err  # a number, read as its text
-    assert main(["run", archive, "--param", "ReferenceGenerator.table=0,60e-6;0.1,-1", "--out", str(tmp_path / "b")]) == 2
+    # a number, read as its text
+    assert "levels_m = (6e-05,) is invalid: must be at least two levels" in capsys.readouterr().err
+    assert main(["run", archive, "--param", "ReferenceGenerator.table=0,60e-6;0.1,-1",
+                 "--out", str(tmp_path / "b")]) == 2
     assert "level 2 = -1.0 is invalid" in capsys.readouterr().err
 
 
@@ -184,15 +191,18 @@ def _table(folder: Path):
 def test_nfal_run_with_the_generator_equals_the_masters_staircase(fig7_archives, tmp_path, capsys):
     archive = str(fig7_archives["fig7_slow"])
     assert main(["run", archive, "--stop-time", "0.8", "--out", str(tmp_path / "fmu")]) == 0
-    assert main(["run", archive, "--stop-time", "0.8", "--reference", "staircase", "--out", str(tmp_path / "master")]) == 0
+    assert main(["run", archive, "--stop-time", "0.8", "--reference", "staircase",
+                 "--out", str(tmp_path / "master")]) == 0
     fmu, master = _table(tmp_path / "fmu"), _table(tmp_path / "master")
-    assert "Controller.reference" not in fmu and "Controller.reference" in master  # the master's input replaced the link
+    # the master's input replaced the link
+    assert "Controller.reference" not in fmu and "Controller.reference" in master
     np.testing.assert_array_equal(fmu["ReferenceGenerator.reference"], master["Controller.reference"])
     for column in fmu.names:
         np.testing.assert_array_equal(fmu[column], master[column], err_msg=column)
     summaries = [json.loads((tmp_path / run / "summary.json").read_text()) for run in ("fmu", "master")]
     assert summaries[0]["experiment"]["reference"] == "ReferenceGenerator.reference"
-    assert summaries[0]["metrics"]["steps"] == summaries[1]["metrics"]["steps"] and len(summaries[0]["metrics"]["steps"]) == 1
+    assert summaries[0]["metrics"]["steps"] == summaries[1]["metrics"]["steps"]
+    assert len(summaries[0]["metrics"]["steps"]) == 1
 
 
 def _edited_structure(archive: Path, folder: Path, old: str, new: str) -> Path:
@@ -211,7 +221,8 @@ def test_an_edited_stop_time_runs_as_edited_and_says_so(fig7_archives, tmp_path,
     captured = capsys.readouterr()
     summary = json.loads(captured.out)
     assert summary["end_time_s"] == pytest.approx(0.25) and summary["steps_completed"] == 500
-    assert "DefaultExperiment stopTime (0.25 s) governs, before the reference's end: the reference lasts 3.7 s" in captured.err
+    assert ("DefaultExperiment stopTime (0.25 s) governs, before the reference's end: the reference lasts 3.7 s"
+            in captured.err)
     assert summary["experiment"]["stop_time_note"] in captured.err
     assert summary["metrics"]["steps"] is None  # the IAE, and why no step table:
     assert summary["metrics"]["no_steps"] == "no step of the staircase completes its hold by 0.25 s"
@@ -224,7 +235,8 @@ def test_an_edited_reference_in_the_ssd_drives_the_run(fig7_archives, tmp_path, 
                'name="mine"><ssv:Parameters><ssv:Parameter name="levels"><ssv:String value="60e-6 70e-6"/>'
                '</ssv:Parameter><ssv:Parameter name="hold"><ssv:Real value="0.1"/></ssv:Parameter></ssv:Parameters>'
                '</ssv:ParameterSet></ssd:ParameterValues></ssd:ParameterBinding></ssd:ParameterBindings>')
-    connectors = '<ssd:Connector name="reference" kind="output"><ssc:Real unit="m"/></ssd:Connector>\n        </ssd:Connectors>'
+    connectors = ('<ssd:Connector name="reference" kind="output"><ssc:Real unit="m"/></ssd:Connector>\n'
+                  '        </ssd:Connectors>')
     ssd = _edited_structure(fig7_archives["fig7_slow"], tmp_path / "edited", connectors, connectors + binding)
     assert main(["run", str(ssd), "--out", str(tmp_path / "run"), "--json"]) == 0
     captured = capsys.readouterr()
@@ -296,7 +308,8 @@ def ecos(tmp_path_factory):
 def jacobi_run(fig7_archives, tmp_path_factory):
     """nfal run of fig7_slow's whole staircase with ecos's algorithm (libcosim's fixed-step Jacobi)."""
     out = tmp_path_factory.mktemp("jacobi")
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--algorithm", "jacobi", "--out", str(out), "--overwrite"]) == 0
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--algorithm", "jacobi", "--out", str(out),
+                 "--overwrite"]) == 0
     return _table(out)
 
 
@@ -314,7 +327,8 @@ def test_the_ecos_command_line_runs_the_whole_staircase(fig7_archives, fmi3_arch
     assert rows >= 7400  # ecos may stop one step short of the stop time
     np.testing.assert_allclose(theirs["time"], jacobi_run.time[:rows], rtol=0, atol=1e-9)
     assert set(theirs["ReferenceGenerator::reference"]) == set(Staircase().levels_m)
-    for ecos_name, ours in (("Plant::height", "Plant.height"), ("SensorChain::measured_height", "SensorChain.measured_height"),
+    for ecos_name, ours in (("Plant::height", "Plant.height"),
+                            ("SensorChain::measured_height", "SensorChain.measured_height"),
                             ("ReferenceGenerator::reference", "ReferenceGenerator.reference")):
         np.testing.assert_allclose(theirs[ecos_name], jacobi_run[ours][:rows], rtol=0, atol=5e-7 * (1 + 1e-9),
                                    err_msg=ecos_name)

@@ -38,7 +38,8 @@ def test_eq18_magnetic_force_is_accounted_for():
 def test_noisy_measurements_give_small_residuals_and_close_fit():
     data = synthetic_equilibria()
     rng = np.random.default_rng(7)
-    noisy = EquilibriumData(data.height * (1 + 1e-3 * rng.standard_normal(data.height.size)), data.excitation, data.magnetic_force)
+    noisy = EquilibriumData(data.height * (1 + 1e-3 * rng.standard_normal(data.height.size)), data.excitation,
+                            data.magnetic_force)
     result = fit_calibration(RIG, noisy, degree=4)
     sigma = np.linspace(*result.fit.sigma_range, 50)
     np.testing.assert_allclose(result.fit(sigma), paper_calibration()(sigma), rtol=1e-2)
@@ -49,7 +50,8 @@ def test_voltage_column_through_a_linear_map(tmp_path):
     data = synthetic_equilibria()
     gain = 0.05e-6  # m/V
     path = tmp_path / "eq.csv"
-    path.write_text("height_m,voltage_v\n" + "\n".join(f"{float(h)!r},{float(a) / gain!r}" for h, a in zip(data.height, data.excitation)))
+    path.write_text("height_m,voltage_v\n"
+                    + "\n".join(f"{float(h)!r},{float(a) / gain!r}" for h, a in zip(data.height, data.excitation)))
     read = EquilibriumData.from_csv(path, VoltageAmplitudeMap.linear(gain))
     np.testing.assert_allclose(read.excitation, data.excitation, rtol=1e-12)
 
@@ -94,7 +96,8 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
        comments=st.lists(st.text(alphabet=st.characters(blacklist_categories=("Cs", "Cc")), max_size=20), max_size=3))
 def test_csv_reader_round_trips(tmp_path_factory, rows, header, comments):
     path = tmp_path_factory.mktemp("csv") / "t.csv"
-    lines = [f"# {c}" for c in comments] + (["a,B,c"] if header else []) + [",".join(repr(v) for v in row) for row in rows]
+    lines = ([f"# {c}" for c in comments] + (["a,B,c"] if header else [])
+             + [",".join(repr(v) for v in row) for row in rows])
     path.write_text("\n".join(lines) + "\n")
     names, table = read_numeric_csv(path)
     np.testing.assert_array_equal(table, np.array(rows))

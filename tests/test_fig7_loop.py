@@ -27,8 +27,10 @@ AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.anal
 
 def pure_loop(reference: Staircase, seed: int = 0):
     rig, calibration = RigParameters(), paper_calibration()
-    schedule = design_schedule(None, rig, calibration, DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATIO))
-    law = DiscreteControlLaw(schedule, sample_rate_hz=2000.0, max_excitation_m=10e-6, reference_zero_ratio=REFERENCE_ZERO_RATIO)
+    schedule = design_schedule(None, rig, calibration,
+                               DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATIO))
+    law = DiscreteControlLaw(schedule, sample_rate_hz=2000.0, max_excitation_m=10e-6,
+                             reference_zero_ratio=REFERENCE_ZERO_RATIO)
     noise = coloured_noise(reference.samples(2000.0), seed=seed)
     return simulate_closed_loop(law, SimplifiedPlant(rig, calibration), reference, noise)
 

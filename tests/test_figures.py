@@ -84,8 +84,8 @@ def _loop_table(frequency_hz: np.ndarray) -> ResultTable:
     """A Fig. 7 result table (fig7_slow's columns) with the given drive frequency."""
     columns = {"time": np.arange(frequency_hz.size) * 5e-4, SIMULATED.reference: np.full(frequency_hz.size, 1e-4),
                SIMULATED.measured: np.full(frequency_hz.size, 1e-4), SIMULATED.height: np.full(frequency_hz.size, 1e-4),
-               EXCITATION_COMMAND: np.full(frequency_hz.size, 3e-6), SIMULATED.excitation: np.full(frequency_hz.size, 3e-6),
-               SIMULATED.frequency: frequency_hz}
+               EXCITATION_COMMAND: np.full(frequency_hz.size, 3e-6),
+               SIMULATED.excitation: np.full(frequency_hz.size, 3e-6), SIMULATED.frequency: frequency_hz}
     units = ("s", "m", "m", "m", "m", "m", "Hz")
     return ResultTable(tuple(columns), units, np.column_stack(list(columns.values())))
 
@@ -115,7 +115,8 @@ def _sweep_rows(spec) -> list[dict]:
     for run in spec.runs():
         p = {**spec.settings, **run.parameters}
         row = {"status": "ok", **{f"param:{k}": v for k, v in run.parameters.items()}}
-        row.update(delta_simplified=p["excitation"] * 1e4, delta_full=p["mass"] or 0.15, error_percent=1.0 + (p["case"] == "c"))
+        row.update(delta_simplified=p["excitation"] * 1e4, delta_full=p["mass"] or 0.15,
+                   error_percent=1.0 + (p["case"] == "c"))
         rows.append(row)
     return rows
 

@@ -111,7 +111,8 @@ class Scale(NfalSlave):
         self.add_parameter("repeat", 1, description="an Integer parameter")
         self.add_parameter("offset", 0.0, unit="m", description="a tunable parameter", tunable=True)
         self.add_input("u", 0.0, unit="m", description="input")
-        self.add_output("y", unit="m", description="k u + offset", depends_on=("u",), getter=lambda: self.k * self.u + self.offset)
+        self.add_output("y", unit="m", description="k u + offset", depends_on=("u",),
+                        getter=lambda: self.k * self.u + self.offset)
         self.add_output("total", unit="m", description="sum of k u dt / 1 s")
         self.add_output("positive", kind=bool, description="total > 0")
         self.steps = 0

@@ -17,8 +17,8 @@ from nfal.fmus.export_runtime import (PYTHON_OVERRIDE_ENV, RUNTIMES, fmi_functio
 
 
 def functions(version: int):
-    return {name: (returns, parameters)
-            for returns, name, parameters in fmi_functions(RUNTIMES[version].function_types.read_text(encoding="latin-1"))}
+    source = RUNTIMES[version].function_types.read_text(encoding="latin-1")
+    return {name: (returns, parameters) for returns, name, parameters in fmi_functions(source)}
 
 
 def test_every_fmi2_function_is_read_with_named_arguments():

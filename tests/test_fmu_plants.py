@@ -83,7 +83,8 @@ def test_advance_reproduces_simulate_over_period_aligned_steps(coupled):
 def test_advance_reproduces_simulate_over_2khz_steps(coupled):
     """0.5 ms steps (14.25 periods): every period starting in a step uses that step's |a|."""
     levels = [7e-6, 6.5e-6, 7.2e-6, 7e-6]
-    trajectory = coupled.simulate(len(levels) * STEP, lambda t: levels[min(int(t / STEP + 1e-9), len(levels) - 1)], 60e-6)
+    trajectory = coupled.simulate(len(levels) * STEP, lambda t: levels[min(int(t / STEP + 1e-9), len(levels) - 1)],
+                                  60e-6)
     state = coupled.initial_state(60e-6, 0.0, levels[0])
     for level in levels:
         state = coupled.advance(state, level, STEP)

@@ -69,7 +69,8 @@ def drive_tracker(driver, steps, voltage=100.0, shift=RAMP):
 @pytest.mark.parametrize("enabled", [True, False], ids=["pll", "fixed"])
 def test_tracker_slave_is_the_model(dynamics, enabled):
     """The slave's outputs are the pure-Python tracker's, bit for bit, under the 0.2 % drift."""
-    driver = Driver(ResonanceTracker, transducer_dynamics=dynamics, pll_enabled=enabled).set(drive_voltage=100.0).start()
+    driver = Driver(ResonanceTracker, transducer_dynamics=dynamics,
+                    pll_enabled=enabled).set(drive_voltage=100.0).start()
     amplitude, frequency, locked = drive_tracker(driver, 600)
     transducer = Transducer()
     model = TrackerModel(transducer, PhaseLockedLoop.designed(transducer, quasi_static=not dynamics, enabled=enabled),
@@ -139,8 +140,9 @@ def test_negative_drive_voltage_fails():
         driver.slave.do_step(0.0, DT)
 
 
-@pytest.mark.parametrize("cls, inputs, output", [(ResonanceTracker, {"drive_voltage": 60.0, "resonance_shift": 30.0}, "excitation_amplitude"),
-                                                 (SensorChain, {"true_height": 80e-6}, "measured_height")])
+@pytest.mark.parametrize("cls, inputs, output", [
+    (ResonanceTracker, {"drive_voltage": 60.0, "resonance_shift": 30.0}, "excitation_amplitude"),
+    (SensorChain, {"true_height": 80e-6}, "measured_height")])
 def test_slave_state_round_trips_through_json(cls, inputs, output):
     driver = Driver(cls).set(**inputs).start()
     for k in range(50):
@@ -178,7 +180,8 @@ CONTRACT = {
                          "pll_enabled": ("parameter", None), "pll_rate": ("parameter", "Hz"),
                          "pll_bandwidth": ("parameter", "Hz"), "lock_threshold": ("parameter", "rad"),
                          "lock_samples": ("parameter", None)},
-    "SensorChain": {"true_height": ("input", "m"), "measured_height": ("output", "m"), "sample_rate": ("parameter", "Hz"),
+    "SensorChain": {"true_height": ("input", "m"), "measured_height": ("output", "m"),
+                    "sample_rate": ("parameter", "Hz"),
                     "noise_peak": ("parameter", "m"), "noise_cutoff": ("parameter", "Hz"), "seed": ("parameter", None),
                     "analog_cutoff": ("parameter", "Hz"), "resolution": ("parameter", "m")},
 }
@@ -201,7 +204,8 @@ def test_fmu_acceptance_under_0p2_percent_drift(fmus, enabled):
     signal = np.array([(0.0, 100.0, 0.0), (0.1, 100.0, 0.0), (0.6, 100.0, DRIFT_HZ), (1.2, 100.0, DRIFT_HZ)],
                       dtype=[("time", float), ("drive_voltage", float), ("resonance_shift", float)])
     result = simulate_fmu(str(fmus["ResonanceTracker"]), stop_time=1.2, output_interval=DT, input=signal,
-                          start_values={"pll_enabled": enabled}, output=["excitation_amplitude", "drive_frequency", "locked"])
+                          start_values={"pll_enabled": enabled},
+                          output=["excitation_amplitude", "drive_frequency", "locked"])
     ratio = result["excitation_amplitude"] / 10e-6
     if enabled:
         first = int(np.argmax(result["locked"]))
@@ -216,13 +220,15 @@ def test_fmu_acceptance_under_0p2_percent_drift(fmus, enabled):
 
 def test_fmu_sensor_is_the_closed_loop_measurement(fmus):
     result = simulate_fmu(str(fmus["SensorChain"]), stop_time=0.5, output_interval=DT,
-                          start_values={"analog_cutoff": 0.0, "seed": 9, "true_height": 75e-6}, output=["measured_height"])
+                          start_values={"analog_cutoff": 0.0, "seed": 9, "true_height": 75e-6},
+                          output=["measured_height"])
     np.testing.assert_array_equal(result["measured_height"][:1000], 75e-6 + coloured_noise(1000, seed=9))
 
 
 def test_fmu_sensor_filter_and_quantiser(fmus):
     """Default Table 2 filter, 1 um resolution, no noise: a step 60 -> 90 um settles on the grid with ~no overshoot."""
-    signal = np.array([(0.0, 60e-6), (0.01, 60e-6), (0.01, 90e-6), (0.05, 90e-6)], dtype=[("time", float), ("true_height", float)])
+    signal = np.array([(0.0, 60e-6), (0.01, 60e-6), (0.01, 90e-6), (0.05, 90e-6)],
+                      dtype=[("time", float), ("true_height", float)])
     result = simulate_fmu(str(fmus["SensorChain"]), stop_time=0.05, output_interval=DT, input=signal,
                           start_values={"noise_peak": 0.0, "resolution": 1e-6}, output=["measured_height"])
     measured = result["measured_height"]
@@ -234,8 +240,8 @@ def test_fmu_sensor_filter_and_quantiser(fmus):
 def _instance(path, tmp_path, name):
     description = read_model_description(str(path))
     folder = extract(str(path), unzipdir=str(tmp_path / name))
-    fmu = FMU2Slave(guid=description.guid, unzipDirectory=folder, modelIdentifier=description.coSimulation.modelIdentifier,
-                    instanceName=name)
+    fmu = FMU2Slave(guid=description.guid, unzipDirectory=folder,
+                    modelIdentifier=description.coSimulation.modelIdentifier, instanceName=name)
     fmu.instantiate()
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
@@ -243,8 +249,9 @@ def _instance(path, tmp_path, name):
     return fmu, refs, folder
 
 
-@pytest.mark.parametrize("name, inputs, output", [("ResonanceTracker", {"drive_voltage": 60.0, "resonance_shift": 30.0}, "excitation_amplitude"),
-                                                  ("SensorChain", {"true_height": 80e-6}, "measured_height")])
+@pytest.mark.parametrize("name, inputs, output", [
+    ("ResonanceTracker", {"drive_voltage": 60.0, "resonance_shift": 30.0}, "excitation_amplitude"),
+    ("SensorChain", {"true_height": 80e-6}, "measured_height")])
 def test_fmu_state_get_set_and_serialize(fmus, tmp_path, name, inputs, output):
     fmu, refs, folder = _instance(fmus[name], tmp_path, name)
     fmu.setReal([refs[n] for n in inputs], list(inputs.values()))

@@ -89,7 +89,8 @@ def _controller_at(rate: float, reference) -> dict:
 
 def _hil(fig7_archives, port: str, out, reference=STEP, rt_priority=None, rate=None, **parameters):
     """fig7_hil on the rig at ``port``, paced; ``rate`` [Hz]: the host and the rig (started with ``--sample-rate``) at
-    that rate, the Controller's filter scaled with it, so the sampled loop's dynamics are Table 2's (T_s omega_L = 0.94)."""
+    that rate, the Controller's filter scaled with it, so the sampled loop's dynamics are Table 2's
+    (T_s omega_L = 0.94)."""
     step_size = None
     if rate is not None:
         step_size = 1.0 / rate
@@ -158,7 +159,8 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
     assert hil_step["rise_time_s"] == pytest.approx(sim_step["rise_time_s"], abs=5e-3)
     assert hil_step["overshoot_percent"] == pytest.approx(sim_step["overshoot_percent"], abs=3.0)
     realtime = hil.summary["realtime"]
-    assert realtime["steps"] == round(STEP.duration_s * JUDGED_RATE) and {"jitter_p50_s", "jitter_p99_s", "jitter_max_s", "overruns"} <= set(realtime)
+    assert realtime["steps"] == round(STEP.duration_s * JUDGED_RATE)
+    assert {"jitter_p50_s", "jitter_p99_s", "jitter_max_s", "overruns"} <= set(realtime)
 
 
 @pytest.mark.slow
@@ -214,8 +216,8 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
 def test_a_short_disconnect_is_ridden_through_by_reconnecting(fig7_archives, emulator, tmp_path):
     """With the missed-sample limit above the outage the link reconnects and the run completes."""
     rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "0.05")
-    result = _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7),
-                  **{"proxy.max_missed_samples": 2000})
+    result = _hil(fig7_archives, rig.port, tmp_path / "run",
+                  reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7), **{"proxy.max_missed_samples": 2000})
     table = result.table()
     assert result.summary["status"] == "ok"
     assert table["proxy.reconnects"][-1] == 1
@@ -266,7 +268,8 @@ def test_the_proxy_in_a_c_host_talks_to_the_emulator_and_exits_cleanly(fig7_arch
     for outputs in runs.outputs:
         assert 0 < outputs["measured_height"] < 1e-3 and outputs["rig_time"] > 0
     log = rig.stop()  # the firmware's log: each process opened a session (HELLO) and ended it (STOP, fmi2Terminate)
-    assert log.count("HELLO: session open") >= PROXY_C_HOST_RUNS and log.count("STOP: session ended") == PROXY_C_HOST_RUNS
+    assert log.count("HELLO: session open") >= PROXY_C_HOST_RUNS
+    assert log.count("STOP: session ended") == PROXY_C_HOST_RUNS
 
 
 @pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"], ids=["Ctrl-C", "SIGTERM"])

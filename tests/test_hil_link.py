@@ -686,10 +686,12 @@ def test_the_proxy_passes_on_the_rigs_status_flags(proxy):
 
     encoder = FrameEncoder()
     flags = StatusFlags.SESSION_ACTIVE | StatusFlags.SENSOR_OUT_OF_RANGE | StatusFlags.RESTING
-    url, thread, server = _rig_on_a_socket(encoder(ACK) + encoder(Measurement(5_000, 2e-3, 28_490.0, 12.0, int(flags), 0)))
+    url, thread, server = _rig_on_a_socket(encoder(ACK)
+                                           + encoder(Measurement(5_000, 2e-3, 28_490.0, 12.0, int(flags), 0)))
     with server:
         slave = proxy(url)
-        assert (slave.sensor_out_of_range, slave.resting, slave.locked, slave.watchdog_tripped) == (True, True, False, False)
+        assert (slave.sensor_out_of_range, slave.resting, slave.locked, slave.watchdog_tripped) == \
+            (True, True, False, False)
         assert (slave.measured_height, slave.drive_frequency, slave.applied_voltage, slave.rig_time) == \
             (f32(2e-3), 28_490.0, 12.0, 0.005)
         thread.join(timeout=WAIT_S)

@@ -65,7 +65,8 @@ def another_python_active(python: Path) -> dict[str, str]:
 
 
 def fmpy_outputs(fmu: Path, outputs, stop_time: float = STOP_S) -> dict:
-    reference = simulate_fmu(str(fmu), stop_time=stop_time, step_size=STEP_S, output_interval=STEP_S, output=list(outputs))
+    reference = simulate_fmu(str(fmu), stop_time=stop_time, step_size=STEP_S, output_interval=STEP_S,
+                             output=list(outputs))
     return {output: pytest.approx(float(reference[output][-1]), rel=1e-12, abs=0) for output in outputs}
 
 
@@ -179,7 +180,8 @@ def test_a_python_without_a_shared_libpython_is_one_logged_line(fmus, c_host, tm
     fake = tmp_path / "static-python"
     fake.write_text("#!/bin/sh\necho executable=$0\necho version=3.11\necho libpython=\necho site=\n")
     fake.chmod(0o755)
-    runs = run_in_c_host(c_host, fmus["SlowPlant"], tmp_path, runs=1, env=bare_environment(**{PYTHON_OVERRIDE_ENV: str(fake)}))
+    runs = run_in_c_host(c_host, fmus["SlowPlant"], tmp_path, runs=1,
+                         env=bare_environment(**{PYTHON_OVERRIDE_ENV: str(fake)}))
     assert runs.exit_codes == [2]
     _one_line(runs, str(fake), "no shared libpython", "Py_ENABLE_SHARED")
 
@@ -227,7 +229,9 @@ def test_ecos_with_an_override_naming_a_missing_python_does_not_crash(fmi_versio
     line is on stderr as well, and no call on the missing instance crashes ecos."""
     missing = str(tmp_path / "no" / "python")
     fmu = (fmus if fmi_version == 2 else fmus3)["SlowPlant"]
-    runs = run_in_ecos(ecos, fmu, tmp_path, runs=2, stop_time=0.005, env=bare_environment(**{PYTHON_OVERRIDE_ENV: missing}))
+    runs = run_in_ecos(ecos, fmu, tmp_path, runs=2, stop_time=0.005,
+                       env=bare_environment(**{PYTHON_OVERRIDE_ENV: missing}))
     assert runs.signals == 0, runs.exit_codes
     for _, stderr in runs.texts:
-        assert len([line for line in stderr.splitlines() if missing in line and PYTHON_OVERRIDE_ENV in line]) == 1, stderr
+        naming = [line for line in stderr.splitlines() if missing in line and PYTHON_OVERRIDE_ENV in line]
+        assert len(naming) == 1, stderr

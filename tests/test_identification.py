@@ -104,7 +104,8 @@ def test_a_bad_plan_is_refused(change, match):
 
 
 def test_heights_just_far_enough_apart_are_a_plan():
-    plan = IdentificationPlan(equilibrium_heights_m=tuple(100e-6 * 1.031 ** np.arange(5)), damping_heights_m=(80e-6, 83e-6))
+    plan = IdentificationPlan(equilibrium_heights_m=tuple(100e-6 * 1.031 ** np.arange(5)),
+                              damping_heights_m=(80e-6, 83e-6))
     assert len(plan.equilibrium_heights_m) == 5 and plan.holds() == 5 + 2 * 7
 
 
@@ -217,7 +218,8 @@ def test_dry_run_prints_the_plan_and_its_duration(capsys):
     assert "12 heights" in out and "8 heights" in out and "s of rig time" in out
 
 
-@pytest.mark.parametrize("argv, match", [(["identify"], "--port"), (["identify", "--dry-run", "--steps", "3"], "--steps"),
+@pytest.mark.parametrize("argv, match", [(["identify"], "--port"),
+                                         (["identify", "--dry-run", "--steps", "3"], "--steps"),
                                          (["identify", "--port", "/nonexistent/port"], "cannot open")])
 def test_bad_input_exits_2_with_the_reason(argv, match, capsys):
     assert main(argv) == 2
@@ -229,9 +231,10 @@ def test_bad_input_exits_2_with_the_reason(argv, match, capsys):
     (["--damping-heights", "1e-4"], "--damping-heights = '100 um' is invalid: must be >= 2 distinct heights"),
     (["--equilibria", "60e-6:180e-6:4"], "--equilibria = '60, 100, 140, 180 um' is invalid: must be >= 5"),
     (["--damping-heights", "5e-5:2e-4:100000"], "--damping-heights = '50, 50.0015 um' is invalid"),  # the grid
-    (["--steps", "1000"], "the plan takes about 1.1 h of rig time (up to 11.2 h), more than 1 h: give --accept-long-plan"),
-    (["--steps", "10000", "--accept-long-plan"], "the plan's longest run (every move and hold to its limit) is 400,280 s "
-                                                 "of samples, 31.3 GiB held in memory; at most 8 GiB"),
+    (["--steps", "1000"],
+     "the plan takes about 1.1 h of rig time (up to 11.2 h), more than 1 h: give --accept-long-plan"),
+    (["--steps", "10000", "--accept-long-plan"], "the plan's longest run (every move and hold to its limit) is "
+                                                 "400,280 s of samples, 31.3 GiB held in memory; at most 8 GiB"),
 ])
 @pytest.mark.parametrize("mode", [["--dry-run"], ["--port", "/nonexistent/port", "--out", "rig.json"]])
 def test_a_bad_or_long_plan_is_refused_before_the_port_opens(plan, match, mode, capsys, tmp_path,

@@ -22,7 +22,6 @@ from nfal.models.calibration import calibration_from_dict, paper_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
-from nfal.orchestration import run_structure
 
 pytestmark = pytest.mark.realtime
 
@@ -44,9 +43,9 @@ def emulator(fig7_archives):
 
 @pytest.mark.slow
 @pytest.mark.xfail(reason="the identification passes and, since the slow truth is compiled (2026-11-26), so does the "
-                   "lift-off; the HIL run's first step (60 -> 140 um at 1 kHz) overshoots 6.4 % where the simulation of "
-                   "the truth, which has no link delay, gives 0.0 %: judged against a simulation with the link's 1-2 "
-                   "sample delay once the structure can carry one (issue 23's note)", strict=False)
+                   "lift-off; the HIL run's first step (60 -> 140 um at 1 kHz) overshoots 6.4 % where the simulation "
+                   "of the truth, which has no link delay, gives 0.0 %: judged against a simulation with the link's "
+                   "1-2 sample delay once the structure can carry one (issue 23's note)", strict=False)
 def test_identify_recovers_the_emulators_truth_and_its_design_holds_the_rig(fig7_archives, emulator, tmp_path):
     rig = emulator()
     out = tmp_path / "rig.json"
@@ -71,8 +70,9 @@ def test_identify_recovers_the_emulators_truth_and_its_design_holds_the_rig(fig7
                   **{"proxy.max_missed_samples": 200, "Controller.calibration": str(out)})
     lift_off = np.asarray(result[HARDWARE.measured])[result.table().time < reference.lead_s]
     assert lift_off.max() <= 66e-6  # the paper's law: 104-110 um (docs/hil.md)
-    # each step as the same design does on the truth in simulation (at 1 kHz: measured 16.4 % on one step; the paper's law
-    # at 2 kHz overshoots 40 % from 140 to 180 um), within 3 points: the identified design holds the rig as it holds the truth
+    # each step as the same design does on the truth in simulation (at 1 kHz: measured 16.4 % on one step; the paper's
+    # law at 2 kHz overshoots 40 % from 140 to 180 um), within 3 points: the identified design holds the rig as it
+    # holds the truth
     simulated = simulate_the_truth(fig7_archives, reference, tmp_path / "sim", **{"Controller.calibration": str(out)})
     on_rig, expected = (loop_metrics(run.table(), reference, columns)["steps"]
                         for run, columns in ((result, HARDWARE), (simulated, SIMULATED)))
@@ -104,14 +104,17 @@ def _lines(path) -> int:
 @pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGHUP"])
 def test_a_stop_signal_ramps_the_drive_down_says_stop_and_keeps_every_sample(emulator, tmp_path, capsys, signal_name):
     """`timeout`, `kill`, systemd or a closed terminal: the identification stops at the next exchange, ramps the drive
-    down, says STOP and keeps every sample; meanwhile a second host on the same port is refused and the first runs on."""
+    down, says STOP and keeps every sample; meanwhile a second host on the same port is refused and the first runs
+    on."""
     record = tmp_path / "rig-record.csv"
     # judged: the stop path. The rig's watchdog is 1 s here, not 100 ms: on this machine since 2026-11-25 20:00 UTC the
     # identification's gaps between DRIVEs reach 171-175 ms once in a few runs (issue 23's note), a trip this test would
-    # report instead of the signal; the margin to the default watchdog is measured by `python bench/realtime.py identify`
+    # report instead of the signal; the margin to the default watchdog is measured by
+    # `python bench/realtime.py identify`
     rig = emulator("--record", str(record), "--watchdog", "1.0")
     raw = tmp_path / "rig-raw.csv"
-    host = subprocess.Popen([sys.executable, "-m", "nfal", "identify", "--port", rig.port, "--out", str(tmp_path / "rig.json")],
+    host = subprocess.Popen([sys.executable, "-m", "nfal", "identify", "--port", rig.port,
+                             "--out", str(tmp_path / "rig.json")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120  # a bound for a broken run, not a measure: the test waits for rig time
     while _lines(raw) < 4000 and host.poll() is None and time.monotonic() < deadline:

@@ -20,7 +20,8 @@ def test_the_cache_folder_follows_the_content_not_the_place(tmp_path, monkeypatc
     edited = tmp_path / "edited" / source.name
     edited.parent.mkdir()
     edited.write_text(source.read_text() + "\n# edited\n")
-    here, there, other = (ContentKeyedCacheLocator(kernel, str(path)).get_cache_path() for path in (source, copy, edited))
+    here, there, other = (ContentKeyedCacheLocator(kernel, str(path)).get_cache_path()
+                          for path in (source, copy, edited))
     assert here == there != other
     assert Path(here).parent == tmp_path / "cache" / "numba"
 

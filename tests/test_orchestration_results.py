@@ -29,7 +29,8 @@ def test_rows_are_readable_while_the_writer_is_still_open(tmp_path):
     assert table["Plant.height"][1] == 6.000000000000001e-5  # full precision
     assert len(table) == 2 and table.unit("reference") == "m"
     writer.close()
-    assert (tmp_path / "r.csv").read_text().splitlines()[0] == "time [s],reference [m],Plant.height [m],Plant.resting,Sensor.count"
+    assert (tmp_path / "r.csv").read_text().splitlines()[0] == \
+        "time [s],reference [m],Plant.height [m],Plant.resting,Sensor.count"
 
 
 @given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=3, max_size=3),

@@ -207,9 +207,9 @@ def test_a_check_that_breaks_is_recorded_not_raised(loop, tmp_path):
 
 def test_results_files(loop, tmp_path):
     out = tmp_path / "out"
-    result = run_structure(pack(loop, tmp_path / "loop.ssp"), out_dir=out, progress=False,
-                           plot=[PlotPanel(("Plant.x",), 1e6, "x [um]"), ("Controller.y",)],
-                           metrics=lambda table: {"final_x_m": float(table["Plant.x"][-1])})
+    run_structure(pack(loop, tmp_path / "loop.ssp"), out_dir=out, progress=False,
+                  plot=[PlotPanel(("Plant.x",), 1e6, "x [um]"), ("Controller.y",)],
+                  metrics=lambda table: {"final_x_m": float(table["Plant.x"][-1])})
     header = (out / "results.csv").read_text().splitlines()[0]
     assert header == "time [s],Plant.x [m],Plant.steps,Controller.y"
     assert (out / "response.png").stat().st_size > 1000

@@ -22,7 +22,8 @@ FIG7_LINKS = [(("Controller", "drive_voltage"), ("ResonanceTracker", "drive_volt
 FIG7_FEEDTHROUGH = {"Plant": {"height": (), "velocity": ()},
                     "Controller": {"drive_voltage": ("reference", "measured_height"),
                                    "excitation_command": ("reference", "measured_height")},
-                    "ResonanceTracker": {"excitation_amplitude": ("drive_voltage",), "drive_frequency": ("drive_voltage",)},
+                    "ResonanceTracker": {"excitation_amplitude": ("drive_voltage",),
+                                         "drive_frequency": ("drive_voltage",)},
                     "SensorChain": {"measured_height": ("true_height",)}}
 
 
@@ -81,8 +82,8 @@ def test_the_loop_is_named_even_with_a_tail_hanging_off_it():
     st.just(n), st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), max_size=8),
     st.lists(st.booleans(), min_size=n, max_size=n))))
 def test_every_sweep_is_causal(case):
-    """Random wiring: an algebraic loop reported is a cycle; otherwise every input is set after its source is read, every
-    feedthrough output is read after its inputs are set, and every variable appears once."""
+    """Random wiring: an algebraic loop reported is a cycle; otherwise every input is set after its source is read,
+    every feedthrough output is read after its inputs are set, and every variable appears once."""
     n, wires, feedthrough_flags = case
     names = [f"E{i}" for i in range(n)]
     links = [((names[a], "y"), (names[b], f"u{k}")) for k, (a, b) in enumerate(wires)]

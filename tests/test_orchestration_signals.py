@@ -137,7 +137,8 @@ def test_steps_of_a_run_that_ends_early(end, expected):
 
 
 @pytest.mark.parametrize("signal, reason", [
-    (PiecewiseConstant(np.arange(1000) * 1e-3, 60e-6 + 1e-6 * np.sin(np.arange(1000) * 1e-2)), "not a sequence of steps"),
+    (PiecewiseConstant(np.arange(1000) * 1e-3, 60e-6 + 1e-6 * np.sin(np.arange(1000) * 1e-2)),
+     "not a sequence of steps"),
     (PiecewiseConstant(np.arange(100) * 1e-2, np.linspace(60e-6, 100e-6, 100)), "not a sequence of steps"),
     (PiecewiseConstant([0.0, 0.3], [60e-6, 60e-6]), "no step"),
     (PiecewiseConstant([0.0, 0.5, 1.5], [60e-6, 100e-6, 80e-6]), "completes its hold by 1 s"),

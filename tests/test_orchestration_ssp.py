@@ -109,8 +109,8 @@ def test_bad_overrides_are_named(tmp_path, toys, override, error):
 def test_flattened_links_and_feedthrough(tmp_path, toys):
     with read_ssp(write_folder(tmp_path, loop_text(), toys)) as structure:
         resolved = resolve(structure)
-    assert [(l.source.path, l.target.path) for l in resolved.links] == [("Plant.x", "Controller.u"),
-                                                                       ("Controller.y", "Plant.u")]
+    assert [(link.source.path, link.target.path) for link in resolved.links] == [("Plant.x", "Controller.u"),
+                                                                                ("Controller.y", "Plant.u")]
     assert resolved.element("Controller").feedthrough == {"y": ("u",)}
     assert resolved.element("Plant").feedthrough == {"x": (), "steps": ()}
 
@@ -120,7 +120,7 @@ def test_start_and_end_do_not_give_the_direction(tmp_path, toys):
                                'startElement="Controller" startConnector="u" endElement="Plant" endConnector="x"')
     with read_ssp(write_folder(tmp_path, text, toys)) as structure:
         links = resolve(structure).links
-    assert ("Plant.x", "Controller.u") in [(l.source.path, l.target.path) for l in links]
+    assert ("Plant.x", "Controller.u") in [(link.source.path, link.target.path) for link in links]
 
 
 def test_unknown_element_in_a_connection(tmp_path, toys):
@@ -225,8 +225,8 @@ def test_nested_systems_are_flattened_through_their_connectors(tmp_path, toys):
     with read_ssp(write_folder(tmp_path, text, toys)) as structure:
         resolved = resolve(structure)
     assert [e.name for e in resolved.elements] == ["Plant", "Inner.Controller"]
-    assert {(l.source.path, l.target.path) for l in resolved.links} == {("Plant.x", "Inner.Controller.u"),
-                                                                      ("Inner.Controller.y", "Plant.u")}
+    assert {(link.source.path, link.target.path) for link in resolved.links} == {("Plant.x", "Inner.Controller.u"),
+                                                                               ("Inner.Controller.y", "Plant.u")}
     assert resolved.element("Inner.Controller").start_values == {"k": -2.0}
 
 
@@ -237,7 +237,8 @@ def test_referenced_ssd_is_read_as_a_nested_system(tmp_path, toys):
     write_folder(tmp_path, inner_text, toys)
     (tmp_path / "SystemStructure.ssd").rename(tmp_path / "controller.ssd")
     outer = ssd(system("outer", (component("Plant", "Integrator"),
-                                 '<ssd:Component name="Ctl" source="controller.ssd" type="application/x-ssp-definition">'
+                                 '<ssd:Component name="Ctl" source="controller.ssd" '
+                                 'type="application/x-ssp-definition">'
                                  '<ssd:Connectors><ssd:Connector name="e" kind="input"/>'
                                  '<ssd:Connector name="command" kind="output"/></ssd:Connectors></ssd:Component>'),
                        (connection("Plant.x", "Ctl.e"), connection("Ctl.command", "Plant.u"))))

@@ -29,7 +29,8 @@ def test_closed_loop_bandwidth_is_the_cutoff_and_dc_gain_one(design):
     tf = design.closed_loop()
     assert control.bandwidth(tf, dbdrop=HALF_POWER_DB) / (2 * math.pi) == pytest.approx(10.0, abs=1e-3)
     assert control.dcgain(tf) == pytest.approx(1.0, abs=1e-9)
-    assert design.slow_pole + design.fast_pole == pytest.approx((float(design.lpv.alpha1) + design.omega_lpf) / 2, rel=1e-12)
+    assert design.slow_pole + design.fast_pole == pytest.approx((float(design.lpv.alpha1) + design.omega_lpf) / 2,
+                                                                rel=1e-12)
 
 
 def test_gains_are_positive_over_the_work_range():
@@ -78,7 +79,8 @@ def test_si_gain_units():
     assert d.ki_si == pytest.approx(d.ki * d.lpv.omega) and d.kd_si == pytest.approx(d.kd / d.lpv.omega)
 
 
-@pytest.mark.parametrize("kwargs", [{"closed_loop_cutoff_hz": 0}, {"filter_cutoff_hz": -300}, {"closed_loop_cutoff_hz": math.nan}])
+@pytest.mark.parametrize("kwargs", [{"closed_loop_cutoff_hz": 0}, {"filter_cutoff_hz": -300},
+                                    {"closed_loop_cutoff_hz": math.nan}])
 def test_bad_spec_raises(kwargs):
     with pytest.raises(InvalidParameterError):
         DesignSpec(**kwargs)

@@ -24,8 +24,9 @@ def tracker(dynamics=True, **options):
     return ResonanceTracker(TRANSDUCER, pll, dynamics=dynamics)
 
 
-@pytest.mark.parametrize("angle, wrapped", [(0.0, 0.0), (math.pi, math.pi), (-math.pi, math.pi), (3 * math.pi / 2, -math.pi / 2),
-                                            (-5 * math.pi / 2, -math.pi / 2), (7.0, 7.0 - 2 * math.pi)])
+@pytest.mark.parametrize("angle, wrapped", [(0.0, 0.0), (math.pi, math.pi), (-math.pi, math.pi),
+                                            (3 * math.pi / 2, -math.pi / 2), (-5 * math.pi / 2, -math.pi / 2),
+                                            (7.0, 7.0 - 2 * math.pi)])
 def test_wrap_phase(angle, wrapped):
     assert wrap_phase(angle) == pytest.approx(wrapped, abs=1e-12)
 
@@ -50,7 +51,8 @@ def test_gains_cancel_the_transducer_pole(dynamics):
 def test_small_step_response_is_the_designed_first_order_loop(dynamics):
     """A 0.5 Hz step of the resonance at t = T: f_k - f_0 = 0.5 (1 - c^(k - d)), c = exp(-2 pi B T), d the loop's
     delay (2 samples with the envelope dynamics, 1 quasi-static); within 1e-4 of the step (linearisation)."""
-    run = simulate_tracking(tracker(dynamics), 0.3, voltage_v=VOLTAGE, resonance_shift_hz=lambda t: 0.5 if t > 1e-4 else 0.0)
+    run = simulate_tracking(tracker(dynamics), 0.3, voltage_v=VOLTAGE,
+                            resonance_shift_hz=lambda t: 0.5 if t > 1e-4 else 0.0)
     k = np.arange(run.time_s.size)
     delay = 2 if dynamics else 1
     c = math.exp(-2 * math.pi * 10.0 / 2000.0)
@@ -109,7 +111,8 @@ def test_no_drive_holds_the_loop_unlocked():
     pll = PhaseLockedLoop.designed(TRANSDUCER)
     before = PllState(F_R + 3.0, 3.0, 0.05, 20, True)
     after = pll.step(before, 0j)
-    assert (after.drive_frequency_hz, after.integrator_hz, after.phase_error_rad, after.locked) == (F_R + 3.0, 3.0, 0.0, False)
+    assert (after.drive_frequency_hz, after.integrator_hz, after.phase_error_rad, after.locked) == \
+        (F_R + 3.0, 3.0, 0.0, False)
     run = simulate_tracking(tracker(), 0.05, voltage_v=0.0, resonance_shift_hz=20.0)
     assert np.all(run.drive_frequency_hz == F_R) and np.all(run.excitation_amplitude_m == 0) and not run.locked.any()
 
@@ -118,7 +121,8 @@ def test_pull_range_clamps_without_windup():
     """A shift beyond the pull range (1 % = 285 Hz) parks the drive at the limit; when the resonance comes back to
     57 Hz the loop slews the 228 Hz back at once and relocks within 0.2 s (measured 0.143 s; the integral held at
     the limit, not wound up by 0.3 s of saturated phase error)."""
-    run = simulate_tracking(tracker(), 0.6, voltage_v=VOLTAGE, resonance_shift_hz=lambda t: 400.0 if t < 0.3 else DRIFT_HZ)
+    run = simulate_tracking(tracker(), 0.6, voltage_v=VOLTAGE,
+                            resonance_shift_hz=lambda t: 400.0 if t < 0.3 else DRIFT_HZ)
     before = run.time_s < 0.3
     assert np.max(run.drive_frequency_hz) == pytest.approx(F_R + 285.0, abs=1e-9)
     assert run.drive_frequency_hz[before][-1] == pytest.approx(F_R + 285.0, abs=1e-9)

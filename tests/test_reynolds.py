@@ -161,7 +161,8 @@ def test_extrapolation_gives_the_plain_marching_answer_faster():
 
 def test_progress_is_reported_per_sigma():
     calls = []
-    K = time_marching_K(PISTON, [5.0, 10.0, 20.0], nodes=21, steps_per_period=32, progress=lambda d, t: calls.append((d, t)))
+    K = time_marching_K(PISTON, [5.0, 10.0, 20.0], nodes=21, steps_per_period=32,
+                        progress=lambda d, t: calls.append((d, t)))
     assert K.shape == (3,)
     assert calls == [(1, 3), (2, 3), (3, 3)]
 

@@ -7,7 +7,8 @@ from nfal.errors import InvalidParameterError
 from nfal.models.rig import RigParameters
 
 
-@pytest.mark.parametrize("field", ["mass", "radius", "frequency", "viscosity", "ambient_pressure", "gravity", "reference_clearance"])
+@pytest.mark.parametrize("field", ["mass", "radius", "frequency", "viscosity", "ambient_pressure", "gravity",
+                                   "reference_clearance"])
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "x"])
 def test_invalid_values_name_the_field(field, bad):
     with pytest.raises(InvalidParameterError, match=field):

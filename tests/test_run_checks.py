@@ -31,7 +31,8 @@ def test_a_run_that_follows_the_staircase_has_nothing_to_report():
 @pytest.mark.parametrize("columns", [SIMULATED, HARDWARE])
 def test_an_object_resting_all_along_while_driven_fails_the_run(columns):
     (finding,) = loop_checks(table(5e-6, columns=columns), STAIRCASE, columns)
-    assert finding.failure and finding.message.startswith(f"the object never left the surface: {columns.resting} was true")
+    assert finding.failure
+    assert finding.message.startswith(f"the object never left the surface: {columns.resting} was true")
     assert "|a| = 5 um" in finding.message
 
 
@@ -59,7 +60,8 @@ def test_a_long_saturation_is_a_warning():
     """The drive saturated 0.15 s (longer than the Controller's 0.1 s), while the height still reached the levels."""
     results = table(STAIRCASE(TIME))
     saturated = np.clip(TIME - 0.3, 0, None) * (TIME < 0.45)
-    results = ResultTable((*results.names, SATURATED_TIME), (*results.units, "s"), np.column_stack([results.data, saturated]))
+    results = ResultTable((*results.names, SATURATED_TIME), (*results.units, "s"),
+                          np.column_stack([results.data, saturated]))
     (finding,) = loop_checks(results, STAIRCASE)
     assert not finding.failure and finding.message.startswith("the drive stayed saturated for 0.15 s from t = 0.3 s: "
                                                               "the reference 140 um is out of the film's reach")

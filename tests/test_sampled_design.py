@@ -102,7 +102,8 @@ def test_the_paper_placement_is_unchanged_by_the_option():
                                   DesignSpec(sample_rate_hz=1000.0)], ids=["450 Hz filter", "1 kHz"])
 def test_no_critically_damped_sampled_loop_is_a_clear_error(spec):
     """T_s omega_L > 1: the filter's forward-Euler pole is negative and no real double fast pair exists at 50 um."""
-    with pytest.raises(InvalidParameterError, match="sample_rate_hz = .* fast enough for a critically damped sampled loop"):
+    with pytest.raises(InvalidParameterError,
+                       match="sample_rate_hz = .* fast enough for a critically damped sampled loop"):
         design_pid(50e-6, RIG, spec=spec)
 
 

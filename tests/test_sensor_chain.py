@@ -1,4 +1,5 @@
-"""Sensor chain (models/sensor_chain.py): the pure-Python loop's measurement, the analog filter, sampling, quantisation."""
+"""Sensor chain (models/sensor_chain.py): the pure-Python loop's measurement, the analog filter, sampling,
+quantisation."""
 
 import math
 
@@ -122,6 +123,7 @@ def test_bad_inputs_raise():
 def test_an_impossible_true_height_is_refused_by_the_model_itself(height):
     chain = SensorChain()
     state = chain.initial_state(100e-6)
-    for call in (lambda: chain.output(state, height, at_sample=True), lambda: chain.advance(state, height, 5e-4, at_sample=True)):
+    for call in (lambda: chain.output(state, height, at_sample=True),
+                 lambda: chain.advance(state, height, 5e-4, at_sample=True)):
         with pytest.raises(InvalidParameterError, match="true_height"):
             call()

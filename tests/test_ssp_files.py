@@ -85,8 +85,9 @@ def archives(fmu_dir, tmp_path_factory) -> dict[str, Path]:
 # --- the shipped files --------------------------------------------------------------------------------
 
 def test_the_shipped_files_are_the_expected_ones():
-    assert SSP_FILES == ["fig7_hil.ssd", "fig7_reynolds.ssd", "fig7_slow.ssd", "paper_rig.ssv", "reference_reynolds.ssv", "reynolds_design.ssv", "rig_reynolds.ssd",
-                         "rig_slow.ssd", "rig_truth.ssv", "table2.ssv"]
+    assert SSP_FILES == ["fig7_hil.ssd", "fig7_reynolds.ssd", "fig7_slow.ssd", "paper_rig.ssv",
+                         "reference_reynolds.ssv", "reynolds_design.ssv", "rig_reynolds.ssd", "rig_slow.ssd",
+                         "rig_truth.ssv", "table2.ssv"]
     assert sorted(p.name for p in schema_dir().glob("*.xsd")) == [
         "SystemStructureCommon.xsd", "SystemStructureDescription.xsd", "SystemStructureParameterMapping.xsd",
         "SystemStructureParameterValues.xsd", "SystemStructureSignalDictionary.xsd"]
@@ -198,7 +199,8 @@ def test_hil_structure_wires_the_proxy():
 @pytest.mark.parametrize("name", RIG_STRUCTURES)
 def test_rig_structure_is_the_loop_without_the_controller(name):
     components = {c.get("name"): c.get("source") for c in _root(name).iter(f"{D}Component")}
-    assert components == {"Plant": f"resources/{RIG_STRUCTURES[name]}", "ResonanceTracker": "resources/ResonanceTracker.fmu",
+    assert components == {"Plant": f"resources/{RIG_STRUCTURES[name]}",
+                          "ResonanceTracker": "resources/ResonanceTracker.fmu",
                           "SensorChain": "resources/SensorChain.fmu"}
     assert _connections(name) == {c for c in FIG7_CONNECTIONS if "Controller" not in (c[0], c[2])}
     plant_sets = [b.get("source") for b in _component(name, "Plant").iter(f"{D}ParameterBinding")]

@@ -21,7 +21,8 @@ def test_forward_euler_moduli_are_one_plus_ts_times_the_designed_poles():
     d = design_pid(120e-6)
     poles = np.linalg.eigvals(continuous_loop_matrix(d.lpv, (d.kp, d.ki, d.kd), d.omega_lpf))
     np.testing.assert_allclose(np.sort_complex(poles), np.sort_complex(d.intended_poles("nondimensional")), rtol=1e-5)
-    assert max_pole_modulus(d.lpv, (d.kp, d.ki, d.kd), d.omega_lpf, STEP) == pytest.approx(np.max(np.abs(1 + STEP * poles)), rel=1e-7)
+    assert max_pole_modulus(d.lpv, (d.kp, d.ki, d.kd), d.omega_lpf, STEP) == \
+        pytest.approx(np.max(np.abs(1 + STEP * poles)), rel=1e-7)
 
 
 @pytest.mark.parametrize("grid", [FE, ZOH], ids=["forward_euler", "zoh"])

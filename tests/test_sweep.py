@@ -19,8 +19,8 @@ from hypothesis import strategies as st
 
 from nfal.errors import SweepError, SweepSpecError
 from nfal.models.closed_loop import Staircase
-from nfal.orchestration.sweep import (ResultsTable, cached_structure, columns, localised, read_table, run_sweep, run_task,
-                                      shipped_files)
+from nfal.orchestration.sweep import (ResultsTable, cached_structure, columns, localised, read_table, run_sweep,
+                                      run_task, shipped_files)
 from nfal.orchestration.sweep_spec import expand
 from nfal.sweeps import KINDS, Ramp, file_in, load_spec, parse_spec
 
@@ -66,7 +66,8 @@ BAD_SPECS = [
     ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
                                             "mass": {"distribution": "uniform", "low": 2, "high": 1}}}, "low"),
     ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
-                                            "mass": {"distribution": "loguniform", "low": 0, "high": 1}}}, "loguniform"),
+                                            "mass": {"distribution": "loguniform", "low": 0, "high": 1}}},
+     "loguniform"),
     ({"run": {"kind": "table1"}, "random": {"draws": 2, "seed": 1,
                                             "mass": {"distribution": "normal", "mean": 1}}}, "std"),
     ({"run": {"kind": "table1"}, "grid": {"mass": [1.0]}, "random": {
@@ -84,7 +85,8 @@ BAD_SPECS = [
                                     '"inputs.ResonanceTracker.resonance_shift" swept'),
     ({"run": {"kind": "ssp", "inputs": {"ResonanceTracker.resonance_shift": 0.0}},
       "grid": {"inputs.ResonanceTracker.resonance_shift": [1.0]}},
-     "[run.inputs] 'ResonanceTracker.resonance_shift' has no effect: \"inputs.ResonanceTracker.resonance_shift\" is swept"),
+     "[run.inputs] 'ResonanceTracker.resonance_shift' has no effect: "
+     "\"inputs.ResonanceTracker.resonance_shift\" is swept"),
     # runs every one of which would be refused at its start
     ({"run": {"kind": "ssp", "stop_time": 1e5}, "grid": {"Plant.mass": [1]}},
      "[run] a run of 100000 s at step_size = 0.0005 s is 200,000,000 steps; at most 10,000,000"),
@@ -261,7 +263,8 @@ def test_interrupted_sweep_resumes_without_repeating(small_spec, fig7_archives, 
     assert [r["run_id"] for r in read_table(tmp_path / "results.csv")] == sorted(
         first, key=lambda rid: next(r.index for r in small_spec.runs() if r.run_id == rid))
     second: list[str] = []
-    result = run_sweep(small_spec, tmp_path, workers=0, archives=fig7_archives, on_row=lambda r: second.append(r["run_id"]))
+    result = run_sweep(small_spec, tmp_path, workers=0, archives=fig7_archives,
+                       on_row=lambda r: second.append(r["run_id"]))
     assert result.summary["skipped"] == 2 and result.summary["new"] == 4
     assert not set(first) & set(second)
     rows = result.rows()
@@ -420,7 +423,8 @@ def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7
         'step_size = 5e-4\nreference = {levels_m = [100e-6, 140e-6], hold_s = 0.1, lead_s = 0.05}\n'
         '[grid]\n"Plant.mass" = [0.1347, 0.16, -1.0]\n"SensorChain.seed" = [0, 1]\n')
     out = tmp_path / "out"
-    process = subprocess.Popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "0", "--out", str(out)],
+    process = subprocess.Popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "0",
+                                "--out", str(out)],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     csv_path = out / "results.csv"
     deadline = time.monotonic() + 60
@@ -472,7 +476,8 @@ def test_a_sweep_takes_the_structures_default_staircase_as_nfal_run_does():
     ("shape", "scan.csv", ("", "scan.csv")), ("ReynoldsPlant.shape", "../s.csv", ("", "../s.csv")),
     ("Controller.calibration", "k.json", ("", "k.json")), ("Plant.calibration", "/abs/k.json", ("", "/abs/k.json")),
     ("Plant.calibration", "perturbation:s.csv", ("perturbation:", "s.csv")),
-    ("shape", "piston", None), ("shape", "paper", None), ("shape", "plate:2", None), ("Plant.calibration", "paper", None),
+    ("shape", "piston", None), ("shape", "paper", None), ("shape", "plate:2", None),
+    ("Plant.calibration", "paper", None),
     ("Plant.calibration", "perturbation", None), ("Plant.calibration", "perturbation:plate:2", None),
     ("HardwareProxy.port", "/dev/ttyACM0", None), ("Plant.mass", 0.1, None), ("case", "a", None),
 ])
@@ -493,7 +498,8 @@ def _spec_beside_a_file(tmp_path, text: str) -> Path:
     return folder / "s.toml"
 
 
-SHAPES_SPEC = '[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 20\nnodes = 41\n[grid]\nshape = ["scan.csv", "piston"]\n'
+SHAPES_SPEC = ('[run]\nkind = "calibration"\nsigma = [10.0, 100.0]\npoints = 20\nnodes = 41\n'
+               '[grid]\nshape = ["scan.csv", "piston"]\n')
 
 
 def test_a_path_in_a_spec_resolves_from_the_specs_folder_and_the_runs_keep_it_as_written(tmp_path, monkeypatch):
@@ -502,15 +508,18 @@ def test_a_path_in_a_spec_resolves_from_the_specs_folder_and_the_runs_keep_it_as
     spec = load_spec(Path("..") / "spec" / "s.toml")
     assert spec.files == {("shape", "scan.csv"): ("", Path("..") / "spec" / "scan.csv")}
     assert [r.parameters["shape"] for r in spec.runs()] == ["scan.csv", "piston"]
-    assert [r.run_id for r in spec.runs()] == [r.run_id for r in load_spec(path).runs()]  # wherever the spec is read from
+    # wherever the spec is read from
+    assert [r.run_id for r in spec.runs()] == [r.run_id for r in load_spec(path).runs()]
 
 
 @pytest.mark.parametrize("text, message", [
     (SHAPES_SPEC.replace("scan.csv", "none.csv"), "shape = 'none.csv': no file {folder}/none.csv (a path in a spec is "
                                                   "relative to the spec's folder)"),
-    ('[run]\nkind = "ssp"\nparameters = {"Controller.calibration" = "perturbation:none.csv"}\n[grid]\n"Plant.mass" = [0.13]\n',
+    ('[run]\nkind = "ssp"\nparameters = {"Controller.calibration" = "perturbation:none.csv"}\n'
+     '[grid]\n"Plant.mass" = [0.13]\n',
      "Controller.calibration = 'perturbation:none.csv': no file {folder}/none.csv"),
-    ('[run]\nkind = "table1"\nshape = "nonsense"\n[grid]\ncase = ["a", "b"]\n', "shape = 'nonsense': no file {folder}/nonsense"),
+    ('[run]\nkind = "table1"\nshape = "nonsense"\n[grid]\ncase = ["a", "b"]\n',
+     "shape = 'nonsense': no file {folder}/nonsense"),
 ])
 def test_a_missing_file_is_refused_when_the_spec_is_read_naming_where_it_was_looked_for(tmp_path, text, message):
     path = _spec_beside_a_file(tmp_path, text)

@@ -78,7 +78,8 @@ def test_dynamic_steady_state_equals_quasi_static(detuning_hz):
 
 def test_envelope_follows_the_fast_time_resonator():
     """(T2) against (T1) integrated in fast time (Q = 100, drive 0.5 % below resonance, from rest, 3 ms):
-    the envelope x - i x'/omega, rotated back by the drive phase, agrees within 1 % of the resonant amplitude (measured: 0.26 %)."""
+    the envelope x - i x'/omega, rotated back by the drive phase, agrees within 1 % of the resonant amplitude
+    (measured: 0.26 %)."""
     transducer = Transducer(quality_factor=100.0)
     w_r, q, w = 2 * math.pi * F_R, 100.0, 2 * math.pi * F_R * 0.995
     g = 0.1e-6 / q
@@ -103,8 +104,9 @@ def test_bad_parameters_raise(kwargs):
         Transducer(**kwargs)
 
 
-@pytest.mark.parametrize("args", [(0j, -1.0, F_R, 0.0, 1e-3), (0j, float("nan"), F_R, 0.0, 1e-3), (0j, 1.0, 0.0, 0.0, 1e-3),
-                                  (0j, 1.0, F_R, -F_R, 1e-3), (0j, 1.0, F_R, 0.0, 0.0), (complex("nan"), 1.0, F_R, 0.0, 1e-3)])
+@pytest.mark.parametrize("args", [(0j, -1.0, F_R, 0.0, 1e-3), (0j, float("nan"), F_R, 0.0, 1e-3),
+                                  (0j, 1.0, 0.0, 0.0, 1e-3), (0j, 1.0, F_R, -F_R, 1e-3), (0j, 1.0, F_R, 0.0, 0.0),
+                                  (complex("nan"), 1.0, F_R, 0.0, 1e-3)])
 def test_bad_inputs_raise(args):
     with pytest.raises(InvalidParameterError):
         TRANSDUCER.step(*args)

@@ -49,7 +49,8 @@ def output_file(*suffixes: str):
         if not folder.is_dir():
             raise argparse.ArgumentTypeError(f"{text!r}: no folder {str(folder)!r} to write it in")
         if not os.access(folder, os.W_OK) or path.is_dir():
-            raise argparse.ArgumentTypeError(f"{text!r}: cannot be written (folder not writable, or a folder by that name)")
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot be written "
+                                             "(folder not writable, or a folder by that name)")
         return text
     return check
 
@@ -138,7 +139,8 @@ def print_step_table(steps: list[dict]) -> None:
     the table)."""
     def show(value, scale, width, mark=""):
         return f"{'-':>{width}}" if value is None else f"{value * scale:{width - len(mark)}.1f}{mark}"
-    print(f"  {'step [um]':>13} {'rise [ms]':>9} {'overshoot [%]':>13} {'settle [ms]':>11} {'noise [nm]':>10} {'IAE [um s]':>10}")
+    print(f"  {'step [um]':>13} {'rise [ms]':>9} {'overshoot [%]':>13} {'settle [ms]':>11} {'noise [nm]':>10} "
+          f"{'IAE [um s]':>10}")
     for step in steps:
         mark = "*" if noise_limits_settling(step) else ""
         print(f"  {step['from_m'] * 1e6:5.0f} -> {step['to_m'] * 1e6:4.0f} {show(step['rise_time_s'], 1e3, 9)} "
@@ -159,7 +161,8 @@ def progress_bar(total: int, description: str) -> tqdm:
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON on stdout")
     parser.add_argument("--plot", metavar="FILE", type=output_file(*PLOT_FORMATS),
-                        help=f"write a figure to FILE ({', '.join(f[1:].upper() for f in PLOT_FORMATS)}, by its extension)")
+                        help=f"write a figure to FILE ({', '.join(f[1:].upper() for f in PLOT_FORMATS)}, "
+                        "by its extension)")
 
 
 RIG_OPTIONS = (
@@ -188,5 +191,6 @@ def rig_from_args(args: argparse.Namespace):
     # on use: `nfal --help` stays fast
     from nfal.models.rig import RigParameters
 
-    changes = {name: getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS if getattr(args, f"rig_{name}") is not None}
+    changes = {name: getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS
+               if getattr(args, f"rig_{name}") is not None}
     return RigParameters(**changes)

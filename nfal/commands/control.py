@@ -70,10 +70,11 @@ def register(commands) -> None:
     compare.add_argument("--levels", type=number_list, default=list(STAIRCASE_LEVELS_M),
                          help="reference levels [m] (default 60,100,140,180,140,100,60 um)")
     compare.add_argument("--hold", type=finite_float, default=0.6, help="hold time of each level [s] (default 0.6)")
-    compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M, help="actuator limit |a|max [m] (default %(default)s)")
+    compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M,
+                         help="actuator limit |a|max [m] (default %(default)s)")
     compare.add_argument("--full-schedule", action="store_true",
-                         help="with --placement continuous only: schedule the paper's designs at every height, even those "
-                         "the 2 kHz forward-Euler loop cannot realise (default: hold the gains below the lowest "
+                         help="with --placement continuous only: schedule the paper's designs at every height, even "
+                         "those the 2 kHz forward-Euler loop cannot realise (default: hold the gains below the lowest "
                          "realisable height; the sampled placement realises all)")
     compare.add_argument("--port", metavar="URL", help="run on the rig at URL (a device, a pty of nfal rig-emulator, "
                          "socket://host:port) instead of simulating; the noise is then the rig's own (--noise-* and "
@@ -98,13 +99,14 @@ def _add_design_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sample-rate", type=finite_float, default=SAMPLING_RATE_HZ,
                         help="controller sampling rate [Hz] (default %(default)s)")
     parser.add_argument("--placement", choices=PLACEMENTS, default="sampled",
-                        help="loop whose poles are placed: sampled (the loop the discrete law realises at --sample-rate: "
-                        "ZOH plant, forward-Euler integrator and derivative filter; the Controller FMU's default) or "
-                        "continuous (eqs. 23-24, the paper's Fig. 8) (default sampled)")
+                        help="loop whose poles are placed: sampled (the loop the discrete law realises at "
+                        "--sample-rate: ZOH plant, forward-Euler integrator and derivative filter; the Controller "
+                        "FMU's default) or continuous (eqs. 23-24, the paper's Fig. 8) (default sampled)")
     parser.add_argument("--reference-zero", type=finite_float, default=REFERENCE_ZERO_RATIO, metavar="RHO",
-                        help="the law's reference zero, in slow-pole time constants: the reference passes through a filter "
-                        "that cancels the PI zero (less overshoot), and the sampled placement reaches its cut-off through "
-                        "it; the Controller FMU's reference_zero (default %(default)s; 0: off, the paper's law)")
+                        help="the law's reference zero, in slow-pole time constants: the reference passes through a "
+                        "filter that cancels the PI zero (less overshoot), and the sampled placement reaches its "
+                        "cut-off through it; the Controller FMU's reference_zero (default %(default)s; 0: off, the "
+                        "paper's law)")
     parser.add_argument("--calibration", metavar="FILE.json",
                         help="calibration file: K(sigma) and, from nfal identify, the damping correction of eq. (6) "
                         "for the plant and the design (default: eq. (17), eq. (6) as it is)")
@@ -160,12 +162,13 @@ def run_design(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
         return 0
-    print(f"{'height [um]':>11} {'kp [m/m]':>11} {'ki [1/s]':>10} {'kd [s]':>11} {'p1 [Hz]':>8} {'p2 [Hz]':>8} {'diag |z|':>9}")
+    print(f"{'height [um]':>11} {'kp [m/m]':>11} {'ki [1/s]':>10} {'kd [s]':>11} {'p1 [Hz]':>8} {'p2 [Hz]':>8} "
+          f"{'diag |z|':>9}")
     for i, d in enumerate(designs):
         print(f"{d.height_m * 1e6:11.1f} {d.kp_si:11.4g} {d.ki_si:10.4g} {d.kd_si:11.4g} {d.slow_pole_hz:8.2f} "
               f"{d.fast_pole_hz:8.1f} {grid.max_pole_modulus[i, i]:9.4f}")
-    print(f"map ({args.placement} placement, {discretisation}, {args.sample_rate:g} Hz): max |z| from {grid.max_pole_modulus.min():.4f} "
-          f"to {grid.max_pole_modulus.max():.4f}")
+    print(f"map ({args.placement} placement, {discretisation}, {args.sample_rate:g} Hz): max |z| from "
+          f"{grid.max_pole_modulus.min():.4f} to {grid.max_pole_modulus.max():.4f}")
     if realizable_from is not None:
         print(f"{discretisation} loop stable on the diagonal from {realizable_from * 1e6:.1f} um up")
     return 0
@@ -210,7 +213,8 @@ def run_compare(args: argparse.Namespace) -> int:
         source = {"noise": {"peak_m": args.noise_peak, "cutoff_hz": args.noise_cutoff, "seed": args.seed}}
     results = {key: _run_metrics(run, reference) for key, run in runs.items()}
     output = {"controllers": results,
-              "reference": {"levels_m": list(reference.levels_m), "hold_s": reference.hold_s, "lead_s": reference.lead_s},
+              "reference": {"levels_m": list(reference.levels_m), "hold_s": reference.hold_s,
+                            "lead_s": reference.lead_s},
               **source, "sample_rate_hz": args.sample_rate, "max_excitation_m": args.max_excitation,
               "runtime_s": time.perf_counter() - started}
     if args.plot:

@@ -14,11 +14,16 @@ from nfal.fig7_names import REFERENCE
 
 
 def register(commands) -> None:
+    _register_build(commands)
+    _register_run(commands)
+
+
+def _register_build(commands) -> None:
     build = commands.add_parser(
         "build", help="build the FMUs and pack the SSP archives of the Fig. 7 loop",
         description="Build every FMU (SlowPlant, ReynoldsPlant, Controller, ResonanceTracker, SensorChain, "
-        "HardwareProxy) with pythonfmu, self-contained, and pack fig7_slow.ssp, fig7_reynolds.ssp, fig7_hil.ssp and the "
-        "rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
+        "HardwareProxy) with pythonfmu, self-contained, and pack fig7_slow.ssp, fig7_reynolds.ssp, fig7_hil.ssp and "
+        "the rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
     build.add_argument("--out", default="build", metavar="DIR", help="output folder (default build/)")
     build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
                        help="FMI version: 2 (default) or 3 (the same FMUs as FMI 3.0 co-simulation FMUs, with "
@@ -27,6 +32,8 @@ def register(commands) -> None:
     build.add_argument("--json", action="store_true", help="print the built archives as JSON")
     build.set_defaults(handler=run_build)
 
+
+def _register_run(commands) -> None:
     run = commands.add_parser(
         "run", help="run a system structure: by default the closed loop of Fig. 7 (gain-scheduled PID, slow plant)",
         description="Run an SSP system structure with the fixed-step master over fmpy. Without STRUCTURE, builds "
@@ -44,31 +51,33 @@ def register(commands) -> None:
         "status and its step metrics\").",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
-        "nfal run --reference my_reference.csv --realtime; hardware in the loop against `nfal rig-emulator` or the rig: "
+        "nfal run --reference my_reference.csv --realtime; "
+        "hardware in the loop against `nfal rig-emulator` or the rig: "
         "nfal run fig7_hil --param proxy.port=/dev/ttyACM0 --realtime")
     run.add_argument("structure", nargs="?", default="fig7_slow",
-                     help="a built-in structure (fig7_slow, fig7_reynolds, fig7_hil) or an .ssp archive, .ssd file or SSP folder "
-                     "(default fig7_slow)")
+                     help="a built-in structure (fig7_slow, fig7_reynolds, fig7_hil) or an .ssp archive, .ssd file or "
+                     "SSP folder (default fig7_slow)")
     run.add_argument("--start-time", type=finite_float, metavar="S",
                      help="start time [s] (default: the structure's DefaultExperiment startTime, else 0)")
     run.add_argument("--stop-time", type=positive_float, metavar="S",
                      help="stop time [s] (default: the structure's DefaultExperiment stopTime: 3.7 s for fig7_slow and "
                      "fig7_reynolds, 4.6 s for fig7_hil; where it has none, the reference's length)")
-    run.add_argument("--step", type=positive_float, metavar="S", help="communication step [s] (default: the structure's "
-                     "DefaultExperiment FixedStepAlgorithm baseStepSize annotation, 5e-4 s (2 kHz) for Fig. 7)")
+    run.add_argument("--step", type=positive_float, metavar="S", help="communication step [s] (default: the "
+                     "structure's DefaultExperiment FixedStepAlgorithm baseStepSize annotation, 5e-4 s (2 kHz) for "
+                     "Fig. 7)")
     run.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                      help="override a parameter or start value (repeatable)")
     run.add_argument("--reference", metavar="staircase[:L1,L2,...[:HOLD[:LEAD]]]|FILE.csv",
-                     help="drive Controller.reference from the master instead of the structure's ReferenceGenerator (its "
-                     "connection is replaced): the built-in staircase of Figs. 9-10 (60-180 um; against "
-                     "hardware its first level is held 1 s, for lift-off from rest; fig7_reynolds: 60-100 um, what the "
-                     "film of the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s) or a CSV "
-                     "of time_s,reference_m (held between rows); step metrics for a staircase and for a CSV of steps "
-                     "(levels held 50 ms or more), the IAE alone otherwise. Default: the "
-                     "structure's ReferenceGenerator (its parameters: --param ReferenceGenerator.levels=... etc.; "
-                     "docs/cosimulation.md), or the built-in staircase in a structure without one. "
-                     "With --param Plant.shape=SHAPE the Controller is designed on that film (calibration "
-                     "perturbation:SHAPE) unless Controller.calibration is given")
+                     help="drive Controller.reference from the master instead of the structure's ReferenceGenerator "
+                     "(its connection is replaced): the built-in staircase of Figs. 9-10 (60-180 um; against hardware "
+                     "its first level is held 1 s, for lift-off from rest; fig7_reynolds: 60-100 um, what the film of "
+                     "the Fig. 3 stand-in holds with |a| <= 10 um), your own staircase (levels m, holds s) or a CSV of "
+                     "time_s,reference_m (held between rows); step metrics for a staircase and for a CSV of steps "
+                     "(levels held 50 ms or more), the IAE alone otherwise. Default: the structure's "
+                     "ReferenceGenerator (its parameters: --param ReferenceGenerator.levels=... etc.; "
+                     "docs/cosimulation.md), or the built-in staircase in a structure without one. With --param "
+                     "Plant.shape=SHAPE the Controller is designed on that film (calibration perturbation:SHAPE) "
+                     "unless Controller.calibration is given")
     run.add_argument("--reference-input", metavar="ELEMENT.VAR",
                      help=f"the input the reference drives (default {REFERENCE} if the structure has a Controller "
                      "element, else none; 'none' for no external input)")
@@ -80,7 +89,8 @@ def register(commands) -> None:
                      help="causal: outputs propagated in feedthrough order at each step, then all FMUs step (default); "
                      "jacobi: all step, then outputs move to inputs (as OSP libcosim does)")
     run.add_argument("--realtime", action="store_true", help="release steps on the wall clock; report overruns and "
-                     "step-start jitter (p50/p99/max) in summary.json (on by itself for a structure with the hardware proxy)")
+                     "step-start jitter (p50/p99/max) in summary.json (on by itself for a structure with the hardware "
+                     "proxy)")
     run.add_argument("--rt-priority", type=int, metavar="1-99", help="with --realtime (on by itself against hardware): "
                      "run the paced loop under SCHED_FIFO at this priority, so other processes cannot delay its steps "
                      "(Linux; needs root, CAP_SYS_NICE or an rtprio limit; e.g. 50)")
@@ -89,7 +99,8 @@ def register(commands) -> None:
     run.add_argument("--overwrite", action="store_true", help="replace the results of a previous run in --out")
     run.add_argument("--max-steps", type=int, metavar="N", help="refuse a run of more communication steps than this "
                      "(default 10 000 000: about 1 GB of results for Fig. 7)")
-    run.add_argument("--build-dir", default="build", metavar="DIR", help="where built-in structures are built (default build/)")
+    run.add_argument("--build-dir", default="build", metavar="DIR",
+                     help="where built-in structures are built (default build/)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.set_defaults(handler=run_run)
 
@@ -137,7 +148,8 @@ def _structure_path(args: argparse.Namespace) -> Path:
         return build_all(args.build_dir, structures=(args.structure,))[args.structure]
     path = Path(args.structure)
     if not path.exists():
-        raise InvalidParameterError("structure", args.structure, f"one of {', '.join(STRUCTURES)} or an existing .ssp/.ssd/folder")
+        raise InvalidParameterError("structure", args.structure,
+                                    f"one of {', '.join(STRUCTURES)} or an existing .ssp/.ssd/folder")
     return path
 
 
@@ -182,15 +194,16 @@ def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> t
         return length, None
     if length is not None and abs(length - ssd_stop) > 1e-9 * max(1.0, length):
         where = "before the reference's end" if ssd_stop < length else "after the reference's last change"
-        return ssd_stop, (f"the structure's DefaultExperiment stopTime ({ssd_stop:g} s) governs, {where}: the reference "
-                          f"lasts {length:g} s (--stop-time {length:g} runs all of it)")
+        return ssd_stop, (f"the structure's DefaultExperiment stopTime ({ssd_stop:g} s) governs, {where}: "
+                          f"the reference lasts {length:g} s (--stop-time {length:g} runs all of it)")
     return ssd_stop, None
 
 
 def run_run(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.fig7 import HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels, step_reference
     from nfal.orchestration import SimulationError, run_structure
+    from nfal.fig7 import (HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels,
+                           step_reference)
 
     if args.max_steps is not None and args.max_steps < 1:
         raise InvalidParameterError("--max-steps", args.max_steps, "a whole number of steps >= 1")
@@ -199,11 +212,12 @@ def run_run(args: argparse.Namespace) -> int:
     names, ssd_start, ssd_stop, generated = _read_structure(structure, parameters)
     columns = loop_columns(names)
     if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
-        raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a device "
-                                    "path or socket://host:port); no rig? start `nfal rig-emulator` and give the path "
-                                    "it prints first")
+        raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a "
+                                    "device path or socket://host:port); no rig? start `nfal rig-emulator` and give "
+                                    "the path it prints first")
     if columns is HARDWARE and not args.realtime:
-        print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)", file=sys.stderr)
+        print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)",
+              file=sys.stderr)
         args.realtime = True
     if args.rt_priority is not None and not args.realtime:
         raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
@@ -278,8 +292,9 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"{summary.get('structure')}: {summary.get('status')} after {summary.get('steps_completed')} of "
               f"{summary.get('steps')} steps; the results up to there are in {out}")
         return
-    print(f"{summary.get('structure')}: {summary.get('end_time_s', summary.get('stop_time_s')):g} s in {summary.get('wall_time_s', 0.0):.2f} s "
-          f"wall time ({summary.get('algorithm')}, step {summary.get('step_size_s'):g} s) -> {out}"
+    print(f"{summary.get('structure')}: {summary.get('end_time_s', summary.get('stop_time_s')):g} s in "
+          f"{summary.get('wall_time_s', 0.0):.2f} s wall time ({summary.get('algorithm')}, "
+          f"step {summary.get('step_size_s'):g} s) -> {out}"
           + ("" if status == "ok" else f" ({status})"))
     if summary.get("note"):
         print(f"note: {summary['note']}")
@@ -299,25 +314,28 @@ def _print_summary(summary: dict, out: Path) -> None:
     if link:
         print(f"link: {link['frames_dropped']} frames dropped, {link['frames_lost']} lost, {link['rig_faults']} rig "
               f"faults, {link['reconnects']} reconnects; at most {link['samples_missed_max']} samples missed in a row, "
-              f"sample age mean {link['measurement_age_mean_s'] * 1e6:.0f} us, max {link['measurement_age_max_s'] * 1e6:.0f} us")
+              f"sample age mean {link['measurement_age_mean_s'] * 1e6:.0f} us, "
+              f"max {link['measurement_age_max_s'] * 1e6:.0f} us")
         if "drive_gap_max_s" in link:
             print(f"gaps between DRIVE commands: p50 {link['drive_gap_p50_s'] * 1e3:.2f} ms, p99 "
                   f"{link['drive_gap_p99_s'] * 1e3:.2f} ms, max {link['drive_gap_max_s'] * 1e3:.2f} ms")
             from nfal.hil.link import DRIVE_GAP_BUDGET_S  # on use, as the other HIL names
 
             if link["drive_gap_max_s"] > DRIVE_GAP_BUDGET_S:
-                print(f"warning: the longest gap between DRIVE commands is beyond the {DRIVE_GAP_BUDGET_S * 1e3:g} ms a held "
-                      "drive costs nothing in (docs/hil.md, \"Real time that holds\"): a step under way then may have "
-                      "overshot")
+                print(f"warning: the longest gap between DRIVE commands is beyond the {DRIVE_GAP_BUDGET_S * 1e3:g} ms "
+                      "a held drive costs nothing in (docs/hil.md, \"Real time that holds\"): a step under way then "
+                      "may have overshot")
     realtime = summary.get("realtime")
     if realtime:
         print(f"real time: {realtime.get('overruns')} overruns in {realtime.get('steps')} steps; step-start jitter "
-              f"p50 {realtime.get('jitter_p50_s', 0) * 1e6:.0f} us, p99 {realtime.get('jitter_p99_s', 0) * 1e6:.0f} us, "
+              f"p50 {realtime.get('jitter_p50_s', 0) * 1e6:.0f} us, "
+              f"p99 {realtime.get('jitter_p99_s', 0) * 1e6:.0f} us, "
               f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us"
               + (f" (SCHED_FIFO priority {summary['rt_priority']})" if summary.get("rt_priority") else ""))
         pauses = realtime.get("gc_pauses")
         if pauses:
-            print(f"collector: {pauses['count']} young collections in slack, longest {pauses['max_s'] * 1e6:.0f} us; memory "
+            print(f"collector: {pauses['count']} young collections in slack, "
+                  f"longest {pauses['max_s'] * 1e6:.0f} us; memory "
                   + ("locked" if realtime.get("memory_locked") else f"not locked ({realtime.get('memory_lock_note')})"))
         if realtime.get("overruns") and not summary.get("rt_priority"):
             print("hint: --rt-priority 50 runs the loop under SCHED_FIFO, so other processes cannot delay it "

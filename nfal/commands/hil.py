@@ -18,11 +18,11 @@ def register(commands) -> None:
         "rig-emulator", help="play the levitation rig in real time on a pty (or a port) for hardware-in-the-loop runs",
         description="Play the rig on a serial port in real time, speaking the nfal rig protocol (docs/protocol.md): "
         "its firmware (session, 2 kHz measurement stream, heartbeat, drive limit, watchdog that ramps the drive down "
-        "when commands stop) and its hardware, the rig structure's blocks (the simulation's own FMU code, run in-process): "
-        "resonance tracker (transducer + PLL), the "
-        "levitated object (the 'truth' plant, with more damping at large gaps than the design model, as the paper "
-        "reports) and the height sensor with its noise. The first line of output is the port to give the "
-        "HardwareProxy (proxy.port); then one line per event. Runs until Ctrl-C or --duration.",
+        "when commands stop) and its hardware, the rig structure's blocks (the simulation's own FMU code, run "
+        "in-process): resonance tracker (transducer + PLL), the levitated object (the 'truth' plant, with more damping "
+        "at large gaps than the design model, as the paper reports) and the height sensor with its noise. The first "
+        "line of output is the port to give the HardwareProxy (proxy.port); then one line per event. Runs until Ctrl-C "
+        "or --duration.",
         epilog="Examples: nfal rig-emulator; then in another terminal: nfal run fig7_hil --param proxy.port=PATH "
         "--realtime. Faults: nfal rig-emulator --corrupt 0.01 --drop 0.01; nfal rig-emulator --disconnect-at 2 "
         "--reconnect-after 1. Another truth: nfal rig-emulator --truth reynolds; --param Plant.mass=0.15.")
@@ -33,18 +33,19 @@ def register(commands) -> None:
                           "name in the temporary folder)")
     emulator.add_argument("--truth", default="slow", metavar="slow|reynolds|FILE",
                           help="the rig's hardware: rig_slow (slow model with the large-gap damping correction, "
-                          "default), rig_reynolds (the full Reynolds film by harmonic balance, piston form: 44 us a 0.5 ms "
-                          "tick in bench/bench_rig_truth.py), or an SSP of your own with the same element "
-                          "names")
+                          "default), rig_reynolds (the full Reynolds film by harmonic balance, piston form: 44 us a "
+                          "0.5 ms tick in bench/bench_rig_truth.py), or an SSP of your own with the same element names")
     emulator.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                           help="override a parameter of the truth (repeatable), e.g. Plant.mass=0.15, "
                           "SensorChain.noise_peak=0")
-    emulator.add_argument("--drop", type=finite_float, default=0.0, metavar="RATE", help="drop this share of outgoing frames")
+    emulator.add_argument("--drop", type=finite_float, default=0.0, metavar="RATE",
+                          help="drop this share of outgoing frames")
     emulator.add_argument("--corrupt", type=finite_float, default=0.0, metavar="RATE",
                           help="flip one bit in this share of outgoing frames")
     emulator.add_argument("--duplicate", type=finite_float, default=0.0, metavar="RATE",
                           help="send this share of outgoing frames twice")
-    emulator.add_argument("--delay", type=finite_float, default=0.0, metavar="SECONDS", help="hold every outgoing frame this long")
+    emulator.add_argument("--delay", type=finite_float, default=0.0, metavar="SECONDS",
+                          help="hold every outgoing frame this long")
     emulator.add_argument("--disconnect-at", type=finite_float, metavar="SECONDS",
                           help="drop the port this long after the first session opened (the host's reads fail)")
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
@@ -59,12 +60,13 @@ def register(commands) -> None:
                           help="the watchdog's ramp of the drive to 0 V (default %(default)s)")
     emulator.add_argument("--max-voltage", type=finite_float, default=RigTiming.max_drive_voltage, metavar="V",
                           help="drive commands above this are clamped (default %(default)s)")
-    emulator.add_argument("--duration", type=positive_float, metavar="SECONDS", help="stop after this long (default: run until "
-                          "Ctrl-C or SIGTERM)")
+    emulator.add_argument("--duration", type=positive_float, metavar="SECONDS", help="stop after this long (default: "
+                          "run until Ctrl-C or SIGTERM)")
     emulator.add_argument("--build-dir", default="build", metavar="DIR", help="where the rig structures are built "
                           "(default build/)")
-    emulator.add_argument("--record", metavar="FILE.csv", type=output_file(".csv"), help="write every measurement the rig takes in a session "
-                          "(before fault injection), with the applied voltage and the true height")
+    emulator.add_argument("--record", metavar="FILE.csv", type=output_file(".csv"), help="write every measurement the "
+                          "rig takes in a session (before fault injection), with the applied voltage and the true "
+                          "height")
     emulator.add_argument("--rt-priority", type=int, metavar="1-99", help="run the rig under SCHED_FIFO at this "
                           "priority, so the host's busy loop beside it cannot delay its ticks (Linux; needs root, "
                           "CAP_SYS_NICE or an rtprio limit; e.g. 50)")
@@ -127,7 +129,8 @@ def run_emulator(args: argparse.Namespace) -> int:
         if args.firmware == "python":
             port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
         else:
-            from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess  # on use: C firmware only
+            # on use: C firmware only
+            from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess
 
             process = stack.enter_context(FirmwareProcess(args.firmware, serial=True))
             firmware = ExternalFirmware(process, timing, tunnel=False)

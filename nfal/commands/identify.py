@@ -32,31 +32,36 @@ DESCRIPTION = """Identify a rig over the nfal rig protocol (a rig, or `nfal rig-
 constant until the height has settled (tested on the data); K at each by eq. (16) with |a| = metres_per_volt x V,
 and a quartic fit of the form of eq. (17); (2) damping: at each damping height, drive steps of +-step-size
 (alternately up and down, each held until settled); each step's response fitted by eq. (13) linearised (stiffness
-from the step's own gain, the transducer's amplitude lag included) gives the damping over eq. (6); their geometric mean and
-95 % interval per height. Writes the calibration file (K as `nfal calibrate` writes it, plus "damping",
+from the step's own gain, the transducer's amplitude lag included) gives the damping over eq. (6); their geometric
+mean and 95 % interval per height. Writes the calibration file (K as `nfal calibrate` writes it, plus "damping",
 "equilibria" and "provenance"), the raw samples as CSV next to it (streamed while the experiments run) and a
-figure. Give the load's mass (--mass): K by eq. (16) and the stiffness of each step scale with it. Safety: the drive is clamped to --max-voltage; the rig's watchdog stops it if the host stalls; a landing
-after lift-off, a hold that does not settle, a drive that cannot lift the load, a lost link or Ctrl-C stop the
-experiments, ramp the drive down and keep every sample on disk."""
+figure. Give the load's mass (--mass): K by eq. (16) and the stiffness of each step scale with it. Safety: the
+drive is clamped to --max-voltage; the rig's watchdog stops it if the host stalls; a landing after lift-off, a
+hold that does not settle, a drive that cannot lift the load, a lost link or Ctrl-C stop the experiments, ramp
+the drive down and keep every sample on disk."""
 
 
 def register(commands) -> None:
-    identify = commands.add_parser("identify", help="identify the rig over its port: K(sigma) and the damping (Sec. 3.2.2, 3.3)",
+    identify = commands.add_parser("identify",
+                                   help="identify the rig over its port: K(sigma) and the damping (Sec. 3.2.2, 3.3)",
                                    description=DESCRIPTION,
                                    epilog="Examples: nfal identify --port /tmp/nfal-rig-k2x9 --dry-run; nfal identify "
                                    "--port /tmp/nfal-rig-k2x9 --out rig.json (writes rig.json, rig-raw.csv, rig.png).")
-    identify.add_argument("--port", metavar="URL", help="the rig's port: a device, a pty (nfal rig-emulator's first line), "
-                          "socket://host:port")
+    identify.add_argument("--port", metavar="URL", help="the rig's port: a device, a pty (nfal rig-emulator's first "
+                          "line), socket://host:port")
     identify.add_argument("--out", default="rig-calibration.json", metavar="FILE.json",
-                          help="the calibration file (default rig-calibration.json); FILE-raw.csv and FILE.png beside it")
+                          help="the calibration file (default rig-calibration.json); FILE-raw.csv and FILE.png "
+                          "beside it")
     identify.add_argument("--overwrite", action="store_true", help="replace FILE.json, FILE-raw.csv and FILE.png of a "
                           "previous identification (refused otherwise)")
-    identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration (with --json, as JSON); "
-                          "open nothing. A plan that cannot give a result, or a long one, is refused as the run would be")
+    identify.add_argument("--dry-run", action="store_true", help="print the plan and its duration (with --json, as "
+                          "JSON); open nothing. A plan that cannot give a result, or a long one, is refused as the run "
+                          "would be")
     identify.add_argument("--equilibria", type=number_list, default=np.geomspace(47e-6, 210e-6, 12), metavar="HEIGHTS",
                           help="equilibrium heights [m], A,B,C or START:STOP:COUNT (default 12 heights spaced "
                           "geometrically over 47-210 um, a little beyond the 50-200 um work range)")
-    identify.add_argument("--damping-heights", type=number_list, default=np.linspace(*WORK_RANGE_M, 8), metavar="HEIGHTS",
+    identify.add_argument("--damping-heights", type=number_list, default=np.linspace(*WORK_RANGE_M, 8),
+                          metavar="HEIGHTS",
                           help=f"heights of the drive steps [m] (default {WORK_RANGE_M[0]:g}:{WORK_RANGE_M[1]:g}:8)")
     identify.add_argument("--steps", type=int, default=6, help="fitted steps per damping height, even (default 6)")
     identify.add_argument("--step-size", type=float, default=0.03, metavar="FRACTION",
@@ -68,7 +73,8 @@ def register(commands) -> None:
     identify.add_argument("--metres-per-volt", type=float, default=METRES_PER_VOLT, metavar="M/V",
                           help="|a| per volt at resonance, as the Controller's metres_per_volt (default %(default)s)")
     identify.add_argument("--amplitude-time-constant", type=float, metavar="SECONDS",
-                          help="the transducer's amplitude lag 2Q/omega_r in the step fits (default 5.58e-3: Q 500 at 28.5 kHz)")
+                          help="the transducer's amplitude lag 2Q/omega_r in the step fits "
+                          "(default 5.58e-3: Q 500 at 28.5 kHz)")
     identify.add_argument("--connect-timeout", type=float, default=2.0, metavar="SECONDS", help="wait for the rig's "
                           f"HELLO_ACK (default 2, at most {LONGEST_WAIT_S:g})")
     identify.add_argument("--max-silence", type=float, default=0.5, metavar="SECONDS", help="no measurement for this "
@@ -112,9 +118,11 @@ def _print_plan(plan, as_json: bool) -> None:
                     "moves": plan.moves(), "duration_s": {"typical": typical, "longest": longest}})
         return
     print(f"equilibria: {len(plan.equilibrium_heights_m)} heights "
-          f"{', '.join(f'{h * 1e6:.0f}' for h in plan.equilibrium_heights_m)} um: closed-loop move, then the drive held "
-          f"until settled ({plan.settle_window_s:g} s window, drift < {plan.settle_drift * 100:g} %)")
-    print(f"damping: {len(plan.damping_heights_m)} heights {', '.join(f'{h * 1e6:.0f}' for h in plan.damping_heights_m)} um: "
+          f"{', '.join(f'{h * 1e6:.0f}' for h in plan.equilibrium_heights_m)} um: closed-loop move, "
+          f"then the drive held until settled ({plan.settle_window_s:g} s window, "
+          f"drift < {plan.settle_drift * 100:g} %)")
+    print(f"damping: {len(plan.damping_heights_m)} heights "
+          f"{', '.join(f'{h * 1e6:.0f}' for h in plan.damping_heights_m)} um: "
           f"move, then {plan.steps} drive steps of +-{plan.step_fraction * 100:g} % each held until settled")
     print(f"duration: about {typical:.0f} s of rig time (at most {longest:.0f} s if every hold ran to its limit)")
 
@@ -174,7 +182,8 @@ def run_identify(args: argparse.Namespace) -> int:
         link.safe_point = collector.safe_point
         hello, max_voltage = link.hello, min(args.max_voltage, link.hello.max_drive_voltage)
         with progress_bar(plan.holds(), "identify") as bar:
-            experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
+            experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt,
+                                      max_voltage=max_voltage,
                                       law=move_law(plan, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
                                                    schedule=schedule), on_hold=lambda: bar.update(1),
                                       stop_request=stop_request)
@@ -201,7 +210,8 @@ def _run(experiments, link, raw: Path):
     except (ExperimentError, KeyboardInterrupt) as exc:
         ramped = experiments.ramp_down()
         link.close()
-        stopped = "the drive ramped down; STOP sent" if ramped else "no link to ramp the drive down: the rig's watchdog does"
+        stopped = ("the drive ramped down; STOP sent" if ramped
+                   else "no link to ramp the drive down: the rig's watchdog does")
         kept = f"every sample so far is in {raw} ({experiments.recorder.count} samples)"
         margin = _margin(link.timing())
         if isinstance(exc, KeyboardInterrupt):
@@ -235,7 +245,8 @@ def _provenance(args, hello, recorder, raw: Path, lag: float, timing: dict) -> d
 
     frequencies = recorder.column(FREQUENCY)
     return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
-            "firmware_version": f"nfal rig protocol {hello.protocol_version} (the protocol reports no firmware version)",
+            "firmware_version": f"nfal rig protocol {hello.protocol_version} "
+                                "(the protocol reports no firmware version)",
             "raw_data": raw.name, "nfal_version": __version__, "rig_time_s": recorder.duration_s,
             "sample_period_s": hello.sample_period_us * 1e-6, "watchdog_s": hello.watchdog_timeout_us * 1e-6,
             "rig_max_drive_voltage_v": hello.max_drive_voltage, "max_voltage_v": args.max_voltage,
@@ -258,9 +269,9 @@ def _report(result, recorder, out: Path, raw: Path, timing: dict, as_json: bool)
           f"{out.with_suffix('.png')}")
     print(f"real time: {_margin(timing)} (the rig's watchdog: {timing['rig_watchdog_s'] * 1e3:g} ms)")
     if timing["drive_gaps"]["max_s"] > DRIVE_GAP_BUDGET_S:
-        print(f"warning: the longest gap between DRIVE commands, {timing['drive_gaps']['max_s'] * 1e3:.1f} ms, is beyond the "
-              f"{DRIVE_GAP_BUDGET_S * 1e3:g} ms a held drive costs nothing in (docs/hil.md, \"Real time that holds\"): the "
-              "machine paused the host; a step that was under way then may have overshot")
+        print(f"warning: the longest gap between DRIVE commands, {timing['drive_gaps']['max_s'] * 1e3:.1f} ms, is "
+              f"beyond the {DRIVE_GAP_BUDGET_S * 1e3:g} ms a held drive costs nothing in (docs/hil.md, \"Real time "
+              "that holds\"): the machine paused the host; a step that was under way then may have overshot")
     print(f"K(sigma) from {len(result.equilibria)} equilibria (eq. 16), quartic as eq. (17): coefficients "
           f"{', '.join(f'{c:.6g}' for c in report['coefficients'])}; residual rms {report['residual_rms']:.3g}")
     print("damping over eq. (6), mean and 95 % interval:")

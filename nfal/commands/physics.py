@@ -10,7 +10,8 @@ from nfal.commands.common import (add_output_options, add_rig_options, finite_fl
                                   print_json, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
 
-SHAPE_HELP = "excitation form: piston, plate:N (free circular plate, N nodal circles), paper (Fig. 3 stand-in) or a CSV of R,eps_hat"
+SHAPE_HELP = ("excitation form: piston, plate:N (free circular plate, N nodal circles), paper (Fig. 3 stand-in) or a "
+              "CSV of R,eps_hat")
 
 
 def register(commands) -> None:
@@ -29,10 +30,13 @@ def register(commands) -> None:
                            help="solution route (default: perturbation)")
     numerical.add_argument("--sigma", type=number_list, default=number_list("5:500:100"),
                            help="squeeze numbers: A,B,C or START:STOP:COUNT (default 5:500:100)")
-    numerical.add_argument("--delta", type=finite_float, default=0.01, help="excitation norm delta for time-marching (default 0.01)")
+    numerical.add_argument("--delta", type=finite_float, default=0.01,
+                           help="excitation norm delta for time-marching (default 0.01)")
     numerical.add_argument("--nodes", type=int, help="radial nodes (default 401 perturbation, 101 time-marching)")
-    numerical.add_argument("--steps-per-period", type=int, default=256, help="time steps per excitation period (time-marching)")
-    numerical.add_argument("--out", metavar="FILE.json", type=output_file(".json"), help="write the result as a calibration file for the plant")
+    numerical.add_argument("--steps-per-period", type=int, default=256,
+                           help="time steps per excitation period (time-marching)")
+    numerical.add_argument("--out", metavar="FILE.json", type=output_file(".json"),
+                           help="write the result as a calibration file for the plant")
     add_output_options(numerical)
     numerical.set_defaults(handler=calibrate_numerical)
 
@@ -44,9 +48,12 @@ def register(commands) -> None:
     experimental.add_argument("data", metavar="DATA.csv", help="measured equilibria")
     experimental.add_argument("--degree", type=int, default=4, help="polynomial degree (default 4, as eq. 17)")
     voltage = experimental.add_mutually_exclusive_group()
-    voltage.add_argument("--metres-per-volt", type=finite_float, help="linear map |a| = gain * V for voltage_v data [m/V]")
-    voltage.add_argument("--voltage-map", metavar="MAP.csv", help="measured (voltage_v, amplitude_m) table for voltage_v data")
-    experimental.add_argument("--out", metavar="FILE.json", type=output_file(".json"), help="write the fitted calibration file for the plant")
+    voltage.add_argument("--metres-per-volt", type=finite_float,
+                         help="linear map |a| = gain * V for voltage_v data [m/V]")
+    voltage.add_argument("--voltage-map", metavar="MAP.csv",
+                         help="measured (voltage_v, amplitude_m) table for voltage_v data")
+    experimental.add_argument("--out", metavar="FILE.json", type=output_file(".json"),
+                              help="write the fitted calibration file for the plant")
     add_rig_options(experimental)
     add_output_options(experimental)
     experimental.set_defaults(handler=calibrate_experimental)
@@ -61,7 +68,8 @@ def register(commands) -> None:
         "state. Reports delta at steady state from both and the steady-state error between them.")
     table1.add_argument("--cases", default="a,b,c,d", help="which cases (default a,b,c,d)")
     table1.add_argument("--nodes", type=int, default=101, help="radial nodes of the full model (default 101)")
-    table1.add_argument("--steps-per-period", type=int, default=256, help="time steps per period of the full model (default 256)")
+    table1.add_argument("--steps-per-period", type=int, default=256,
+                        help="time steps per period of the full model (default 256)")
     add_output_options(table1)
     table1.set_defaults(handler=validate_table1)
 
@@ -167,8 +175,9 @@ def validate_table1(args: argparse.Namespace) -> int:
         print_json(rows)
     else:
         print("Table 1: delta at steady state, simplified (13) vs full (3)-(5) model; paper's values in brackets")
-        print(f"{'case':>4} {'delta simplified':>17} {'delta full':>11} {'error %':>9} {'paper delta':>12} {'paper error %':>14}")
+        print(f"{'case':>4} {'delta simplified':>17} {'delta full':>11} {'error %':>9} {'paper delta':>12} "
+              f"{'paper error %':>14}")
         for row in rows:
-            print(f"{row['case']:>4} {row['delta_simplified']:17.4f} {row['delta_full']:11.4f} {row['error_percent']:9.4f} "
-                  f"{row['paper_delta']:12.4f} {row['paper_error_percent']:14.4f}")
+            print(f"{row['case']:>4} {row['delta_simplified']:17.4f} {row['delta_full']:11.4f} "
+                  f"{row['error_percent']:9.4f} {row['paper_delta']:12.4f} {row['paper_error_percent']:14.4f}")
     return 0

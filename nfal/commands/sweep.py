@@ -27,19 +27,21 @@ def register(commands) -> None:
         epilog="Examples: nfal sweep examples/sweeps/robustness.toml; "
         "nfal sweep examples/sweeps/k_sigma.toml --workers 2 --out runs/k; "
         "nfal sweep spec.toml --scheduler tcp://10.0.0.5:8786")
-    sweep.add_argument("spec", metavar="SPEC.toml", help="the sweep spec (see docs in README 'Sweep many runs on Dask')")
+    sweep.add_argument("spec", metavar="SPEC.toml",
+                       help="the sweep spec (see docs in README 'Sweep many runs on Dask')")
     sweep.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
                        "(default: a local cluster)")
     sweep.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster, not with "
-                       "--scheduler (default: this machine's cores); 0: one worker thread in this process (for debugging)")
+                       "--scheduler (default: this machine's cores); 0: one worker thread in this process (for "
+                       "debugging)")
     sweep.add_argument("--out", metavar="DIR", help="result folder (default runs/sweep-<spec name>); continued if it "
                        "holds the same spec's table")
     sweep.add_argument("--build-dir", metavar="DIR", help="where built-in structures (fig7_slow, fig7_reynolds) are "
                        "built (default build/); only for a spec that runs one")
     sweep.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_accept_long_plan(sweep, f"{LONG_SWEEP_RUNS:,} runs, or SSP runs simulating more than "
-                         f"{duration_text(LONG_SWEEP_SIMULATED_S)} in all (runs x the time each simulates; fig7_slow takes "
-                         "about 2 s of a worker per simulated second)")
+                         f"{duration_text(LONG_SWEEP_SIMULATED_S)} in all (runs x the time each simulates; fig7_slow "
+                         "takes about 2 s of a worker per simulated second)")
     sweep.set_defaults(handler=run_sweep_command)
 
 

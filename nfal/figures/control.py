@@ -42,7 +42,8 @@ def stability_map_figure(grid) -> Figure:
     axis.plot(span, span, "--", color="navy", lw=1, label="design = operating (gain scheduling)")
     axis.set_xlabel("operating height (actual clearance) [µm]")
     axis.set_ylabel("design height [µm]")
-    method = {"forward_euler": "forward Euler", "zoh": "ZOH plant, forward-Euler controller"}.get(grid.discretisation, grid.discretisation)
+    method = {"forward_euler": "forward Euler",
+              "zoh": "ZOH plant, forward-Euler controller"}.get(grid.discretisation, grid.discretisation)
     axis.set_title(f"Fig. 8: closed-loop pole nearest |z| = 1, {grid.placement} placement\n"
                    f"({method}, {grid.sample_rate_hz:g} Hz)", fontsize=10)
     axis.legend(loc="lower right", fontsize=8)

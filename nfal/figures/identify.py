@@ -69,7 +69,8 @@ def _plot_damping(axis, result: Identification) -> None:
     for fits in result.step_fits:
         axis.plot([f.height * 1e6 for f in fits], [f.factor for f in fits], ".", color="grey", ms=3)
     axis.errorbar(table.heights_m * 1e6, table.factors, yerr=[table.factors - table.factors_low,
-                  table.factors_high - table.factors], fmt="o", color="black", ms=4, capsize=3, label="mean, 95 % interval")
+                  table.factors_high - table.factors], fmt="o", color="black", ms=4, capsize=3,
+                  label="mean, 95 % interval")
     axis.plot(heights * 1e6, table.factor(heights), "-", color="tab:blue", label="PCHIP on log factor")
     axis.axhline(1.0, color="tab:orange", ls="--", lw=1, label="eq. (6)")
     axis.set_yscale("log")
@@ -88,9 +89,11 @@ def _plot_step(axis, step, result: Identification, rig: RigParameters, lag_s: fl
     for factor, style, label in ((lambda h: 1.0, "--", "eq. (13) with eq. (6)"),
                                  (result.damping.factor, "-", "with the damping correction")):
         simulated = simulate_step(times, start, a1, a2, rig, result.calibration.fit, factor, lag_s)
-        axis.plot(np.concatenate([[step.times[0], 0.0], times]) * 1e3, np.concatenate([[start, start], simulated]) * 1e6,
+        axis.plot(np.concatenate([[step.times[0], 0.0], times]) * 1e3,
+                  np.concatenate([[start, start], simulated]) * 1e6,
                   style, color="tab:orange" if style == "--" else "tab:blue", lw=1.4, label=label)
-    axis.set_title(f"near {start * 1e6:.0f} µm: drive {step.voltage_before:.3g} → {step.voltage_after:.3g} V", fontsize=9)
+    axis.set_title(f"near {start * 1e6:.0f} µm: drive {step.voltage_before:.3g} → {step.voltage_after:.3g} V",
+                   fontsize=9)
     axis.set_xlabel("time [ms]", fontsize=8)
     axis.set_ylabel("height [µm]", fontsize=8)
     axis.tick_params(labelsize=7)

@@ -65,9 +65,12 @@ def plot_table1(path, results) -> None:
     axes = figure.subplots(rows, columns, squeeze=False)
     for axis, result in zip(axes.flat, results):
         case = result.case
-        axis.plot(result.time_full * 1e3, result.height_full * 1e6, "-", color="black", lw=1.6, label="full model (3)-(5)")
-        axis.plot(result.time_simplified * 1e3, result.height_simplified * 1e6, "--", color="tab:orange", lw=1.6, label="simplified (13)")
-        axis.set_title(f"({case.name}) m = {case.mass * 1e3:g} g, f = {case.frequency / 1e3:g} kHz, |a| = {case.excitation * 1e6:g} µm\n"
+        axis.plot(result.time_full * 1e3, result.height_full * 1e6, "-", color="black", lw=1.6,
+                  label="full model (3)-(5)")
+        axis.plot(result.time_simplified * 1e3, result.height_simplified * 1e6, "--", color="tab:orange", lw=1.6,
+                  label="simplified (13)")
+        axis.set_title(f"({case.name}) m = {case.mass * 1e3:g} g, f = {case.frequency / 1e3:g} kHz, "
+                       f"|a| = {case.excitation * 1e6:g} µm\n"
                        f"δ = {result.delta_full:.4f}, steady-state error {result.error_percent:.3f} %", fontsize=9)
         axis.set_xlabel("time [ms]")
         axis.set_ylabel("clearance h̄ [µm]")

@@ -30,7 +30,8 @@ def build_reference_fmu(model: str, out_dir: Path) -> Path:
     library = out_dir / f"{model}.so"
     subprocess.run([compiler(), "-shared", "-fPIC", "-O2", "-DDISABLE_PREFIX",
                     *(f"-I{folder}" for folder in (*sources, FMI2_HEADERS)),
-                    "-o", str(library), str(HERE / "common" / "all.c"), "-lm"], check=True, capture_output=True, text=True)
+                    "-o", str(library), str(HERE / "common" / "all.c"), "-lm"],
+                   check=True, capture_output=True, text=True)
     fmu = out_dir / f"{model}.fmu"
     with zipfile.ZipFile(fmu, "w", zipfile.ZIP_DEFLATED) as archive:
         archive.write(HERE / model / "modelDescription.xml", "modelDescription.xml")

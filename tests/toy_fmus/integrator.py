@@ -33,7 +33,8 @@ class Integrator(Fmi2Slave):
         self.register_variable(Real("x0", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed))
         self.register_variable(Real("fail_time", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed))
         self.register_variable(Boolean("frozen", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed))
-        self.register_variable(Integer("decimation", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed))
+        self.register_variable(Integer("decimation", causality=Fmi2Causality.parameter,
+                                       variability=Fmi2Variability.fixed))
         self.register_variable(String("label", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed))
 
     def enter_initialization_mode(self):

@@ -32,7 +32,8 @@ def parameter_set(values: dict, name: str = "set") -> str:
 
 def ssv_file(values: dict, name: str = "set") -> str:
     return ('<?xml version="1.0" encoding="UTF-8"?>\n' + parameter_set(values, name).replace(
-        "<ssv:ParameterSet ", '<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
+        "<ssv:ParameterSet ", '<ssv:ParameterSet '
+        'xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
         'xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon" ', 1))
 
 
@@ -60,7 +61,8 @@ def connection(start: str, end: str) -> str:
     return f"<ssd:Connection {attributes(start, 'start')} {attributes(end, 'end')}/>"
 
 
-def system(name: str, elements: tuple, connections: tuple = (), connectors: tuple = (), parameter_bindings: str = "") -> str:
+def system(name: str, elements: tuple, connections: tuple = (), connectors: tuple = (),
+           parameter_bindings: str = "") -> str:
     body = f"<ssd:Connectors>{''.join(connectors)}</ssd:Connectors>" if connectors else ""
     body += parameter_bindings
     body += f"<ssd:Elements>{''.join(elements)}</ssd:Elements>"
