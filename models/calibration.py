@@ -153,7 +153,7 @@ class TabulatedK(CalibrationFunction):
         return self._scalar_spline(math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1])))
 
     def curve(self) -> tuple:
-        return piecewise.curve(True, self._spline.x, self._spline.c.T[:, np.newaxis, :], *self.sigma_range, 0.0)
+        return piecewise.spline_curve(self._spline, True, *self.sigma_range)
 
     def _value(self, sigma):
         return self._spline(np.log(sigma))

@@ -18,6 +18,7 @@ from scipy import interpolate
 
 from nfal.errors import DataFormatError, InvalidParameterError, shown
 
+from . import piecewise
 from .json_fields import as_json, json_numbers
 from .plausibility import require_clearances
 from .scalar_spline import ScalarSpline
@@ -74,6 +75,10 @@ class DampingCorrection:
     def factor(self, height):
         """f at the clearance(s) ``height`` [m] (held at the end values outside the table)."""
         return np.exp(self._log_factor(np.clip(np.asarray(height, dtype=float), *self.height_range_m)))
+
+    def log_factor_curve(self) -> tuple:
+        """log f of h as the piecewise polynomial of compiled code (:mod:`nfal.models.piecewise`)."""
+        return piecewise.spline_curve(self._log_factor, False, *self.height_range_m)
 
     def factor_band(self, height) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) ends of the confidence band at ``height`` [m], interpolated like the factor."""

@@ -26,8 +26,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from nfal.errors import InvalidParameterError, require_positive
 
 from . import piecewise, slow_kernels
@@ -49,9 +47,7 @@ def damping_correction(model: ExcessDamping | DampingCorrection | None) -> tuple
         return slow_kernels.NO_CORRECTION, 1.0, 1.0, piecewise.NO_CURVE
     if isinstance(model, ExcessDamping):
         return slow_kernels.POWER_CORRECTION, float(model.height), float(model.exponent), piecewise.NO_CURVE
-    spline = model._log_factor  # PCHIP of log f in h
-    return slow_kernels.CURVE_CORRECTION, 1.0, 1.0, piecewise.curve(False, spline.x, spline.c.T[:, np.newaxis, :],
-                                                                       *model.height_range_m, 0.0)
+    return slow_kernels.CURVE_CORRECTION, 1.0, 1.0, model.log_factor_curve()
 
 
 class FixedStepPlant:

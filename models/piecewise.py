@@ -20,5 +20,11 @@ def curve(log_axis: bool, breaks, pieces, low: float, high: float, delta_max: fl
             float(low), float(high), float(delta_max))
 
 
+def spline_curve(spline, log_axis: bool, low: float, high: float) -> tuple:
+    """A scipy piecewise cubic (``CubicSpline``, ``PchipInterpolator``) of x, or of log x when ``log_axis``, held at
+    [low, high] of x, as a curve."""
+    return curve(log_axis, spline.x, spline.c.T[:, np.newaxis, :], low, high, 0.0)
+
+
 #: A curve of the right types for what does not use one (a damping correction without a table).
 NO_CURVE = curve(False, [0.0, 1.0], np.zeros((1, 1, 1)), 0.0, 1.0, 0.0)
