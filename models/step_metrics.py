@@ -22,12 +22,14 @@ first height.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from nfal.errors import InvalidParameterError
 
-from .closed_loop import ClosedLoopRun
+if TYPE_CHECKING:  # annotations only: the metrics need no plant (nor its compiled kernels)
+    from .closed_loop import ClosedLoopRun
 
 SETTLING_BAND = 0.02
 STEADY_FRACTION = 0.25
@@ -134,6 +136,13 @@ def level_reach(run: ClosedLoopRun, reference, *, band: float = REACHED_BAND) ->
             reach.append(LevelReach(float(levels[n]), max(start, float(run.time_s[0])), end,
                                     band * abs(levels[n] - previous), float(np.min(h)), float(np.max(h))))
     return reach
+
+
+def noise_limits_settling(step: dict) -> bool:
+    """Whether the judged height's noise alone leaves the settling band of a step (a :meth:`StepMetrics.to_dict` row):
+    the band's half-width is within two noise RMS of the level, so the settling time is when the noise last left it,
+    not the object's motion."""
+    return 2.0 * step["noise_rms_m"] >= SETTLING_BAND * abs(step["to_m"] - step["from_m"])
 
 
 def total_iae(run: ClosedLoopRun, where: np.ndarray | None = None) -> float:

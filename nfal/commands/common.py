@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from nfal.models.step_metrics import noise_limits_settling
+
 from nfal.errors import PlanError
 
 
@@ -123,14 +125,6 @@ def _to_builtin(value):
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(f"cannot write {type(value).__name__} as JSON")
-
-
-def noise_limits_settling(step: dict) -> bool:
-    """Whether the judged height's noise alone leaves the settling band: the band's half-width (2 % of the step) is
-    within two noise RMS of the level, so the settling time is when the noise last left it, not the object's motion."""
-    from nfal.models.step_metrics import SETTLING_BAND  # on use: `nfal --help` stays fast
-
-    return 2.0 * step["noise_rms_m"] >= SETTLING_BAND * abs(step["to_m"] - step["from_m"])
 
 
 def print_step_table(steps: list[dict]) -> None:
