@@ -3,9 +3,9 @@
     python bench/hil_agreement.py
 
 Runs `nfal rig-emulator` (rig_slow truth, sensor noise off) in a child process and fig7_hil in real time
-tracking 100 -> 140 um, then the simulated loop fig7_slow with the truth's parameters, and compares (the
-settings of tests/test_hil_end_to_end.py::test_hil_tracks_a_step_like_the_simulation_of_the_truth, without
-its SCHED_FIFO and retries: one run as it comes, whether or not the machine stalled during it).
+tracking 100 -> 140 um, then the simulated loop fig7_slow with the truth's parameters, and compares: the
+comparison of tests/test_hil_end_to_end.py::test_hil_tracks_a_step_like_the_simulation_of_the_truth, paced on the
+wall clock where the test runs in lockstep (one run as it comes, whether or not the machine stalled during it).
 """
 
 from __future__ import annotations

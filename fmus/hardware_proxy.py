@@ -15,6 +15,10 @@ work in hardware. A thin adapter over :class:`nfal.hil.link.RigLink`:
   logged (the link's last error): the proxy never makes a measurement up; a held value is flagged by
   ``fresh`` = false and a growing ``samples_missed``. pythonfmu reports a failing step as fmi2Fatal
   (docs/cosimulation.md).
+* With ``lockstep`` the step waits (up to ``connect_timeout``) for the measurement that reports its DRIVE applied:
+  the loop runs on the rig's clock. Against ``nfal rig-emulator --lockstep``, whose ticks wait for each DRIVE, the
+  loop is then the same whatever the machine's load and however the master is paced (for tests and debugging; on a
+  rig on its own clock the step takes up to a sample period, and the loop has a sample's delay).
 * A sample flagged WATCHDOG_TRIPPED fails the step too: the rig had no DRIVE for its watchdog time (the
   host stalled), ramps the drive down and ignores DRIVE until a new session, so the loop is open and the
   run can no longer mean anything. (A reconnection's HELLO clears the trip, so a link that comes back
@@ -95,6 +99,9 @@ class HardwareProxy(NfalSlave):
                            description="wait for the rig's HELLO_ACK and first sample")
         self.add_parameter("max_missed_samples", 20, description="samples the rig may miss in a row (by the wall "
                            "clock) before the step fails (20 = 10 ms at 2 kHz)")
+        self.add_parameter("lockstep", False, description="each step waits for the rig's measurement that reports "
+                           "its DRIVE applied (up to connect_timeout): against nfal rig-emulator --lockstep a loop "
+                           "that does not depend on the machine's load")
         self.add_parameter("reconnect", True, description="reopen the port and say HELLO again after a lost link")
         self.add_parameter("sample_rate", SAMPLING_RATE_HZ, unit="Hz",
                            description="the rig's sample rate, checked at connection")
@@ -167,7 +174,14 @@ class HardwareProxy(NfalSlave):
             raise InvalidParameterError("drive_voltage", voltage, "a voltage >= 0 V")
         link.send_drive(voltage)
         self._collector.safe_point()  # right after the DRIVE left: the most slack before the next one
-        link.poll()  # what has arrived, without waiting
+        if self.lockstep:
+            if not link.wait_applied(self.connect_timeout):
+                self._close(stop=False)
+                raise LinkError(f"{self.port}: lockstep: the rig did not report the DRIVE of t = {current_time:g} s "
+                                f"applied within connect_timeout = {self.connect_timeout:g} s ("
+                                f"{link.last_error or 'no error on the port'})")
+        else:
+            link.poll()  # what has arrived, without waiting
         sample = link.latest()
         self._publish(sample, fresh=sample.count != self._seen)
         # by the wall clock, not by steps: a master catching up after a stall of its own steps in a burst,

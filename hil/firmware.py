@@ -80,6 +80,7 @@ class Firmware:
         self.commanded = 0.0        # [V], after the clamp
         self.applied = 0.0          # [V] over the current period
         self.command_seq = 0
+        self.drives = 0             # DRIVE commands taken (the lockstep emulator ticks on them)
         self.last_measurement: Measurement | None = None
         self._last_drive_tick = 0
         self._ramp: tuple[int, float] | None = None  # (start tick, start voltage)
@@ -141,6 +142,7 @@ class Firmware:
         self.commanded = min(voltage, self.timing.max_drive_voltage)
         self.command_seq, self._last_drive_tick = seq, tick
         self.armed, self._ramp = True, None
+        self.drives += 1
         return out
 
     # --- the rig's clock ----------------------------------------------------------------------------

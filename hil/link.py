@@ -179,6 +179,7 @@ class RigLink:
         self._heard_at = 0.0        # when the decoder last accepted a frame
         self._hellos_said = 0       # HELLOs of this session (more than one: the rig may restart its count twice)
         self._drove = False         # a DRIVE has gone out in this session (the rig's watchdog is armed)
+        self.last_drive_seq: int | None = None  # the frame seq of the last DRIVE sent
         self._reconnect_at = 0.0
         self._lost_reason = ""
         self._opening: concurrent.futures.Future | None = None  # a port being opened for a polling owner
@@ -233,21 +234,8 @@ class RigLink:
             time.sleep(WAIT_PAUSE_S if not self.reader_thread else READ_TIMEOUT_S / 10)
 
     def wait_readable(self, timeout_s: float) -> None:
-        """Return when the port has bytes to read or after ``timeout_s`` (select on its descriptor: one wake-up per
-        arrival, where sleeping in short pauses wakes many times for nothing); ports without a descriptor
-        (``loop://``) sleep WAIT_PAUSE_S."""
-        port = self._port
-        try:
-            descriptor = port.fileno() if port is not None else None
-        except (AttributeError, *READ_ERRORS):
-            descriptor = None
-        if descriptor is None:
-            time.sleep(min(timeout_s, WAIT_PAUSE_S))
-            return
-        try:
-            select.select([descriptor], [], [], max(0.0, timeout_s))
-        except (OSError, ValueError):  # closed under us: the next poll notices
-            pass
+        """Return when the port has bytes to read or after ``timeout_s`` (:func:`wait_readable`)."""
+        wait_readable(serial_descriptor(self._port), timeout_s)
 
     def latest(self) -> Sample | None:
         """The newest measurement (None before the first)."""
@@ -264,11 +252,26 @@ class RigLink:
             self._drain()
         if self._send(Drive(float(voltage))):
             self._drove = True
+            self.last_drive_seq = self._encoder.last_seq
             self.counters.drives_sent += 1
             self.drive_gaps.mark(self.clock())
             return True
         self.counters.drives_not_sent += 1
         return False
+
+    def wait_applied(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for a measurement that reports the last DRIVE applied (it carries that DRIVE's seq):
+        the answer of a rig in lockstep, or the next sample of one on its own clock. True if it came."""
+        deadline = self.clock() + timeout_s
+        while True:
+            self.poll()
+            latest = self._latest
+            if latest is not None and latest.measurement.command_seq == self.last_drive_seq:
+                return True
+            remaining = deadline - self.clock()
+            if remaining <= 0 or self._port is None:
+                return False
+            self.wait_readable(remaining)
 
     def _drain(self) -> None:
         """Poll until the port has nothing waiting (at most a few DRAIN_LIMIT reads: a rig streams on meanwhile)."""
@@ -527,6 +530,26 @@ class RigLink:
             logger.warning("%s: session re-established", self.url)
         self.rig = ack
         self._acknowledged.set()
+
+
+def serial_descriptor(port: serial.SerialBase | None) -> int | None:
+    """The file descriptor under a pyserial port (None for none, or a URL without one, e.g. ``loop://``)."""
+    try:
+        return port.fileno() if port is not None else None
+    except (AttributeError, *READ_ERRORS):
+        return None
+
+
+def wait_readable(descriptor: int | None, timeout_s: float) -> None:
+    """Return when ``descriptor`` has bytes to read or after ``timeout_s`` (select: one wake-up per arrival, where
+    sleeping in short pauses wakes many times for nothing); without a descriptor, sleep WAIT_PAUSE_S."""
+    if descriptor is None:
+        time.sleep(min(timeout_s, WAIT_PAUSE_S))
+        return
+    try:
+        select.select([descriptor], [], [], max(0.0, timeout_s))
+    except (OSError, ValueError):  # closed under us: the next read notices
+        pass
 
 
 def _failed(what: str, exc: BaseException) -> str:

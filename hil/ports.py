@@ -17,7 +17,7 @@ import serial
 
 from nfal.errors import LinkError
 
-from .link import READ_ERRORS, open_port
+from .link import READ_ERRORS, open_port, serial_descriptor, wait_readable
 
 #: Most bytes one read takes.
 READ_CHUNK = 65536
@@ -93,6 +93,10 @@ class PtyPort:
         except (BlockingIOError, InterruptedError):
             return b""
 
+    def wait_readable(self, timeout_s: float) -> None:
+        """Return when the host has sent something or after ``timeout_s``."""
+        wait_readable(self._master, timeout_s)
+
     def write(self, data: bytes) -> None:
         if self._master is None or not data:
             return
@@ -139,6 +143,10 @@ class UrlPort:
             self._failed(exc)
             return b""
 
+    def wait_readable(self, timeout_s: float) -> None:
+        """Return when the host has sent something or after ``timeout_s``."""
+        wait_readable(serial_descriptor(self._port), timeout_s)
+
     def write(self, data: bytes) -> None:
         if self._port is None or not data:
             return
@@ -159,3 +167,4 @@ class UrlPort:
 
     def close(self) -> None:
         self.disconnect()
+

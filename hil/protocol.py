@@ -341,6 +341,11 @@ class FrameEncoder:
         seq, self.next_seq = self.next_seq, (self.next_seq + 1) % _SEQ_MODULUS
         return encode(message, seq)
 
+    @property
+    def last_seq(self) -> int:
+        """The seq of the last frame numbered."""
+        return (self.next_seq - 1) % _SEQ_MODULUS
+
     def restart(self) -> None:
         """Count from 0 again (a new session)."""
         self.next_seq = 0

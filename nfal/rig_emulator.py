@@ -15,12 +15,18 @@ than real time: the host sees the stall as samples that did not come):
 :class:`Disconnection` drops the port that long after the first session opened (the host's reads fail)
 and reconnects it ``after_s`` later (rig time); the rig keeps running meanwhile, so its watchdog ramps
 the drive down when the host stops commanding.
+
+With ``lockstep`` the host's DRIVE commands are the rig's clock: once a session's first DRIVE has come,
+each tick waits for the next one (up to ``LOCKSTEP_WAIT_S`` of wall time, then the rig ticks on the wall
+clock again until the next DRIVE). A host whose HardwareProxy waits for each answer (``proxy.lockstep``)
+then runs the same loop whatever the machine's load: for tests and debugging, not for timing.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 from collections.abc import Callable
 from typing import TextIO
 
@@ -36,6 +42,10 @@ logger = logging.getLogger(__name__)
 RECORD_HEADER = "timestamp_us,height_m,drive_frequency_hz,applied_voltage_v,true_height_m"
 #: A tick later than this [s] restarts the rig's schedule from now (RealTimePacer's resync_after_s).
 RESYNC_AFTER_S = 0.002
+#: In lockstep, wall time the rig waits for the host's next DRIVE before ticking on its own clock again [s].
+LOCKSTEP_WAIT_S = 5.0
+#: In lockstep, the longest the rig waits without looking whether it was asked to stop [s].
+STOP_CHECK_S = 0.1
 #: Rig time between attempts to reopen a port that failed under the emulator (an unplugged device) [s].
 REOPEN_INTERVAL_S = 0.5
 
@@ -66,6 +76,7 @@ class EmulatorReport:
     faults: dict = dataclasses.field(default_factory=dict)
     decoder: dict = dataclasses.field(default_factory=dict)
     bytes_dropped: int = 0
+    lockstep_ticks: int = 0  #: ticks released by a DRIVE, not by the wall clock
 
 
 class Emulator:
@@ -87,12 +98,17 @@ class Emulator:
     firmware : optional
         The rig's firmware, if not the Python one: an :class:`~nfal.hil.plant_channel.ExternalFirmware` (the C
         reference firmware, on the host or in QEMU), whose events go to ``on_event`` too.
+    lockstep : bool
+        Tick on the host's DRIVE commands (see the module docstring); the Python firmware only.
     """
 
     def __init__(self, port, model, *, timing: RigTiming = RigTiming(), faults: FaultSettings = FaultSettings(),
                  disconnection: Disconnection | None = None, on_event: Callable[[str], None] | None = None,
-                 record: TextIO | None = None, firmware=None) -> None:
-        self.port, self.model, self.timing = port, model, timing
+                 record: TextIO | None = None, firmware=None, lockstep: bool = False) -> None:
+        if lockstep and firmware is not None:
+            raise InvalidParameterError("lockstep", lockstep, "False with an external firmware (it keeps its own "
+                                        "clock)")
+        self.port, self.model, self.timing, self.lockstep = port, model, timing, lockstep
         self.on_event = on_event or (lambda text: logger.info("%s", text))
         firmware_event = lambda t, text: self.on_event(f"t = {t:.4f} s: {text}")  # noqa: E731
         if firmware is None:
@@ -109,6 +125,7 @@ class Emulator:
         self._planned_done = False  # the planned disconnection has happened
         self._failures_seen = 0
         self._reopen_at = 0.0
+        self._silent_after: int | None = None  # lockstep: the DRIVE count when the host went silent
         self._record = record
         if record is not None:
             record.write(RECORD_HEADER + "\n")
@@ -117,11 +134,12 @@ class Emulator:
         """Ask :meth:`run` to return after the current tick (from a signal handler or another thread)."""
         self._stop = True
 
-    def tick(self, k: int) -> None:
-        """One sample period of the rig (see the module docstring)."""
+    def tick(self, k: int, received: list[bytes] = ()) -> None:
+        """One sample period of the rig (see the module docstring); ``received``: the firmware's answers to what
+        came in while the tick waited for it (lockstep)."""
         firmware, port = self.firmware, self.port
         now = k * self.timing.sample_period_s
-        out = firmware.receive(port.read(), k)
+        out = [*received, *firmware.receive(port.read(), k)]
         if firmware.session and self._opened_at is None:
             self._opened_at = now
         voltage, faults = firmware.voltage(k)
@@ -138,6 +156,25 @@ class Emulator:
             self.report.frames_sent += len(frames)
         self.model.advance()
         self._link_events(now)
+
+    def _await_drive(self, k: int) -> tuple[list[bytes], bool]:
+        """Lockstep: take in what the host sends until a DRIVE (or a STOP) has come for tick ``k``. Returns the
+        firmware's answers and whether one came within LOCKSTEP_WAIT_S."""
+        firmware, port = self.firmware, self.port
+        drives, out = firmware.drives, []
+        deadline = time.perf_counter() + LOCKSTEP_WAIT_S
+        while not self._stop:
+            out += firmware.receive(port.read(), k)
+            if firmware.drives != drives or not firmware.session:
+                return out, True
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                self._silent_after = drives  # the wall clock until the next DRIVE
+                self.on_event(f"t = {k * self.timing.sample_period_s:.4f} s: lockstep: no DRIVE for "
+                              f"{LOCKSTEP_WAIT_S:g} s, ticking on the wall clock")
+                break
+            port.wait_readable(min(remaining, STOP_CHECK_S))  # a stop() (a signal's) is seen within STOP_CHECK_S
+        return out, False
 
     def _link_events(self, now_s: float) -> None:
         """Drop or restore the port as ``disconnection`` says (rig time since the first session opened); reopen
@@ -182,10 +219,23 @@ class Emulator:
         with realtime_section() as collector:  # the collector runs between ticks only (nfal.realtime)
             collector.settle()
             pacer.start()
+            stepped = False  # the last tick was released by a DRIVE
             while not self._stop and (ticks is None or k < ticks):
-                pacer.wait(k)
-                self.tick(k)
-                pacer.done(k)
+                firmware = self.firmware
+                received, lockstep = [], (self.lockstep and firmware.armed and firmware.session
+                                          and firmware.drives != self._silent_after)
+                if lockstep:
+                    received, lockstep = self._await_drive(k)
+                if lockstep:
+                    self.tick(k, received)
+                    self.report.lockstep_ticks += 1
+                else:
+                    if stepped:
+                        pacer.restart(k)  # the wall clock again, from now
+                    pacer.wait(k)
+                    self.tick(k, received)
+                    pacer.done(k)
+                stepped = lockstep
                 collector.safe_point()
                 k += 1
         if self._record is not None:

@@ -180,6 +180,10 @@ class RealTimePacer:
             self.time_given_up += lateness
         return lateness
 
+    def restart(self, k: int) -> None:
+        """Make now step ``k``'s release time (after a stretch of steps not released by this pacer)."""
+        self.start_time = self.clock() - k * self.period
+
     def sleep_until(self, k: int) -> None:
         """Block until step ``k``'s release time without recording it (e.g. the end of the run)."""
         remaining = self.release_time(k) - self.clock()

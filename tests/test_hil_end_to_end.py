@@ -1,8 +1,11 @@
-"""Hardware in the loop, end to end: `nfal rig-emulator` in a subprocess on a pty, fig7_hil run in real time.
+"""Hardware in the loop, end to end: `nfal rig-emulator` in a subprocess on a pty, fig7_hil run against it.
 
 Each test starts the emulator on the session's built rig_slow.ssp (the truth: the slow plant with the
 large-gap damping of rig_truth.ssv, the resonance tracker, the sensor chain) and runs the HIL structure
-(the unchanged Controller and the HardwareProxy) paced on the wall clock.
+(the unchanged Controller and the HardwareProxy). Tests that judge the loop's response run it in lockstep
+(``--lockstep`` and ``proxy.lockstep``: the rig ticks on the host's DRIVEs), so a loaded machine cannot change
+what they judge; tests of the link's faults run it paced on the wall clock, with limits far from a loaded
+machine's stalls. How well real time holds is measured by benchmarks (bench/realtime.py, bench/hil_agreement.py).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import numpy as np
 import pytest
 
 from nfal.cli import main
-from nfal.fig7 import HARDWARE, PROXY, SIMULATED, loop_metrics
+from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import SimulationError, run_structure
 from nfal.orchestration.pacing import realtime_priority_refusal
@@ -35,15 +38,6 @@ TRANSIENT = (1.0, 1.2)
 RT_PRIORITY = 50
 #: The host's missed-sample limit where a lost link is the point of the test: 50 ms.
 MISSED = 100
-#: The rate of the tests that judge the loop's response on the wall clock [Hz]. At 2 kHz the host's step (its
-#: HardwareProxy's doStep alone 172 us on average) leaves too little of the 500 us period on this 2-core machine: the
-#: loop overran 36 % of its steps (2026-11-26, with the emulator's tick at 90 us since its plant is compiled; before,
-#: the emulator's tick took 420-500 us of its 500 too), and the step test passed 2 of 4 runs at 2 kHz. So those tests
-#: run host and rig at 1 kHz, with the filter scaled to keep the sampled loop's dynamics (6 of 6 passed, 2026-11-26);
-#: the others run at Table 2's 2 kHz.
-JUDGED_RATE = 1000.0
-
-
 class Emulator:
     """`nfal rig-emulator` as a subprocess: its port (first line) and, after stop(), the rest of its output. It stands
     for the rig, a separate machine with its own processor: where the system allows it, it runs under SCHED_FIFO, so
@@ -80,87 +74,48 @@ def emulator(fig7_archives):
         process.stop()
 
 
-def _controller_at(rate: float, reference) -> dict:
-    """The Controller sampling at ``rate`` [Hz], its filter scaled with it (Table 2's T_s omega_L = 0.94), designed
-    over ``reference``'s levels only (at 1 kHz the 10 Hz cut-off is out of reach at 190 um)."""
-    return {"Controller.sample_rate": rate, "Controller.filter_cutoff": 300.0 * rate / 2000.0,
-            "Controller.reference_min": min(reference.levels_m), "Controller.reference_max": max(reference.levels_m)}
-
-
-def _hil(fig7_archives, port: str, out, reference=STEP, rt_priority=None, rate=None, **parameters):
-    """fig7_hil on the rig at ``port``, paced; ``rate`` [Hz]: the host and the rig (started with ``--sample-rate``) at
-    that rate, the Controller's filter scaled with it, so the sampled loop's dynamics are Table 2's
-    (T_s omega_L = 0.94)."""
-    step_size = None
-    if rate is not None:
-        step_size = 1.0 / rate
-        parameters = {"proxy.sample_rate": rate, **_controller_at(rate, reference), **parameters}
-    return run_structure(fig7_archives["fig7_hil"], stop_time=reference.duration_s, step_size=step_size,
+def _hil(fig7_archives, port: str, out, reference=STEP, rt_priority=None, lockstep=False, **parameters):
+    """fig7_hil on the rig at ``port``: paced on the wall clock; or, with ``lockstep`` (the emulator started with
+    ``--lockstep``), unpaced, each step waiting for the rig's answer (``proxy.lockstep``), so that the loop does not
+    depend on the machine's load."""
+    if lockstep:
+        parameters = {"proxy.lockstep": True, **parameters}
+    return run_structure(fig7_archives["fig7_hil"], stop_time=reference.duration_s,
                          inputs={"Controller.reference": reference}, parameters={"proxy.port": port, **parameters},
-                         realtime=True, plot=False, out_dir=out, rt_priority=rt_priority)
+                         realtime=not lockstep, plot=False, out_dir=out, rt_priority=rt_priority)
 
 
 def simulate_the_truth(fig7_archives, reference, out, **parameters):
-    """fig7_slow on the emulator's truth (TRUTH, noise off) at JUDGED_RATE, set up as :func:`_hil` sets up the host
-    and ``--sample-rate`` the rig: the simulation a HIL run of the same reference is judged against."""
-    rate = {**_controller_at(JUDGED_RATE, reference), "SensorChain.sample_rate": JUDGED_RATE,
-            "ResonanceTracker.pll_rate": JUDGED_RATE}
-    return run_structure(fig7_archives["fig7_slow"], stop_time=reference.duration_s, step_size=1.0 / JUDGED_RATE,
+    """fig7_slow on the emulator's truth (TRUTH, noise off): the simulation a HIL run of the same reference is judged
+    against."""
+    return run_structure(fig7_archives["fig7_slow"], stop_time=reference.duration_s,
                          inputs={"Controller.reference": reference}, plot=False, out_dir=out,
-                         parameters={**TRUTH, **rate, "SensorChain.noise_peak": 0.0, **parameters})
-
-
-def _kept_up(result, start: float, end: float, samples: int = 4) -> bool:
-    """Over [start, end): no gap of more than ``samples`` rig samples, and the rig's clock in step with the host's
-    (its lag behind the host's time varies by at most as long). Not so when the machine stalled one of the two
-    processes (the rig gives up the time it stalled; the host catches up in a burst)."""
-    t = result.table().time
-    window = (t >= start) & (t < end)
-    lag = (t - np.asarray(result[f"{PROXY}.rig_time"]))[window]
-    return bool(np.max(np.asarray(result[f"{PROXY}.samples_missed"])[window]) <= samples
-                and np.ptp(lag) <= samples / JUDGED_RATE)
+                         parameters={**TRUTH, "SensorChain.noise_peak": 0.0, **parameters})
 
 
 @pytest.mark.slow
 def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emulator, tmp_path):
-    """Noise off on both sides. The HIL loop has the link's delay (up to a sample or two) that the simulated loop
-    has not, and lifts off from rest at a different phase, so the comparison starts after lift-off (0.5 s).
-    Tolerances (measured at 2 kHz: 1.6 um, 0 um, 2 ms, 0.4 points): the step's transient within 5 um; the last half of
-    each hold within 0.05 um; rise time within 5 ms; overshoot within 3 percentage points.
-
-    The host runs under SCHED_FIFO where the system allows it, as the rig does, with the rig's default watchdog. This
-    shared 2-core virtual machine pauses processes for tens of milliseconds now and then (docs/hil.md, "Real time that
-    holds"), and a pause during the step changes the loop's transient as it would on a real rig, so a run whose link did
-    not keep real time during the step (:func:`_kept_up`) is not judged but repeated, up to three times. This retry is a
-    known defect of the test (issue 23: HIL tests should judge in rig time), kept until the comparison is made against a
-    simulation driven by what the rig actually applied."""
-    priority = None if realtime_priority_refusal(RT_PRIORITY) else RT_PRIORITY
-    for attempt in range(3):
-        rig = emulator("--param", "SensorChain.noise_peak=0", "--sample-rate", str(JUDGED_RATE))
-        hil = _hil(fig7_archives, rig.port, tmp_path / f"hil{attempt}", rt_priority=priority, rate=JUDGED_RATE,
-                   **{"proxy.max_missed_samples": 2000})
-        assert "HELLO: session open" in rig.stop()
-        if _kept_up(hil, *TRANSIENT):
-            break
-    else:
-        pytest.fail(f"the link did not keep real time during the step in any of 3 runs: {hil.summary['realtime']}")
+    """In lockstep (the rig ticks on the host's DRIVEs, each step waits for the rig's answer), noise off on both sides:
+    the HIL loop is the simulated loop with the link's one-sample delay, from rest, whatever the machine's load
+    (identical to the last digit with three CPU-bound processes beside it, 2026-11-26). Measured at Table 2's 2 kHz:
+    1.10 um largest difference from rest through the step, 0.002 um over the holds' last halves; rise 34.2 / 34.9 ms,
+    overshoot 2.25 / 2.11 %, settling 86.5 / 84.0 ms (HIL / simulated). How a loop paced on the wall clock compares is
+    a benchmark's question (bench/hil_agreement.py, docs/hil.md)."""
+    rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
+    hil = _hil(fig7_archives, rig.port, tmp_path / "hil", lockstep=True)
+    log = rig.stop()
+    assert "HELLO: session open" in log and f"({round(STEP.duration_s * 2000)} on the host's DRIVE)" in log
     simulated = simulate_the_truth(fig7_archives, STEP, tmp_path / "sim")
     t = hil.table().time
-    measured, expected = np.asarray(hil[HARDWARE.measured]), np.asarray(simulated[SIMULATED.measured])
-    difference = np.abs(measured - expected)
-    transient = (t >= TRANSIENT[0]) & (t < TRANSIENT[1])
-    # the step's transient as the simulation's, up to the link's delay (0-2 samples): measured at 1 kHz, 2.4-3.7 um at
-    # the best delay in 3 runs that kept real time (3.7-4.8 um at none)
-    assert min(np.max(np.abs(measured - np.roll(expected, lag))[transient]) for lag in range(3)) < 5e-6
+    difference = np.abs(np.asarray(hil[HARDWARE.measured]) - np.asarray(simulated[SIMULATED.measured]))
+    assert np.max(difference) < 1.5e-6  # from rest, through lift-off and the step
     for start, end in ((0.5, 1.0), (1.5, 2.0)):
         assert np.max(difference[(t >= start) & (t < end)]) < 0.05e-6
     [hil_step] = loop_metrics(hil.table(), STEP, HARDWARE)["steps"]
     [sim_step] = loop_metrics(simulated.table(), STEP, SIMULATED)["steps"]
-    assert hil_step["rise_time_s"] == pytest.approx(sim_step["rise_time_s"], abs=5e-3)
-    assert hil_step["overshoot_percent"] == pytest.approx(sim_step["overshoot_percent"], abs=3.0)
-    realtime = hil.summary["realtime"]
-    assert realtime["steps"] == round(STEP.duration_s * JUDGED_RATE)
-    assert {"jitter_p50_s", "jitter_p99_s", "jitter_max_s", "overruns"} <= set(realtime)
+    assert hil_step["rise_time_s"] == pytest.approx(sim_step["rise_time_s"], abs=2e-3)
+    assert hil_step["overshoot_percent"] == pytest.approx(sim_step["overshoot_percent"], abs=0.5)
+    assert hil_step["settling_time_s"] == pytest.approx(sim_step["settling_time_s"], abs=5e-3)
 
 
 @pytest.mark.slow
@@ -227,22 +182,22 @@ def test_a_short_disconnect_is_ridden_through_by_reconnecting(fig7_archives, emu
 
 @pytest.mark.slow
 def test_libcosim_runs_the_hil_structure_against_the_emulator(fig7_archives, emulator):
-    """An independent master (OSP libcosim, its real-time mode) runs the proxy FMU against the rig's default 20 ms
-    watchdog: the proxy holds the real-time discipline itself, whatever master steps it. Judged in the rig's samples
-    (in order, none missed beyond the proxy's limit) and the levels reached, not in wall-clock windows (a rig stalled by
-    a loaded machine gives the stalled time up: its clock may advance less than the run's)."""
+    """An independent master (OSP libcosim, its real-time mode) runs the proxy FMU against the rig, in lockstep (noise
+    off): the rig's samples come one per step, in order, and the loop reaches the levels as our master's does (a
+    pure real-time run once failed this on a loaded CI machine, 3.5 um off a level with the noise on; real time is
+    bench/realtime.py's question)."""
     from nfal.orchestration.libcosim import run_ssp
 
-    rig = emulator()
+    rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
     reference = Staircase((60e-6, 100e-6), hold_s=0.8, lead_s=0.7)
     run = run_ssp(fig7_archives["fig7_hil"], stop_time=reference.duration_s, inputs={"Controller.reference": reference},
-                  parameters={"proxy.port": rig.port, "proxy.max_missed_samples": 400}, realtime=True)
+                  parameters={"proxy.port": rig.port, "proxy.lockstep": True}, realtime=True)
     assert "watchdog: no DRIVE" not in rig.stop()
     height, rig_time = run.values["proxy.measured_height"], run.values["proxy.rig_time"]
-    assert np.all(np.diff(rig_time) >= 0) and rig_time[-1] > rig_time[0]  # live samples, in order
+    assert np.allclose(np.diff(rig_time)[1:], 5e-4)  # one rig sample per step (the first answers the first DRIVE)
     t = run.time_s
-    for start, end, level in ((0.4, 0.7, 60e-6), (1.2, 1.5, 100e-6)):
-        assert np.all(np.abs(height[(t >= start) & (t < end)] - level) < 5e-6)
+    for start, end, level in ((0.4, 0.7, 60e-6), (1.2, 1.5, 100e-6)):  # measured: 0.70 um at most (at 0.4 s)
+        assert np.all(np.abs(height[(t >= start) & (t < end)] - level) < 1e-6)
 
 
 #: Sessions of the proxy in the C host, one process each (``python bench/proxy_c_host.py`` makes the long count).
@@ -289,11 +244,11 @@ def test_the_emulator_stopped_by_a_signal_reports_the_whole_run(fig7_archives, s
 @pytest.mark.slow
 def test_compare_runs_each_controller_on_the_rig(fig7_archives, emulator, tmp_path, capsys):
     """`nfal compare --port`: one run per controller on the rig from rest, each kept, metrics as in simulation."""
-    rig = emulator("--param", "SensorChain.noise_peak=0")
+    rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
     runs = tmp_path / "runs"
     assert main(["compare", "--port", rig.port, "--controllers", "gs,120", "--levels", "60e-6,80e-6", "--hold", "0.3",
                  "--build-dir", str(fig7_archives["fig7_hil"].parent), "--runs-dir", str(runs),
-                 "--param", f"proxy.max_missed_samples={MISSED}", "--json"]) == 0
+                 "--param", "proxy.lockstep=true", "--json"]) == 0
     output = json.loads(capsys.readouterr().out)
     assert output["rig"] == rig.port and output["reference"]["lead_s"] == 1.0
     for key in ("gs", "120"):
@@ -305,10 +260,9 @@ def test_compare_runs_each_controller_on_the_rig(fig7_archives, emulator, tmp_pa
 @pytest.mark.slow
 def test_the_hil_loop_lifts_off_from_rest_without_passing_the_first_level_by_ten_percent(fig7_archives, emulator,
                                                                                           tmp_path):
-    rig = emulator("--param", "SensorChain.noise_peak=0", "--sample-rate", str(JUDGED_RATE))
+    rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
     reference = Staircase((60e-6, 70e-6), hold_s=0.2, lead_s=1.0)
-    result = _hil(fig7_archives, rig.port, tmp_path / "run", reference=reference, rate=JUDGED_RATE,
-                  **{"proxy.max_missed_samples": MISSED})
+    result = _hil(fig7_archives, rig.port, tmp_path / "run", reference=reference, lockstep=True)
     lead = result.table().time < 1.0
     height = np.asarray(result[HARDWARE.measured])[lead]
     assert height[0] < 10e-6 and height.max() <= 66e-6  # from rest on the surface to the 60 um level

@@ -75,6 +75,11 @@ def register(commands) -> None:
                           "built for this machine, on its own pty; qemu, the same C built for a Cortex-M4F and run in "
                           "qemu-system-arm (mps2-an386), protocol on its UART0. The truth is the same; see "
                           "docs/firmware.md. With c or qemu the port is a pty and no faults are injected")
+    emulator.add_argument("--lockstep", action="store_true", help="once a session's first DRIVE has come, each tick "
+                          "waits for the host's next DRIVE (up to 5 s of wall time): the rig runs on the host's steps, "
+                          "not the wall clock. With a HardwareProxy that waits for each answer (proxy.lockstep=true), "
+                          "the loop is the same whatever the machine's load: for tests and debugging, not timing. "
+                          "Python firmware only")
     emulator.add_argument("--json", action="store_true", help="print the exit summary as JSON")
     emulator.set_defaults(handler=run_emulator)
 
@@ -122,6 +127,9 @@ def run_emulator(args: argparse.Namespace) -> int:
         parameters.setdefault("ResonanceTracker.pll_rate", str(args.sample_rate))
     if args.firmware != "python":
         _require_plain_link(args, faults, disconnection)
+        if args.lockstep:
+            raise InvalidParameterError("--lockstep", True, "used with --firmware python only (the C firmware keeps "
+                                        "its own clock)")
     require_realtime_priority(args.rt_priority)  # refused now, before anything is built or opened
     with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model, \
             contextlib.ExitStack() as stack:
@@ -138,14 +146,15 @@ def run_emulator(args: argparse.Namespace) -> int:
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
             emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
-                                record=record, firmware=firmware)
+                                record=record, firmware=firmware, lockstep=args.lockstep)
             # Ctrl-C, SIGTERM and SIGHUP (a closed terminal) end the run after the current tick, so the report is
             # complete and the link removed (from the moment the port is announced: whoever reads it may signal at once)
             previous = {number: signal.signal(number, lambda *_: emulator.stop()) for number in STOP_SIGNALS}
             try:
                 _say(str(port.path))
                 _say(f"rig emulator: truth {args.truth}, {_firmware_name(args.firmware)}, "
-                     f"{1 / timing.sample_period_s:g} Hz, watchdog {timing.watchdog_timeout_s * 1e3:g} ms"
+                     f"{1 / timing.sample_period_s:g} Hz{', lockstep' if args.lockstep else ''}, "
+                     f"watchdog {timing.watchdog_timeout_s * 1e3:g} ms"
                      f"{_scheduling(args.rt_priority)}; Ctrl-C to stop")
                 with realtime_priority(args.rt_priority):  # the paced ticks only
                     report = emulator.run(args.duration)
@@ -197,7 +206,8 @@ def _print_report(report, as_json: bool) -> None:
         print_json(dataclasses.asdict(report))
         return
     pacing = report.pacing
-    print(f"rig emulator: {report.ticks} ticks, {report.frames_sent} frames sent, final drive "
+    lockstep = f" ({report.lockstep_ticks} on the host's DRIVE)" if report.lockstep_ticks else ""
+    print(f"rig emulator: {report.ticks} ticks{lockstep}, {report.frames_sent} frames sent, final drive "
           f"{report.final_voltage:.3g} V", flush=True)
     if pacing:
         print(f"pacing: {pacing['overruns']} overruns; tick-start jitter p50 {pacing['jitter_p50_s'] * 1e6:.0f} us, "

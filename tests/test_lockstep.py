@@ -1,0 +1,85 @@
+"""Lockstep: the emulated rig ticks on the host's DRIVE commands and the host waits for each answer
+(``nfal rig-emulator --lockstep``, ``proxy.lockstep``, :meth:`RigLink.wait_applied`), so a loaded machine cannot change
+the loop. The emulator runs in a thread here, on a pty, with a rig that holds still."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from test_hil_faults_ports import StillRig
+
+from nfal.cli import main
+from nfal.hil.link import RigLink
+from nfal.hil.ports import PtyPort
+
+PERIOD_US = 500
+
+
+@pytest.fixture
+def rig(tmp_path):
+    """A lockstep emulator running in a thread; yields it and its events."""
+    import nfal.rig_emulator as module
+
+    events: list[str] = []
+    emulator = module.Emulator(PtyPort(tmp_path / "rig"), StillRig(), on_event=events.append, lockstep=True)
+    thread = threading.Thread(target=emulator.run, daemon=True)
+    thread.start()
+    yield emulator, events
+    emulator.stop()
+    thread.join(5)
+    emulator.port.close()
+
+
+@pytest.fixture
+def host(rig):
+    link = RigLink(str(rig[0].port.path), reader_thread=False, connect_timeout_s=2.0)
+    link.open()
+    assert link.wait_until(lambda: link.latest() is not None, 2.0)
+    yield link
+    link.close(stop=False)
+
+
+def test_each_drive_is_answered_by_one_tick_and_the_rig_waits_for_the_next(rig, host):
+    emulator, _ = rig
+    answers = []
+    for volts in range(10, 60):
+        assert host.send_drive(float(volts))
+        assert host.wait_applied(2.0)
+        answers.append(host.latest().measurement)
+    assert [m.drive_voltage for m in answers] == [float(v) for v in range(10, 60)]
+    assert {b.timestamp_us - a.timestamp_us for a, b in zip(answers, answers[1:])} == {PERIOD_US}  # one tick each
+    count = host.latest().count
+    time.sleep(0.1)  # 200 periods of wall time: a rig on its own clock would have sent 200 samples
+    host.poll()
+    assert host.latest().count == count
+    assert emulator.report.lockstep_ticks == 49  # the first DRIVE arms the rig in a tick on the wall clock
+
+
+def test_a_host_gone_silent_hands_the_rig_back_to_the_wall_clock_and_its_watchdog(rig, host, monkeypatch):
+    import nfal.rig_emulator
+
+    emulator, events = rig
+    monkeypatch.setattr(nfal.rig_emulator, "LOCKSTEP_WAIT_S", 0.3)  # read at each wait
+    assert host.send_drive(40.0) and host.wait_applied(2.0)
+    deadline = time.monotonic() + 5
+    while not any("drive down: 0 V" in event for event in events) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert any("lockstep: no DRIVE for 0.3 s, ticking on the wall clock" in event for event in events)
+    assert any("watchdog: no DRIVE" in event for event in events)  # the rig ramps the drive down as ever
+
+
+def test_wait_applied_gives_up_when_no_answer_comes(rig, host):
+    emulator, _ = rig
+    emulator.stop()  # the rig's clock stops: nothing answers
+    time.sleep(0.05)
+    assert host.send_drive(10.0)
+    started = time.monotonic()
+    assert not host.wait_applied(0.2)
+    assert 0.19 < time.monotonic() - started < 2.0
+
+
+def test_lockstep_needs_the_python_firmware(capsys):
+    assert main(["rig-emulator", "--lockstep", "--firmware", "c"]) == 2
+    assert "--lockstep" in capsys.readouterr().err
