@@ -260,9 +260,11 @@ def test_a_port_where_nothing_answers_fails_within_the_connect_timeout(tmp_path,
         assert str(silent.path) in str(failure.value)
         assert 0.3 <= elapsed < 3.0  # measured: 0.30-0.31 s idle; > 1 s seen with both cores busy
         assert link.counters.handshake_failures >= 1 and not link.connected
-        # the HELLO went out and waited in the pty, with its repeats (spec 6) if the timeout came late on a busy machine
+        # the HELLO went out and waited in the pty; on a busy machine, where the timeout comes late, with its repeats
+        # (spec 6), and the HELLO of a reader thread's reconnection after a failed handshake (a loaded CI run: 2 HELLOs,
+        # no repeat)
         hellos = FrameDecoder(HOST_TO_RIG).feed(silent.read())
-        assert len(hellos) == 1 + link.counters.hellos_repeated
+        assert 1 <= len(hellos) <= 1 + link.counters.hellos_repeated + link.counters.handshake_failures
         assert all(hello.message == Hello(PROTOCOL_VERSION) and hello.seq == 0 for hello in hellos)
     finally:
         silent.close()
