@@ -12,7 +12,7 @@ than real time: the host sees the stall as samples that did not come):
    :class:`~nfal.hil.faults.FaultInjector`;
 5. the rig model advances one period.
 
-:class:`Disconnection` drops the port that long after the first session opened (the host's reads fail)
+:class:`Disconnection` drops the port that long after the host's first DRIVE (the host's reads fail)
 and reconnects it ``after_s`` later (rig time); the rig keeps running meanwhile, so its watchdog ramps
 the drive down when the host stops commanding.
 
@@ -52,7 +52,8 @@ REOPEN_INTERVAL_S = 0.5
 
 @dataclasses.dataclass(frozen=True)
 class Disconnection:
-    """Drop the port ``at_s`` seconds after the first session opened, reconnect ``after_s`` later (None: never)."""
+    """Drop the port ``at_s`` seconds (rig time) after the host's first DRIVE, when its loop runs (a host's set-up
+    takes a time that depends on the machine's load), and reconnect ``after_s`` later (None: never)."""
 
     at_s: float
     after_s: float | None = 1.0
@@ -120,7 +121,7 @@ class Emulator:
         self.disconnection = disconnection
         self.report = EmulatorReport()
         self._stop = False
-        self._opened_at: float | None = None  # rig time of the first HELLO
+        self._driven_at: float | None = None  # rig time of the first DRIVE
         self._dropped_at: float | None = None
         self._planned_done = False  # the planned disconnection has happened
         self._failures_seen = 0
@@ -140,8 +141,8 @@ class Emulator:
         firmware, port = self.firmware, self.port
         now = k * self.timing.sample_period_s
         out = [*received, *firmware.receive(port.read(), k)]
-        if firmware.session and self._opened_at is None:
-            self._opened_at = now
+        if firmware.armed and self._driven_at is None:
+            self._driven_at = now
         voltage, faults = firmware.voltage(k)
         out += faults
         self.model.apply(voltage)
@@ -177,7 +178,7 @@ class Emulator:
         return out, False
 
     def _link_events(self, now_s: float) -> None:
-        """Drop or restore the port as ``disconnection`` says (rig time since the first session opened); reopen
+        """Drop or restore the port as ``disconnection`` says (rig time since the first DRIVE); reopen
         one that failed under us every REOPEN_INTERVAL_S."""
         port = self.port
         if port.failures != self._failures_seen:
@@ -186,10 +187,10 @@ class Emulator:
             self.on_event(f"t = {now_s:.4f} s: port failed: {port.last_error}")
         if not port.connected and self._dropped_at is None and now_s >= self._reopen_at:
             self._connect(now_s, "reopened")
-        plan, opened = self.disconnection, self._opened_at
-        if plan is None or opened is None:
+        plan, driven = self.disconnection, self._driven_at
+        if plan is None or driven is None:
             return
-        if self._dropped_at is None and not self._planned_done and now_s - opened >= plan.at_s:
+        if self._dropped_at is None and not self._planned_done and now_s - driven >= plan.at_s:
             self.port.disconnect()
             self.report.disconnects += 1
             self._dropped_at, self._planned_done = now_s, True

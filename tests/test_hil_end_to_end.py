@@ -25,7 +25,6 @@ from nfal.models.closed_loop import Staircase
 from nfal.orchestration import SimulationError, run_structure
 from nfal.orchestration.pacing import realtime_priority_refusal
 
-pytestmark = pytest.mark.realtime
 
 #: The truth of rig_truth.ssv, as parameters of fig7_slow's Plant: the same model, simulated.
 TRUTH = {"Plant.initial_height": 5e-6, "Plant.excess_damping_height": 137e-6, "Plant.excess_damping_exponent": 6.0,
@@ -119,6 +118,7 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7_archives, emulator, tmp_path, capsys):
     """Through the CLI: the run completes; every (rig time, height) in results.csv is one the rig measured."""
     record = tmp_path / "rig.csv"
@@ -143,9 +143,10 @@ def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(fig7_archives, emulator, tmp_path):
-    # the disconnect comes 1 s of rig time after the host's HELLO, which precedes the Controller's set-up (0.4 s idle,
-    # 1.5 s at load 6): the loop has run a little or a lot by then, and would run 3.5 s without it
+    # the disconnect comes 1 s of rig time after the host's first DRIVE (not after its HELLO, which precedes the
+    # Controller's set-up: 0.4 s idle, more than 1 s on a loaded machine): the loop has run about 1 s by then, of 3.5
     rig = emulator("--disconnect-at", "1.0", "--reconnect-after", "never")
     with pytest.raises(SimulationError, match="no measurement from the rig") as failure:
         _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=3.0, lead_s=0.5),
@@ -155,10 +156,10 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     assert result.summary["status"] == "failed"
     completed = result.summary["steps_completed"]
     # the run stepped with fresh measurements until the disconnect and stopped within the missed-sample limit
-    # (MISSED) of the last one: counted in steps after it, not in wall time (the host's initialisation and a loaded
-    # machine move the disconnect within the run)
+    # (MISSED) of the last one: counted in steps after it, not in wall time (a loaded machine's stalls move the
+    # disconnect within the run)
     fresh = np.flatnonzero(result.table()["proxy.fresh"] > 0)
-    assert fresh.size > 10
+    assert fresh.size > 100
     assert completed - fresh[-1] <= 2 * MISSED + 5  # the limit, and as many stale steps before it
     rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 1 + completed  # header, the initial row, one per completed step
@@ -168,11 +169,13 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_a_short_disconnect_is_ridden_through_by_reconnecting(fig7_archives, emulator, tmp_path):
-    """With the missed-sample limit above the outage the link reconnects and the run completes."""
+    """With the missed-sample limit far above the outage (a 50 ms one; 10 s: on a loaded machine the host once saw no
+    measurement for 1.13 s around it) the link reconnects and the run completes."""
     rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "0.05")
     result = _hil(fig7_archives, rig.port, tmp_path / "run",
-                  reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7), **{"proxy.max_missed_samples": 2000})
+                  reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7), **{"proxy.max_missed_samples": 20_000})
     table = result.table()
     assert result.summary["status"] == "ok"
     assert table["proxy.reconnects"][-1] == 1
@@ -205,6 +208,7 @@ PROXY_C_HOST_RUNS = 4
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_the_proxy_in_a_c_host_talks_to_the_emulator_and_exits_cleanly(fig7_archives, emulator, tmp_path):
     """A non-Python host (fmus/hosts/fmi2_host.c) sets the proxy's port to the emulator's pty, initialises (HELLO,
     the first sample), steps 10 ms, terminates (STOP), frees and exits: every process exits with 0, each run a
@@ -227,6 +231,7 @@ def test_the_proxy_in_a_c_host_talks_to_the_emulator_and_exits_cleanly(fig7_arch
     assert log.count("STOP: session ended") == PROXY_C_HOST_RUNS
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"], ids=["Ctrl-C", "SIGTERM"])
 def test_the_emulator_stopped_by_a_signal_reports_the_whole_run(fig7_archives, signal_name):
     import signal

@@ -176,7 +176,7 @@ def test_send_drive_reaches_the_firmware(rig, links):
     assert link.send_drive(42.5) and link.counters.drives_sent == 1
     assert wait_for(link, lambda: fake.state()[2] == 1)  # HELLO is seq 0, this DRIVE seq 1
     assert fake.state() == (True, 42.5, 1)
-    assert wait_for(link, lambda: link.latest().measurement.command_seq == 1)
+    assert wait_for(link, lambda: link.latest() is not None and link.latest().measurement.command_seq == 1)
     assert link.latest().measurement.drive_voltage == 42.5
     assert link.send_drive(7) and wait_for(link, lambda: fake.state() == (True, 7.0, 2))
 

@@ -27,7 +27,6 @@ from nfal.models.closed_loop import Staircase
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
 
-pytestmark = pytest.mark.realtime
 
 SHORT = ("--damping-heights", "60e-6,180e-6", "--steps", "2")
 
@@ -82,6 +81,7 @@ def test_identify_recovers_the_emulators_truth_and_its_design_holds_the_rig(fig7
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_a_link_lost_mid_experiment_stops_with_the_reason_and_keeps_the_data(emulator, tmp_path, capsys):
     rig = emulator("--disconnect-at", "2", "--reconnect-after", "never")
     out = tmp_path / "rig.json"
@@ -102,6 +102,7 @@ def _lines(path) -> int:
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGHUP"])
 def test_a_stop_signal_ramps_the_drive_down_says_stop_and_keeps_every_sample(emulator, tmp_path, capsys, signal_name):
     """`timeout`, `kill`, systemd or a closed terminal: the identification stops at the next exchange, ramps the drive

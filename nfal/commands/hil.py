@@ -47,7 +47,7 @@ def register(commands) -> None:
     emulator.add_argument("--delay", type=finite_float, default=0.0, metavar="SECONDS",
                           help="hold every outgoing frame this long")
     emulator.add_argument("--disconnect-at", type=finite_float, metavar="SECONDS",
-                          help="drop the port this long after the first session opened (the host's reads fail)")
+                          help="drop the port this long (rig time) after the host's first DRIVE (its reads fail)")
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
                           help="reconnect the port this long after --disconnect-at (default 1.0)")
     emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
