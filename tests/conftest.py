@@ -44,3 +44,20 @@ def fig7_archives(tmp_path_factory):
     from nfal.build import build_all
 
     return build_all(tmp_path_factory.mktemp("fig7_build"))
+
+
+@pytest.fixture
+def emulator(fig7_archives):
+    """``emulator(*options)`` starts ``nfal rig-emulator`` on the session's rig_slow.ssp (tests/helpers/rig.py); each
+    is stopped after the test."""
+    from helpers.rig import Emulator
+
+    started = []
+
+    def start(*options: str) -> Emulator:
+        started.append(Emulator(fig7_archives["rig_slow"], *options))
+        return started[-1]
+
+    yield start
+    for process in started:
+        process.stop()

@@ -1,8 +1,7 @@
 """fmus/base.py and fmus/build.py: declarations, modelDescription.xml, errors, FMU state, self-contained build.
 
 A small test slave (``Scale``) exercises the base class, first as a Python object, then built with
-:func:`nfal.fmus.build.build_fmus` and run through fmpy. The helpers at the top (``Instance``) are
-shared with tests/test_fmu_plants.py and tests/test_fmu_controller.py.
+:func:`nfal.fmus.build.build_fmus` and run through fmpy (``Instance``, tests/helpers/fmu_instance.py).
 """
 
 from __future__ import annotations
@@ -16,81 +15,14 @@ from pathlib import Path
 
 import fmpy
 import pytest
-from fmpy import extract, read_model_description
+from fmpy import extract
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                       fmi2CallbackLoggerTYPE)
 from fmpy.validation import validate_fmu
+from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract
 
 from nfal.errors import InvalidParameterError
 from nfal.fmus import build
 from nfal.fmus.base import UNITS, NfalSlave, SampleClock
-
-FMI_ERROR = 3  # what our patched runtime (fmus/runtime/) answers a Python exception with
-
-
-# --- helpers shared by the FMU tests ----------------------------------------------------------------
-class Instance:
-    """One FMU instance over fmpy's low-level FMU2Slave: variables by name, log messages captured."""
-
-    def __init__(self, fmu_path: Path, unzipped: str, name: str = "instance", logging_on: bool = True,
-                 messages: list | None = None) -> None:
-        description = read_model_description(str(fmu_path))
-        self.variables = {v.name: v for v in description.modelVariables}
-        self.messages: list[tuple[int, str]] = [] if messages is None else messages  # (status, message)
-
-        def log(_env, _instance, status, _category, message):
-            self.messages.append((int(status), message.decode("utf-8", "replace")))
-
-        self._callbacks = fmi2CallbackFunctions()
-        self._callbacks.logger = fmi2CallbackLoggerTYPE(log)
-        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-        self.fmu = FMU2Slave(guid=description.guid, unzipDirectory=unzipped,
-                             modelIdentifier=description.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
-        self.time = 0.0
-
-    def set(self, **values) -> None:
-        for name, value in values.items():
-            variable = self.variables[name]
-            setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger, "Boolean": self.fmu.setBoolean,
-                      "String": self.fmu.setString}[variable.type]
-            setter([variable.valueReference], [value])
-
-    def get(self, *names):
-        values = []
-        for name in names:
-            variable = self.variables[name]
-            getter = {"Real": self.fmu.getReal, "Integer": self.fmu.getInteger, "Boolean": self.fmu.getBoolean,
-                      "String": self.fmu.getString}[variable.type]
-            values.append(getter([variable.valueReference])[0])
-        return values[0] if len(values) == 1 else tuple(values)
-
-    def initialize(self, start_time: float = 0.0, **values) -> None:
-        self.fmu.setupExperiment(startTime=start_time)
-        self.fmu.enterInitializationMode()
-        self.set(**values)
-        self.fmu.exitInitializationMode()
-        self.time = start_time
-
-    def step(self, step_size: float) -> None:
-        self.fmu.doStep(self.time, step_size)
-        self.time += step_size
-
-    def errors(self) -> list[str]:
-        return [message for status, message in self.messages if status >= 3]
-
-    def free(self) -> None:
-        self.fmu.terminate()
-        self.fmu.freeInstance()
-
-
-def build_and_extract(tmp_path_factory, *names: str) -> dict[str, tuple[Path, str]]:
-    """Build ``names`` once into a temporary folder; {name: (fmu path, unzipped folder)}."""
-    out = tmp_path_factory.mktemp("fmus")
-    paths = build.build_fmus(out, names)
-    return {name: (path, extract(str(path), str(out / f"{name}_unzipped"))) for name, path in paths.items()}
 
 
 # --- the test slave -----------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from fmpy import extract
 
 import nfal
 from nfal.fmus import build
-from test_fmu_base import Instance
+from helpers.fmu_instance import Instance
 
 HIDE_EDITABLE_INSTALL = textwrap.dedent('''
     import sys

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from test_fmu_base import FMI_ERROR, Instance, build_and_extract
+from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract
 
 from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.reynolds_plant import ReynoldsPlant

@@ -12,84 +12,20 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
+from helpers.rig import STEP, Emulator, run_hil, simulate_the_truth
 
 from nfal.cli import main
 from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.closed_loop import Staircase
-from nfal.orchestration import SimulationError, run_structure
-from nfal.orchestration.pacing import realtime_priority_refusal
+from nfal.orchestration import SimulationError
 
 
-#: The truth of rig_truth.ssv, as parameters of fig7_slow's Plant: the same model, simulated.
-TRUTH = {"Plant.initial_height": 5e-6, "Plant.excess_damping_height": 137e-6, "Plant.excess_damping_exponent": 6.0,
-         "Plant.near_surface": "fast"}
-#: A step from 100 um to 140 um after 1 s of lift-off and hold.
-STEP = Staircase((100e-6, 140e-6), hold_s=1.0, lead_s=1.0)
-#: Where the step's transient is compared [s].
-TRANSIENT = (1.0, 1.2)
-#: SCHED_FIFO priority of the emulator (the rig), where the system allows it.
-RT_PRIORITY = 50
 #: The host's missed-sample limit where a lost link is the point of the test: 50 ms.
 MISSED = 100
-class Emulator:
-    """`nfal rig-emulator` as a subprocess: its port (first line) and, after stop(), the rest of its output. It stands
-    for the rig, a separate machine with its own processor: where the system allows it, it runs under SCHED_FIFO, so
-    that the test process beside it (the host, at normal priority unless a test says otherwise) cannot starve it."""
-
-    def __init__(self, truth, *options: str) -> None:
-        priority = () if realtime_priority_refusal(RT_PRIORITY) else ("--rt-priority", str(RT_PRIORITY))
-        self.process = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--truth", str(truth),
-                                         "--duration", "60", *priority, *options], stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, text=True)
-        self.port = self.process.stdout.readline().strip()
-        if not self.port:
-            self.process.kill()
-            raise RuntimeError(f"the emulator did not start: {self.process.communicate()[1]}")
-        self.output = ""
-
-    def stop(self) -> str:
-        if self.process.poll() is None:
-            self.process.terminate()
-        self.output, errors = self.process.communicate(timeout=20)
-        return self.output
-
-
-@pytest.fixture
-def emulator(fig7_archives):
-    started = []
-
-    def start(*options: str) -> Emulator:
-        started.append(Emulator(fig7_archives["rig_slow"], *options))
-        return started[-1]
-
-    yield start
-    for process in started:
-        process.stop()
-
-
-def _hil(fig7_archives, port: str, out, reference=STEP, rt_priority=None, lockstep=False, **parameters):
-    """fig7_hil on the rig at ``port``: paced on the wall clock; or, with ``lockstep`` (the emulator started with
-    ``--lockstep``), unpaced, each step waiting for the rig's answer (``proxy.lockstep``), so that the loop does not
-    depend on the machine's load."""
-    if lockstep:
-        parameters = {"proxy.lockstep": True, **parameters}
-    return run_structure(fig7_archives["fig7_hil"], stop_time=reference.duration_s,
-                         inputs={"Controller.reference": reference}, parameters={"proxy.port": port, **parameters},
-                         realtime=not lockstep, plot=False, out_dir=out, rt_priority=rt_priority)
-
-
-def simulate_the_truth(fig7_archives, reference, out, **parameters):
-    """fig7_slow on the emulator's truth (TRUTH, noise off): the simulation a HIL run of the same reference is judged
-    against."""
-    return run_structure(fig7_archives["fig7_slow"], stop_time=reference.duration_s,
-                         inputs={"Controller.reference": reference}, plot=False, out_dir=out,
-                         parameters={**TRUTH, "SensorChain.noise_peak": 0.0, **parameters})
 
 
 @pytest.mark.slow
@@ -101,7 +37,7 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
     overshoot 2.25 / 2.11 %, settling 86.5 / 84.0 ms (HIL / simulated). How a loop paced on the wall clock compares is
     a benchmark's question (bench/hil_agreement.py, docs/hil.md)."""
     rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
-    hil = _hil(fig7_archives, rig.port, tmp_path / "hil", lockstep=True)
+    hil = run_hil(fig7_archives, rig.port, tmp_path / "hil", lockstep=True)
     log = rig.stop()
     assert "HELLO: session open" in log and f"({round(STEP.duration_s * 2000)} on the host's DRIVE)" in log
     simulated = simulate_the_truth(fig7_archives, STEP, tmp_path / "sim")
@@ -149,7 +85,7 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     # Controller's set-up: 0.4 s idle, more than 1 s on a loaded machine): the loop has run about 1 s by then, of 3.5
     rig = emulator("--disconnect-at", "1.0", "--reconnect-after", "never")
     with pytest.raises(SimulationError, match="no measurement from the rig") as failure:
-        _hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=3.0, lead_s=0.5),
+        run_hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=3.0, lead_s=0.5),
              **{"proxy.max_missed_samples": MISSED})  # above a starved emulator's silences (11 ms seen at load 6)
     result = failure.value.result
     assert "link lost" in result.summary["error"]
@@ -174,7 +110,7 @@ def test_a_short_disconnect_is_ridden_through_by_reconnecting(fig7_archives, emu
     """With the missed-sample limit far above the outage (a 50 ms one; 10 s: on a loaded machine the host once saw no
     measurement for 1.13 s around it) the link reconnects and the run completes."""
     rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "0.05")
-    result = _hil(fig7_archives, rig.port, tmp_path / "run",
+    result = run_hil(fig7_archives, rig.port, tmp_path / "run",
                   reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7), **{"proxy.max_missed_samples": 20_000})
     table = result.table()
     assert result.summary["status"] == "ok"
@@ -267,7 +203,7 @@ def test_the_hil_loop_lifts_off_from_rest_without_passing_the_first_level_by_ten
                                                                                           tmp_path):
     rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
     reference = Staircase((60e-6, 70e-6), hold_s=0.2, lead_s=1.0)
-    result = _hil(fig7_archives, rig.port, tmp_path / "run", reference=reference, lockstep=True)
+    result = run_hil(fig7_archives, rig.port, tmp_path / "run", reference=reference, lockstep=True)
     lead = result.table().time < 1.0
     height = np.asarray(result[HARDWARE.measured])[lead]
     assert height[0] < 10e-6 and height.max() <= 66e-6  # from rest on the surface to the 60 um level

@@ -7,6 +7,7 @@ import time
 
 import pytest
 import serial
+from helpers.rig import StillRig
 
 from nfal.errors import InvalidParameterError, LinkError
 from nfal.hil.faults import FaultInjector, FaultSettings
@@ -282,23 +283,6 @@ def test_a_url_port_whose_peer_goes_away_is_down_not_broken():
 
 
 # --- the emulator on a port that fails -----------------------------------------------------------------
-
-
-class StillRig:
-    """A rig model that holds the object at 100 um (the emulator's model interface)."""
-
-    true_height = 100e-6
-
-    def apply(self, voltage: float) -> None:
-        self.voltage = voltage
-
-    def reading(self):
-        from nfal.hil.firmware import RigReading
-
-        return RigReading(self.true_height, 28_500.0, True, False)
-
-    def advance(self) -> None:
-        pass
 
 
 def test_the_emulator_reports_a_failed_port_and_reopens_it_every_interval():

@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 import pytest
-from test_hil_end_to_end import Emulator, _hil, simulate_the_truth
+from helpers.rig import run_hil, simulate_the_truth
 
 from nfal.cli import main
 from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
@@ -29,19 +29,6 @@ from nfal.models.rig import RigParameters
 
 
 SHORT = ("--damping-heights", "60e-6,180e-6", "--steps", "2")
-
-
-@pytest.fixture
-def emulator(fig7_archives):
-    started = []
-
-    def start(*options: str) -> Emulator:
-        started.append(Emulator(fig7_archives["rig_slow"], *options))
-        return started[-1]
-
-    yield start
-    for process in started:
-        process.stop()
 
 
 @pytest.mark.slow
@@ -67,7 +54,7 @@ def test_identify_recovers_the_emulators_truth_and_its_design_holds_the_rig(fig7
     # where the simulation gave 0.0 %: in lockstep both steps overshoot 0.000 %, as simulated)
     rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
     reference = Staircase((60e-6, 140e-6, 180e-6), hold_s=0.4, lead_s=1.0)
-    result = _hil(fig7_archives, rig.port, tmp_path / "hil", reference=reference, lockstep=True,
+    result = run_hil(fig7_archives, rig.port, tmp_path / "hil", reference=reference, lockstep=True,
                   **{"Controller.calibration": str(out)})
     lift_off = np.asarray(result[HARDWARE.measured])[result.table().time < reference.lead_s]
     assert lift_off.max() <= 66e-6  # the paper's law: 104-110 um (docs/hil.md)

@@ -8,7 +8,7 @@ import threading
 import time
 
 import pytest
-from test_hil_faults_ports import StillRig
+from helpers.rig import StillRig
 
 from nfal.cli import main
 from nfal.hil.link import RigLink
