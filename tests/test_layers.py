@@ -199,3 +199,15 @@ def long_functions(root: Path = ROOT) -> list[str]:
 
 def test_no_function_is_longer_than_80_lines():
     assert long_functions() == []
+
+
+def test_no_test_module_imports_from_another():
+    """What several test modules share lives in tests/helpers/ or conftest.py: importing a test module from another
+    runs its module-level code and collects its tests twice over in a reader's head."""
+    offenders = []
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([node.module or ""] if isinstance(node, ast.ImportFrom)
+                     else [alias.name for alias in node.names] if isinstance(node, ast.Import) else [])
+            offenders += [f"{path.name} imports {name}" for name in names if name.split(".")[0].startswith("test_")]
+    assert offenders == []
