@@ -1,6 +1,6 @@
 """The fixed-step co-simulation master over fmpy: any FMI 2.0 or FMI 3.0 co-simulation FMUs, mixed at will.
 
-Two algorithms (docs/cosimulation.md, "The loop and the step order"):
+Two algorithms (docs/cosimulation.md, "The loop and the step order"), one class each in :mod:`.exchange`:
 
 ``causal`` (default)
     At each communication point t_k, set inputs and read outputs in the causal order of the
@@ -64,18 +64,19 @@ from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, f
 from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3True, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 
-from nfal.errors import (AlgebraicLoopError, CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
+from nfal.errors import (CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
                          TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive, shown)
 
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
 from .results import Column
-from .schedule import Action, causal_sweep
+from .exchange import EXCHANGES
+from .schedule import Action
 from .signals import as_signal
 from .ssp import LinearTransformation
 
 logger = logging.getLogger(__name__)
 
-ALGORITHMS = ("causal", "jacobi")
+ALGORITHMS = tuple(EXCHANGES)
 FMU_LOGGING = ("on", "off")
 _STATUS_LEVELS = {0: logging.DEBUG, 1: logging.WARNING, 2: logging.WARNING, 3: logging.ERROR, 4: logging.ERROR}
 #: What pythonfmu's C wrapper logs after any Python exception, whatever the FMU logged before it.
@@ -365,6 +366,7 @@ class Master:
         if fmu_logging not in FMU_LOGGING:
             raise InvalidParameterError("fmu_logging", fmu_logging, f"one of {FMU_LOGGING}")
         self.system, self.algorithm, self.fmu_logging = system, algorithm, fmu_logging
+        self.exchange = EXCHANGES[algorithm]()
         self.step_size = require_positive("step_size", step_size)
         self.start_time, self.step_index = 0.0, 0
         self.elements = {e.name: e for e in system.elements}
@@ -451,35 +453,15 @@ class Master:
         names = [e.name for e in self.system.elements]
         outputs = {e: [o for (el, o) in self.output_columns if el == e] for e in names}
         inputs = {e: [i for (el, i) in self.sources if el == e] for e in names}
-        if self.algorithm == "causal":
-            links = [((link.source.element, link.source.name), (link.target.element, link.target.name))
-                     for link in self.links]
-            feedthrough = {e.name: e.feedthrough for e in self.system.elements}
-            self.plan: tuple[Action, ...] = causal_sweep(names, outputs, inputs, links, feedthrough)
-        else:
-            self.plan = tuple(a for e in names for a in (Action("set", e, tuple(inputs[e])),
-                                                          Action("get", e, tuple(outputs[e]))) if a.variables)
-            loop = self._loop_under_jacobi(names, outputs, inputs)
-            if loop:
-                logger.info("algebraic loop %s: broken by jacobi's one-step delay", loop)
-
-    def _loop_under_jacobi(self, names, outputs, inputs) -> str | None:
         links = [((link.source.element, link.source.name), (link.target.element, link.target.name))
                  for link in self.links]
-        try:
-            causal_sweep(names, outputs, inputs, links, {e.name: e.feedthrough for e in self.system.elements})
-        except AlgebraicLoopError as exc:
-            return " -> ".join(exc.variables)
-        return None
+        feedthrough = {e.name: e.feedthrough for e in self.system.elements}
+        self.plan: tuple[Action, ...] = self.exchange.plan(names, outputs, inputs, links, feedthrough)
 
     @property
     def order(self) -> list[str]:
         """What happens in one communication step, as text (``set A.u``, ``get A.y, A.z``, ``doStep all``)."""
-        if self.algorithm == "causal":
-            return ["doStep all from t_k", *(f"{action} (at t_k+1)" for action in self.plan)]
-        sets = [str(a) for a in self.plan if a.kind == "set"]
-        gets = [str(a) for a in self.plan if a.kind == "get"]
-        return [*sets, "doStep all from t_k", *(f"{g} (at t_k+1, moved to the inputs)" for g in gets)]
+        return self.exchange.order(self.plan)
 
     # -- running -----------------------------------------------------------------------------------
     @property
@@ -521,7 +503,7 @@ class Master:
             logger.debug("%s.%s = %r (%s)", slave.name, name, value, slave.element.origins.get(name, "?"))
 
     def _build_transfers(self) -> None:
-        immediate = self.algorithm == "causal"
+        immediate = self.exchange.immediate
         self.sweep: list[_Transfer] = []
         for action in self.plan:
             slave = self._slaves[action.element]
@@ -549,7 +531,8 @@ class Master:
         for column, signal, convert in self.signals:
             row[column] = convert(signal(t))
 
-    def _run(self, transfers: list[_Transfer], function: str = "") -> None:
+    def run(self, transfers: list[_Transfer]) -> None:
+        """Carry out ``transfers`` (some of :attr:`sweep`) on the row."""
         transfer = None
         try:
             for transfer in transfers:
@@ -579,24 +562,17 @@ class Master:
         for slave in self.slaves:
             slave.state = "initialization"
         self._update_signals()
-        if self.algorithm == "causal":
-            self._run(self.sweep)
-            self._call_all("exitInitializationMode")
-            self._set_running()
-            self._run(self.sweep)
-        else:
-            for round_ in range(max(1, len(self.slaves))):
-                if round_:
-                    self._run(self.sets)
-                self._run(self.gets)
-                for transfer in self.sets:
-                    transfer.load(self.row)
-            self._call_all("exitInitializationMode")
-            self._set_running()
-            self._run(self.gets)
-            for transfer in self.sets:
-                transfer.load(self.row)
+        self.exchange.initialise(self)
+        self._call_all("exitInitializationMode")
+        self._set_running()
+        self.exchange.exchange(self)
         logger.info("initialised %d FMUs at t = %g s (%s)", len(self.slaves), self.start_time, self.algorithm)
+
+    def load_sets(self) -> None:
+        """Load every set's value from the row, for the next :meth:`run` of :attr:`sets` (jacobi)."""
+        row = self.row
+        for transfer in self.sets:
+            transfer.load(row)
 
     def _set_running(self) -> None:
         for slave in self.slaves:
@@ -610,9 +586,7 @@ class Master:
         and ``row`` keeps the values at the current ``time``.
         """
         t, dt = self.time, self.step_size
-        row = self.row
-        if self.algorithm == "jacobi":
-            self._run(self.sets)
+        self.exchange.before_steps(self)
         slave = None
         clock = time.perf_counter
         for slave in self.slaves:
@@ -632,12 +606,7 @@ class Master:
                 slave.step_time += clock() - started
         self.step_index += 1
         self._update_signals()
-        if self.algorithm == "causal":
-            self._run(self.sweep)
-        else:
-            self._run(self.gets)
-            for transfer in self.sets:
-                transfer.load(row)
+        self.exchange.exchange(self)
 
     def _horizon_end(self, slave: _Slave, exc: FMICallException, step_end: float) -> "HorizonEnd":
         """A discarded doStep is the end of the FMU's horizon if it says it has terminated (FMI 2.0,
@@ -672,11 +641,7 @@ class Master:
         """Read the external inputs again at the current time and redo the exchange there (an input that
         changed without time passing, e.g. a command from hardware); ``row`` then holds the new values."""
         self._update_signals()
-        if self.algorithm == "causal":
-            self._run(self.sweep)
-        else:
-            for transfer in self.sets:
-                transfer.load(self.row)
+        self.exchange.refresh(self)
 
     def _failure(self, slave: _Slave, exc: FMICallException, context: str = "") -> FmuCallError:
         slave.state = "fatal" if exc.status >= 4 else "error"
