@@ -167,4 +167,3 @@ class UrlPort:
 
     def close(self) -> None:
         self.disconnect()
-

@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TextIO
 
 from nfal.errors import InvalidParameterError, LinkError
@@ -135,7 +135,7 @@ class Emulator:
         """Ask :meth:`run` to return after the current tick (from a signal handler or another thread)."""
         self._stop = True
 
-    def tick(self, k: int, received: list[bytes] = ()) -> None:
+    def tick(self, k: int, received: Sequence[bytes] = ()) -> None:
         """One sample period of the rig (see the module docstring); ``received``: the firmware's answers to what
         came in while the tick waited for it (lockstep)."""
         firmware, port = self.firmware, self.port
@@ -157,6 +157,11 @@ class Emulator:
             self.report.frames_sent += len(frames)
         self.model.advance()
         self._link_events(now)
+
+    def _ticks_on_drives(self) -> bool:
+        """Lockstep, in a session the host drives: unless the host went silent (until its next DRIVE)."""
+        firmware = self.firmware
+        return self.lockstep and firmware.armed and firmware.session and firmware.drives != self._silent_after
 
     def _await_drive(self, k: int) -> tuple[list[bytes], bool]:
         """Lockstep: take in what the host sends until a DRIVE (or a STOP) has come for tick ``k``. Returns the
@@ -222,12 +227,8 @@ class Emulator:
             pacer.start()
             stepped = False  # the last tick was released by a DRIVE
             while not self._stop and (ticks is None or k < ticks):
-                firmware = self.firmware
-                received, lockstep = [], (self.lockstep and firmware.armed and firmware.session
-                                          and firmware.drives != self._silent_after)
-                if lockstep:
-                    received, lockstep = self._await_drive(k)
-                if lockstep:
+                received, released = self._await_drive(k) if self._ticks_on_drives() else ([], False)
+                if released:
                     self.tick(k, received)
                     self.report.lockstep_ticks += 1
                 else:
@@ -236,7 +237,7 @@ class Emulator:
                     pacer.wait(k)
                     self.tick(k, received)
                     pacer.done(k)
-                stepped = lockstep
+                stepped = released
                 collector.safe_point()
                 k += 1
         if self._record is not None:
