@@ -33,7 +33,7 @@ from nfal.fig7_names import PAPERS_LAW
 from nfal.models.rig import RigParameters
 from nfal.models.table2 import STAIRCASE_LEVELS_M
 
-PAPER_LAW = [f"{name}={value}" for name, value in PAPERS_LAW.items()]
+PAPERS_LAW_ARGS = [f"{name}={value}" for name, value in PAPERS_LAW.items()]  # as --param values
 #: The rig's nominal load [kg] (Table 2): the paper's law is designed for it where no design exists for a truth's.
 NOMINAL_MASS = RigParameters.mass
 #: The truths run by default: the emulator's default and a heavier load (0.18 kg) nobody designed for.
@@ -125,10 +125,10 @@ def main() -> None:
         identify(case, folder, name)
         papers, identifieds = [], []
         for repeat in range(args.repeats):  # back to back, so a slow phase of the machine hits both laws
-            paper, label = hil_run(case, folder, f"{name}-paper-{repeat}", PAPER_LAW, args.noise), "paper's law"
+            paper, label = hil_run(case, folder, f"{name}-paper-{repeat}", PAPERS_LAW_ARGS, args.noise), "paper's law"
             if isinstance(paper, str) and case["mass"] != NOMINAL_MASS:  # no such design for this load: the nominal one
                 paper = hil_run(case, folder, f"{name}-paper-nominal-{repeat}",
-                                [*PAPER_LAW, f"Controller.mass={NOMINAL_MASS}"], args.noise)
+                                [*PAPERS_LAW_ARGS, f"Controller.mass={NOMINAL_MASS}"], args.noise)
                 label = f"paper's law designed for {NOMINAL_MASS} kg"
             identified = hil_run(case, folder, f"{name}-identified-{repeat}", [f"Controller.calibration={calibration}"],
                                  args.noise)

@@ -36,7 +36,7 @@ from nfal.errors import ConvergenceError, GapClosedError, InvalidParameterError,
 from . import numba_cache
 from .excitation import ExcitationShape
 from .perturbation import radial_grid
-from .reynolds import check_grid, perturbation_film
+from .reynolds import SLOWEST_FILM_EIGENVALUE, check_grid, perturbation_film
 from .rig import RigParameters
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
@@ -555,7 +555,8 @@ class CoupledModel:
                     slow_rate = -math.log(ratio) / (at - last_at)
                 curvature = abs(slope - last_slope) / (at - last_at)
                 accurate = math.sqrt(2.0 * self.envelope_tolerance * Z / curvature) if curvature > 0 else math.inf
-                stable = min(_projective_limit(math.exp(-2.0 * math.pi * 5.78 * Z**2 / self.film_number), burst),
+                film_decay = math.exp(-2.0 * math.pi * SLOWEST_FILM_EIGENVALUE * Z**2 / self.film_number)
+                stable = min(_projective_limit(film_decay, burst),
                              _projective_limit(math.exp(-2.0 * math.pi * self.rig.damping_coefficient / Z**3), burst),
                              1.0 / slow_rate if slow_rate is not None else 0.0)
                 same = np.flatnonzero(amplitudes[done:] != amplitudes[done - 1])

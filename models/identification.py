@@ -28,7 +28,7 @@ from nfal.errors import ConvergenceError, DataFormatError, InvalidParameterError
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
-from .experimental import FIT_DEGREE
+from .measured_calibration import FIT_DEGREE
 from .plausibility import require_clearances
 from .rig import RigParameters
 from .table2 import WORK_RANGE_M

@@ -378,6 +378,11 @@ def reduced_rank_extrapolation(states: np.ndarray) -> np.ndarray:
     return states[1:].T @ weights
 
 
+#: lambda_1, the slowest decay rate of the film's axis-to-rim diffusion (closed axis, open rim: the first zero of
+#: J0 squared, 2.405^2), to the two digits the step-size bounds use.
+SLOWEST_FILM_EIGENVALUE = 5.78
+
+
 def slowest_period_ratio(R: np.ndarray, faces: np.ndarray, volumes: np.ndarray, sigma: float,
                          gap_swing: float) -> float:
     """Contraction per period of the film's slowest mode, exp(-2 pi lambda_1 / sigma) (lambda_1 ~ 5.78).

@@ -40,7 +40,7 @@ from nfal.realtime import LatencyStats
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.damping import DampingCorrection
-from nfal.models.experimental import FIT_DEGREE, EquilibriumData, ExperimentalCalibration, fit_calibration
+from nfal.models.measured_calibration import FIT_DEGREE, EquilibriumData, ExperimentalCalibration, fit_calibration
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,
                                         settled)
 from nfal.models.pid_design import design_schedule

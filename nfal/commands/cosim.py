@@ -102,7 +102,7 @@ def _register_run(commands) -> None:
     run.add_argument("--build-dir", default="build", metavar="DIR",
                      help="where built-in structures are built (default build/)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
-    run.set_defaults(handler=run_run)
+    run.set_defaults(handler=run_cosimulation)
 
 
 def run_build(args: argparse.Namespace) -> int:
@@ -199,7 +199,7 @@ def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> t
     return ssd_stop, None
 
 
-def run_run(args: argparse.Namespace) -> int:
+def run_cosimulation(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.orchestration import SimulationError, run_structure
     from nfal.fig7 import (HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels,

@@ -113,7 +113,7 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
 def calibrate_experimental(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.models.calibration import paper_calibration
-    from nfal.models.experimental import EquilibriumData, VoltageAmplitudeMap, fit_calibration
+    from nfal.models.measured_calibration import EquilibriumData, VoltageAmplitudeMap, fit_calibration
 
     rig = rig_from_args(args)
     voltage_map = None

@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 from nfal.csvdata import read_numeric_csv
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.models.calibration import PAPER_COEFFICIENTS, paper_calibration
-from nfal.models.experimental import EquilibriumData, VoltageAmplitudeMap, fit_calibration, measured_K
+from nfal.models.measured_calibration import EquilibriumData, VoltageAmplitudeMap, fit_calibration, measured_K
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
 
