@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from nfal.errors import InvalidParameterError, require_finite
+from nfal.errors import InvalidParameterError, require_finite, require_non_negative
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import DampingModel, ExcessDamping, PlantState, SimplifiedPlant
@@ -70,9 +70,8 @@ class SlowPlant(NfalSlave):
 
     def checked_excess_damping(self) -> ExcessDamping | None:
         """The excess damping the parameters ask for (None when ``excess_damping_height`` is 0), checked."""
-        height = require_finite("excess_damping_height", self.excess_damping_height, "a finite height >= 0 m (0: none)")
-        if height < 0.0:
-            raise InvalidParameterError("excess_damping_height", height, "a finite height >= 0 m (0: none)")
+        height = require_non_negative("excess_damping_height", self.excess_damping_height,
+                                      "a finite height >= 0 m (0: none)")
         # a NaN is a mistake even while unused; the range applies when used (at height 0 the exponent is ignored)
         exponent = require_finite("excess_damping_exponent", self.excess_damping_exponent, "a finite number >= 1")
         if height == 0.0:

@@ -31,7 +31,8 @@ from typing import Callable
 import numba
 import numpy as np
 
-from nfal.errors import ConvergenceError, GapClosedError, InvalidParameterError, require_finite, require_positive
+from nfal.errors import (ConvergenceError, GapClosedError, InvalidParameterError, require_finite,
+                         require_non_negative, require_positive)
 
 from . import numba_cache
 from .excitation import ExcitationShape
@@ -413,9 +414,7 @@ class CoupledModel:
         quasi-steady film of the excitation |a| = ``amplitude`` [m], at time ``time_s`` [s] (period 0 starts there)."""
         height0 = require_positive("height", height)
         velocity0 = require_finite("velocity", velocity, "a finite number (m/s)")
-        amplitude0 = require_finite("amplitude", amplitude, "a finite amplitude >= 0 m")
-        if amplitude0 < 0:
-            raise InvalidParameterError("amplitude", amplitude, "a finite amplitude >= 0 m")
+        amplitude0 = require_non_negative("amplitude", amplitude, "a finite amplitude >= 0 m")
         time0 = require_finite("time_s", time_s, "a finite time (s)")
         h0, omega = self.rig.reference_clearance, self.rig.omega
         vector = self._initial_state(height0 / h0, velocity0 / (h0 * omega), amplitude0 / h0)
@@ -445,9 +444,7 @@ class CoupledModel:
             raise InvalidParameterError("state", f"{state.vector.size} values",
                                         f"a state of a model with {self.nodes} nodes")
         step = require_positive("step_s", step_s)
-        amplitude = require_finite("amplitude", amplitude, "a finite amplitude >= 0 m")
-        if amplitude < 0:
-            raise InvalidParameterError("amplitude", amplitude, "a finite amplitude >= 0 m")
+        amplitude = require_non_negative("amplitude", amplitude, "a finite amplitude >= 0 m")
         envelope = self.envelope if envelope is None else envelope
         rig = self.rig
         end = state.time_s + step

@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 from scipy import integrate, optimize
 
-from nfal.errors import ConvergenceError, InvalidParameterError, require_finite, require_positive
+from nfal.errors import ConvergenceError, InvalidParameterError, require_finite, require_non_negative, require_positive
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
@@ -218,8 +218,7 @@ class SimplifiedPlant:
         the step if the film force at rest_gap beats its weight, and rests otherwise.
         """
         step = require_positive("step", step)
-        if not (np.isfinite(excitation) and excitation >= 0):
-            raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m")
+        excitation = require_non_negative("excitation", excitation, "a finite amplitude >= 0 m")
         self._check_state(state)
         path = self._integrate(state, lambda t: excitation, np.array([0.0, step]), rtol)
         return PlantState(float(path.height[-1]), float(path.velocity[-1]), bool(path.resting[-1]))

@@ -48,7 +48,7 @@ import cmath
 import dataclasses
 import math
 
-from nfal.errors import InvalidParameterError, require_finite, require_positive
+from nfal.errors import InvalidParameterError, require_finite, require_non_negative, require_positive
 
 from .rig import RigParameters
 from .plausibility import FREQUENCY_RANGE_HZ, MAX_METRES_PER_VOLT, require_plausible
@@ -112,9 +112,7 @@ class Transducer:
     def _coefficients(self, voltage_v: float, drive_frequency_hz: float, resonance_shift_hz: float
                       ) -> tuple[complex, complex]:
         """(lambda [1/s], b V [m/s]) of (T2) at the given inputs (checked)."""
-        voltage = require_finite("voltage_v", voltage_v, "a finite amplitude >= 0 V")
-        if voltage < 0:
-            raise InvalidParameterError("voltage_v", voltage_v, "a finite amplitude >= 0 V")
+        voltage = require_non_negative("voltage_v", voltage_v, "a finite amplitude >= 0 V")
         drive = require_positive("drive_frequency_hz", drive_frequency_hz)
         omega_r = 2.0 * math.pi * self.resonance_hz(resonance_shift_hz)
         omega = 2.0 * math.pi * drive

@@ -296,6 +296,15 @@ def require_finite(name: str, value: float, allowed: str = "a finite number") ->
     return number
 
 
+def require_non_negative(name: str, value: float, allowed: str = "a finite number >= 0") -> float:
+    """Return ``value`` as float if it is finite and >= 0, else raise :class:`InvalidParameterError` saying ``allowed``
+    (e.g. "a finite amplitude >= 0 m")."""
+    number = require_finite(name, value, allowed)
+    if not number >= 0.0:
+        raise InvalidParameterError(name, value, allowed)
+    return number
+
+
 def require_duration(name: str, value: float, longest_s: float) -> float:
     """A timeout or wait [s]: ``value`` as float if it is > 0 and at most ``longest_s`` (a wait of a day is a typo, and
     a process that waits for it looks hung), else raise :class:`InvalidParameterError`."""
