@@ -86,17 +86,17 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     rig = emulator("--disconnect-at", "1.0", "--reconnect-after", "never")
     with pytest.raises(SimulationError, match="no measurement from the rig") as failure:
         run_hil(fig7_archives, rig.port, tmp_path / "run", reference=Staircase((60e-6, 80e-6), hold_s=3.0, lead_s=0.5),
-             **{"proxy.max_missed_samples": MISSED})  # above a starved emulator's silences (11 ms seen at load 6)
+                **{"proxy.max_missed_samples": MISSED})  # above a starved emulator's silences (11 ms seen at load 6)
     result = failure.value.result
     assert "link lost" in result.summary["error"]
     assert result.summary["status"] == "failed"
     completed = result.summary["steps_completed"]
-    # the run stepped with fresh measurements until the disconnect and stopped within the missed-sample limit
-    # (MISSED) of the last one: counted in steps after it, not in wall time (a loaded machine's stalls move the
-    # disconnect within the run)
-    fresh = np.flatnonzero(result.table()["proxy.fresh"] > 0)
-    assert fresh.size > 100
-    assert completed - fresh[-1] <= 2 * MISSED + 5  # the limit, and as many stale steps before it
+    # the run stepped with fresh measurements until the disconnect and stopped at the first step beyond the
+    # missed-sample limit (MISSED, by the wall clock: how many steps that is depends on the machine's load; a paced
+    # master catching up steps back to back, and 328 stale steps were seen in those 50 ms beside a CPU-bound process)
+    table = result.table()
+    assert np.flatnonzero(table["proxy.fresh"] > 0).size > 100
+    assert table["proxy.samples_missed"][-1] <= MISSED
     rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 1 + completed  # header, the initial row, one per completed step
     time.sleep(0.5)  # the rig's watchdog needs 200 ms and its ramp 50 ms after the last DRIVE
@@ -110,8 +110,9 @@ def test_a_short_disconnect_is_ridden_through_by_reconnecting(fig7_archives, emu
     """With the missed-sample limit far above the outage (a 50 ms one; 10 s: on a loaded machine the host once saw no
     measurement for 1.13 s around it) the link reconnects and the run completes."""
     rig = emulator("--disconnect-at", "0.5", "--reconnect-after", "0.05")
-    result = run_hil(fig7_archives, rig.port, tmp_path / "run",
-                  reference=Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7), **{"proxy.max_missed_samples": 20_000})
+    reference = Staircase((60e-6, 80e-6), hold_s=0.8, lead_s=0.7)
+    result = run_hil(fig7_archives, rig.port, tmp_path / "run", reference=reference,
+                     **{"proxy.max_missed_samples": 20_000})
     table = result.table()
     assert result.summary["status"] == "ok"
     assert table["proxy.reconnects"][-1] == 1
