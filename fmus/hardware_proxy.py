@@ -16,9 +16,10 @@ work in hardware. A thin adapter over :class:`nfal.hil.link.RigLink`:
   ``fresh`` = false and a growing ``samples_missed``. pythonfmu reports a failing step as fmi2Fatal
   (docs/cosimulation.md).
 * With ``lockstep`` the step waits (up to ``connect_timeout``) for the measurement that reports its DRIVE applied:
-  the loop runs on the rig's clock. Against ``nfal rig-emulator --lockstep``, whose ticks wait for each DRIVE, the
-  loop is then the same whatever the machine's load and however the master is paced (for tests and debugging; on a
-  rig on its own clock the step takes up to a sample period, and the loop has a sample's delay).
+  the loop runs on the rig's clock, and missed samples are counted in rig time (the ticks between two answers, less
+  one): a host paused between the answer and its step is no rig's silence. Against ``nfal rig-emulator
+  --lockstep``, whose ticks wait for each DRIVE, the loop is then the same whatever the machine's load and however
+  the master is paced (for tests and debugging; on a rig on its own clock the step takes up to a sample period).
 * A sample flagged WATCHDOG_TRIPPED fails the step too: the rig had no DRIVE for its watchdog time (the
   host stalled), ramps the drive down and ignores DRIVE until a new session, so the loop is open and the
   run can no longer mean anything. (A reconnection's HELLO clears the trip, so a link that comes back
@@ -80,7 +81,8 @@ class HardwareProxy(NfalSlave):
         self.add_output("fresh", kind=bool, description="a new sample arrived during the last step")
         self.add_output("link_ok", kind=bool, description="the session with the rig is up")
         self.add_output("samples_missed", kind=int, description="rig samples due since the newest one arrived "
-                        "(measurement_age x sample_rate, rounded down)")
+                        "(measurement_age x sample_rate, rounded down; with lockstep, the rig's ticks between two "
+                        "answers less one)")
         self.add_output("frames_dropped", kind=int, description="frames received and dropped (corrupt, truncated, "
                         "oversized, unknown, out of order)")
         self.add_output("frames_lost", kind=int, description="frames missing from the rig's sequence")
@@ -109,6 +111,7 @@ class HardwareProxy(NfalSlave):
         self._settings: tuple | None = None
         self._seen = 0
         self._steps = 0
+        self._answered_at: float | None = None  # lockstep: the rig time of the last answer
         self._realtime = contextlib.ExitStack()
         self._collector = None
 
@@ -141,6 +144,7 @@ class HardwareProxy(NfalSlave):
         self._collector = self._realtime.enter_context(realtime_section())
         self._publish(link.latest(), fresh=True)
         self.samples_missed = 0
+        self._answered_at = None
 
     def _publish(self, sample, *, fresh: bool) -> None:
         link = self._link
@@ -175,18 +179,21 @@ class HardwareProxy(NfalSlave):
         link.send_drive(voltage)
         self._collector.safe_point()  # right after the DRIVE left: the most slack before the next one
         if self.lockstep:
-            if not link.wait_applied(self.connect_timeout):
-                self._close(stop=False)
-                raise LinkError(f"{self.port}: lockstep: the rig did not report the DRIVE of t = {current_time:g} s "
-                                f"applied within connect_timeout = {self.connect_timeout:g} s ("
-                                f"{link.last_error or 'no error on the port'})")
+            self._await_answer(link, current_time)
         else:
             link.poll()  # what has arrived, without waiting
         sample = link.latest()
         self._publish(sample, fresh=sample.count != self._seen)
-        # by the wall clock, not by steps: a master catching up after a stall of its own steps in a burst,
-        # and those steps find nothing new although the rig has not missed a sample
-        self.samples_missed = int(self.measurement_age * self.sample_rate)
+        if self.lockstep:  # in rig time: the ticks between two answers, less one (0 while the rig waits for each DRIVE)
+            previous, self._answered_at = self._answered_at, self.rig_time
+            ticks = 1 if previous is None else round((self.rig_time - previous) * self.sample_rate)
+            self.samples_missed = max(0, ticks - 1)
+            silence_s = self.samples_missed / self.sample_rate
+        else:
+            # by the wall clock, not by steps: a master catching up after a stall of its own steps in a burst,
+            # and those steps find nothing new although the rig has not missed a sample
+            self.samples_missed = int(self.measurement_age * self.sample_rate)
+            silence_s = self.measurement_age
         if self.watchdog_tripped:
             self._close(stop=False)
             raise LinkError(f"{self.port}: the rig's watchdog has tripped (sample at rig time {self.rig_time:.4f} s): "
@@ -196,10 +203,18 @@ class HardwareProxy(NfalSlave):
         if self.samples_missed > self.max_missed_samples:
             reason = link.last_error or "no error on the port: the rig went silent"
             self._close(stop=False)
-            raise LinkError(f"{self.port}: no measurement from the rig for {self.measurement_age * 1e3:.1f} ms "
+            raise LinkError(f"{self.port}: no measurement from the rig for {silence_s * 1e3:.1f} ms "
                             f"({self.samples_missed} samples, limit max_missed_samples = "
                             f"{self.max_missed_samples}): link lost ({reason}); the last sample is from rig time "
                             f"{self.rig_time:.4f} s")
+
+    def _await_answer(self, link: RigLink, current_time: float) -> None:
+        """Lockstep: wait for the measurement that reports this step's DRIVE applied (up to connect_timeout)."""
+        if not link.wait_applied(self.connect_timeout):
+            self._close(stop=False)
+            raise LinkError(f"{self.port}: lockstep: the rig did not report the DRIVE of t = {current_time:g} s "
+                            f"applied within connect_timeout = {self.connect_timeout:g} s ("
+                            f"{link.last_error or 'no error on the port'})")
 
     def terminate(self) -> None:
         self._close()

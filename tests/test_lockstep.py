@@ -83,3 +83,34 @@ def test_wait_applied_gives_up_when_no_answer_comes(rig, host):
 def test_lockstep_needs_the_python_firmware(capsys):
     assert main(["rig-emulator", "--lockstep", "--firmware", "c"]) == 2
     assert "--lockstep" in capsys.readouterr().err
+
+
+def test_a_lockstep_proxy_counts_missed_samples_in_rig_time_so_a_paused_host_is_no_silent_rig(rig):
+    """Each step's answer is the next tick: samples_missed 0, however long the host pauses between the answer's
+    arrival and its own check (30 ms here, three times the proxy's 20-sample limit at 2 kHz: a CI run failed on a
+    10.8 ms pause counted by the wall clock)."""
+    from nfal.fmus.hardware_proxy import HardwareProxy
+
+    slave = HardwareProxy(instance_name="proxy")
+    slave.port, slave.lockstep = str(rig[0].port.path), True
+    slave.setup_experiment(0.0)
+    slave.exit_initialization_mode()
+    link = slave._link
+    answered = link.wait_applied
+
+    def answered_then_paused(timeout_s: float) -> bool:
+        came = answered(timeout_s)
+        time.sleep(0.03)  # the host descheduled right after the answer arrived
+        return came
+
+    link.wait_applied = answered_then_paused
+    try:
+        slave.drive_voltage = 20.0
+        times = []
+        for k in range(8):
+            slave.do_step(k * 5e-4, 5e-4)
+            times.append(round(slave.rig_time * 1e6))
+            assert slave.fresh and slave.samples_missed == 0 and slave.applied_voltage == 20.0
+        assert {b - a for a, b in zip(times, times[1:])} == {PERIOD_US}
+    finally:
+        slave.terminate()
