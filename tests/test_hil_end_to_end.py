@@ -209,3 +209,17 @@ def test_the_hil_loop_lifts_off_from_rest_without_passing_the_first_level_by_ten
     height = np.asarray(result[HARDWARE.measured])[lead]
     assert height[0] < 10e-6 and height.max() <= 66e-6  # from rest on the surface to the 60 um level
     assert abs(height[-1] - 60e-6) < 1e-6
+
+
+@pytest.mark.slow
+def test_nfal_run_in_lockstep_is_not_paced_and_reports_no_overruns(fig7_archives, emulator, tmp_path, capsys):
+    """`nfal run fig7_hil --param proxy.lockstep=true` (README): the rig's answers pace the loop, so the run is not put
+    on the wall clock, and the summary has no real-time report (4000 "overruns" of 4000 steps, once, said nothing)."""
+    rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
+    assert main(["run", str(fig7_archives["fig7_hil"]), "--param", f"proxy.port={rig.port}", "--param",
+                 "proxy.lockstep=true", "--stop-time", "0.5", "--out", str(tmp_path / "run"), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["status"] == "ok" and not summary.get("realtime") and "pacing it" not in captured.err
+    assert summary["link"]["samples_missed_max"] == 0
+    assert "(1000 on the host's DRIVE)" in rig.stop()

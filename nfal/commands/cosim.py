@@ -215,7 +215,8 @@ def run_cosimulation(args: argparse.Namespace) -> int:
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a "
                                     "device path or socket://host:port); no rig? start `nfal rig-emulator` and give "
                                     "the path it prints first")
-    if columns is HARDWARE and not args.realtime:
+    lockstep = str(parameters.get("proxy.lockstep", "false")).strip().lower() in ("true", "1")
+    if columns is HARDWARE and not args.realtime and not lockstep:
         print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)",
               file=sys.stderr)
         args.realtime = True
