@@ -214,7 +214,8 @@ class HardwareProxy(NfalSlave):
             self._close(stop=False)
             raise LinkError(f"{self.port}: lockstep: the rig did not report the DRIVE of t = {current_time:g} s "
                             f"applied within connect_timeout = {self.connect_timeout:g} s ("
-                            f"{link.last_error or 'no error on the port'})")
+                            f"{link.last_error or 'no error on the port: a frame lost on the wire?'}); lockstep needs "
+                            "every frame, so faults such as the emulator's --drop belong to runs on the wall clock")
 
     def terminate(self) -> None:
         self._close()

@@ -140,7 +140,9 @@ class Emulator:
         came in while the tick waited for it (lockstep)."""
         firmware, port = self.firmware, self.port
         now = k * self.timing.sample_period_s
-        out = [*received, *firmware.receive(port.read(), k)]
+        out = firmware.receive(port.read(), k)
+        if received:
+            out = [*received, *out]
         if firmware.armed and self._driven_at is None:
             self._driven_at = now
         voltage, faults = firmware.voltage(k)

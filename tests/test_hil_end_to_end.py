@@ -95,8 +95,13 @@ def test_a_disconnect_stops_the_run_keeps_the_rows_and_the_watchdog_ramps_down(f
     # missed-sample limit (MISSED, by the wall clock: how many steps that is depends on the machine's load; a paced
     # master catching up steps back to back, and 328 stale steps were seen in those 50 ms beside a CPU-bound process)
     table = result.table()
-    assert np.flatnonzero(table["proxy.fresh"] > 0).size > 100
+    fresh = np.flatnonzero(table["proxy.fresh"] > 0)
+    assert fresh.size > 100
     assert table["proxy.samples_missed"][-1] <= MISSED
+    # after the last fresh sample the proxy held it (never made one up), and the error names that sample's rig time
+    rig_time = np.asarray(table["proxy.rig_time"])
+    assert np.all(rig_time[fresh[-1]:] == rig_time[fresh[-1]])
+    assert f"the last sample is from rig time {rig_time[fresh[-1]]:.4f} s" in result.summary["error"]
     rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 1 + completed  # header, the initial row, one per completed step
     time.sleep(0.5)  # the rig's watchdog needs 200 ms and its ramp 50 ms after the last DRIVE

@@ -114,3 +114,19 @@ def test_a_lockstep_proxy_counts_missed_samples_in_rig_time_so_a_paused_host_is_
         assert {b - a for a, b in zip(times, times[1:])} == {PERIOD_US}
     finally:
         slave.terminate()
+
+
+def test_a_lockstep_proxy_without_an_answer_stops_saying_what_lockstep_needs(rig):
+    from nfal.errors import LinkError
+    from nfal.fmus.hardware_proxy import HardwareProxy
+
+    slave = HardwareProxy(instance_name="proxy")
+    slave.port, slave.lockstep, slave.connect_timeout = str(rig[0].port.path), True, 0.3
+    slave.setup_experiment(0.0)
+    slave.exit_initialization_mode()
+    rig[0].stop()  # the rig's clock stops: no answer comes, as when a frame is lost on the wire
+    time.sleep(0.05)
+    with pytest.raises(LinkError, match="did not report the DRIVE of t = 0 s applied within connect_timeout = 0.3 s"
+                       ".*lockstep needs every frame"):
+        slave.do_step(0.0, 5e-4)
+    slave.terminate()

@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from nfal.models.step_metrics import noise_limits_settling
-
 from nfal.errors import PlanError
+from nfal.models.step_metrics import noise_limits_settling
 
 
 def finite_float(text: str) -> float:
