@@ -77,13 +77,6 @@ def _fmus_in(archive: Path) -> int:
         return sum(name.endswith(".fmu") for name in ssp.namelist())
 
 
-def _logged_once(result, needle: str, fmus: int = 1) -> int:
-    """Runs whose stdout and stderr each hold ``needle`` on exactly one line per FMU (or stderr only: ecos)."""
-    def once(text: str) -> bool:
-        return sum(needle in line for line in text.splitlines()) == fmus
-    return sum(once(err) and (once(out) or needle not in out) for out, err in result.texts)
-
-
 def c_host_runs(fmus: dict, folder: Path, runs: int, stop_s: float, stock: bool, fmi_version: int, kind: str) -> None:
     host = compile_c_host(folder, fmi_version)
     env, cwd, missing = environment(kind, folder)
@@ -95,7 +88,7 @@ def c_host_runs(fmus: dict, folder: Path, runs: int, stop_s: float, stock: bool,
         if missing:
             print(f"C host  FMI {fmi_version}.0  {name:17s} runs {runs:4d}  killed by a signal {result.signals:3d}  "
                   f"exit codes {sorted(set(result.exit_codes))}  one line naming the missing Python "
-                  f"{_logged_once(result, missing)}")
+                  f"{result.logged_once(missing)}")
             continue
         reference = simulate_fmu(str(fmus[name]), stop_time=stop_s, step_size=5e-4, output_interval=5e-4)
         differing = sum(any(not math.isclose(value, float(reference[output][-1]), rel_tol=1e-12, abs_tol=0)
@@ -112,7 +105,7 @@ def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, f
     if missing:
         print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  killed by a signal {result.signals:3d}  "
               f"exit codes {sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
-              f"{_logged_once(result, missing, _fmus_in(archive))}")
+              f"{result.logged_once(missing, _fmus_in(archive))}")
         return
     reference = pack(structure_sources() / "fig7_slow.ssd", fmus2["SlowPlant"].parent, folder / "fig7_slow_ours.ssp")
     ours = run_structure(reference, stop_time=stop_s, algorithm="jacobi", out_dir=folder / "ours", plot=False,

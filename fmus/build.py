@@ -22,8 +22,12 @@ everything the slave imports from nfal, under the same import names as in the in
     binaries/linux64/<Model>_runtime.so   the patched pythonfmu runtime built from fmus/runtime/
                                   (fmus/export_runtime.py)
 
-No Windows binary: pythonfmu's and pythonfmu3's stock DLLs (unpatched, and run by no test here) are left
-out, so an FMU declares only the platform it was tested on.
+pythonfmu's and pythonfmu3's stock Windows DLLs (unpatched) are always left out. ``windows_python=`` (``nfal
+build --platform win64``) adds our own beside the Linux binaries, cross-compiled with mingw-w64
+(:func:`nfal.fmus.export_runtime.windows_runtime_library`), so one FMU serves both::
+
+    binaries/win64/<Model>.dll, <Model>_runtime.dll   (FMI 3.0: binaries/x86_64-windows/)
+    resources/python-win64.cfg   the Windows Python they start (fmus/windows_python.py)
 
 ``fmi_version=3`` builds the same slave as an FMI 3.0 FMU with pythonfmu3: the layout above (the FMI 3.0
 binaries under ``binaries/x86_64-linux/``: the loader, and the patched pythonfmu3 runtime built from
@@ -60,8 +64,11 @@ import nfal
 import nfal.hil
 import nfal.models
 from nfal.errors import InvalidParameterError, RuntimeBuildError
-from nfal.fmus.export_runtime import (PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME_SUFFIX, RUNTIMES, loader_library,
-                                      python_config, python_settings, runtime_library)
+from nfal.fmus.export_runtime import (LOADER_WINDOWS_HEADER, PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME_SUFFIX,
+                                      RUNTIMES, WINDOWS_PYTHON_CONFIG, loader_library, python_config,
+                                      python_settings, runtime_library, windows_loader_library,
+                                      windows_runtime_library)
+from nfal.fmus.windows_python import windows_settings
 from nfal.fmus.fmi3 import fmi3_script
 
 logger = logging.getLogger(__name__)
@@ -127,12 +134,21 @@ def sources(name: str, fmi_version: int = 2) -> list[Path]:
             *RUNTIMES[fmi_version].source_files()]
 
 
-def is_up_to_date(fmu: Path, name: str, fmi_version: int = 2) -> bool:
-    """Whether ``fmu`` exists and is newer than every source of ``name`` (built for ``fmi_version``)."""
+def is_up_to_date(fmu: Path, name: str, fmi_version: int = 2, *, windows: bool = False) -> bool:
+    """Whether ``fmu`` exists, is newer than every source of ``name`` (built for ``fmi_version``) and has
+    Windows binaries if ``windows``."""
     if not fmu.is_file():
         return False
     built = fmu.stat().st_mtime
-    return all(source.stat().st_mtime < built for source in sources(name, fmi_version))
+    windows_sources = [LOADER_WINDOWS_HEADER, FMUS_DIR / "windows_python.py"] if windows else []
+    if not all(source.stat().st_mtime < built for source in sources(name, fmi_version) + windows_sources):
+        return False
+    with zipfile.ZipFile(fmu) as archive:
+        return not windows or _windows_binary(name, fmi_version) in archive.namelist()
+
+
+def _windows_binary(name: str, fmi_version: int) -> str:
+    return f"binaries/{RUNTIMES[fmi_version].windows_platform}/{name}.dll"
 
 
 def _minimal_package_init() -> str:
@@ -172,11 +188,12 @@ def _stage(name: str, stage: Path) -> Path:
     return staged
 
 
-def _with_runtime(built: Path, name: str, target: Path, fmi_version: int) -> None:
+def _with_runtime(built: Path, name: str, target: Path, fmi_version: int, windows_python: Path | None) -> None:
     """Copy the FMU ``built`` to ``target`` with our binaries for Linux (the loader as ``<name>.so``, the
     patched runtime of ``fmi_version`` beside it as ``<name>_runtime.so``) and ``resources/python.cfg``
-    (the Python that runs it, :func:`nfal.fmus.export_runtime.python_settings`); no binary of another
-    platform (none is tested: the builders' stock Windows DLLs are left out)."""
+    (the Python that runs it, :func:`nfal.fmus.export_runtime.python_settings`); with ``windows_python`` (the
+    root of a Windows CPython) the same for win64 (``.dll``, ``python-win64.cfg``); the builders' stock binaries
+    are left out."""
     platform = RUNTIMES[fmi_version].platform
     binary = f"binaries/{platform}/{name}.so"
     settings = python_settings()
@@ -196,6 +213,12 @@ def _with_runtime(built: Path, name: str, target: Path, fmi_version: int) -> Non
         out.write(loader_library(fmi_version), binary)
         out.write(runtime_library(fmi_version), f"binaries/{platform}/{name}{RUNTIME_SUFFIX}")
         out.writestr(f"resources/{PYTHON_CONFIG}", python_config(settings))
+        if windows_python is not None:
+            out.write(windows_loader_library(fmi_version, windows_python), _windows_binary(name, fmi_version))
+            out.write(windows_runtime_library(fmi_version, windows_python),
+                      f"binaries/{RUNTIMES[fmi_version].windows_platform}/{name}_runtime.dll")
+            out.writestr(f"resources/{WINDOWS_PYTHON_CONFIG}",
+                         python_config(windows_settings(windows_python), windows=True))
 
 
 def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]:
@@ -210,16 +233,18 @@ def _fmi3_stage(name: str, stage: Path, staged: Path) -> tuple[Path, list[Path]]
     return script, [stage / "nfal", runtime, staged]
 
 
-def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi_version: int = 2) -> Path:
+def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi_version: int = 2,
+              windows_python: Path | None = None) -> Path:
     """Build the FMU ``name`` into ``out_dir``/``name``.fmu (kept if up to date unless ``force``),
-    FMI 2.0 (pythonfmu) or, with ``fmi_version=3``, FMI 3.0 (pythonfmu3, fmus/fmi3.py)."""
+    FMI 2.0 (pythonfmu) or, with ``fmi_version=3``, FMI 3.0 (pythonfmu3, fmus/fmi3.py); with Windows binaries
+    too for ``windows_python``, the root of a Windows CPython (:func:`nfal.fmus.windows_python.windows_python`)."""
     if fmi_version not in FMI_VERSIONS:
         raise InvalidParameterError("fmi_version", fmi_version, f"one of {FMI_VERSIONS}")
     FmuBuilder = Fmi3Builder if fmi_version == 3 else Fmi2Builder  # noqa: N806 - the class, as pythonfmu names it
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{name}.fmu"
-    if not force and is_up_to_date(target, name, fmi_version):
+    if not force and is_up_to_date(target, name, fmi_version, windows=windows_python is not None):
         logger.info("%s is up to date", target)
         return target
     with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:
@@ -237,14 +262,14 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)
         partial = out / f".{name}.fmu.partial-{os.getpid()}"
-        _with_runtime(built, name, partial, fmi_version)
+        _with_runtime(built, name, partial, fmi_version, windows_python)
         os.replace(partial, target)
     logger.info("built %s", target)
     return target
 
 
 def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *, force: bool = False,
-               fmi_version: int = 2) -> dict[str, Path]:
+               fmi_version: int = 2, windows_python: Path | None = None) -> dict[str, Path]:
     """Build the FMUs ``names`` (default: all of :data:`FMU_SCRIPTS`) into ``out_dir``.
 
     Parameters
@@ -257,6 +282,8 @@ def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *
         Rebuild even the FMUs newer than their sources.
     fmi_version : {2, 3}
         FMI 2.0 (pythonfmu) or FMI 3.0 co-simulation (pythonfmu3; the same slaves, :mod:`nfal.fmus.fmi3`).
+    windows_python : path, optional
+        The root of a Windows CPython: the FMUs carry win64 binaries that start it, beside the Linux ones.
 
     Returns
     -------
@@ -266,4 +293,5 @@ def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *
     names = list(FMU_SCRIPTS) if names is None else list(names)
     for name in names:
         script_path(name)  # unknown names fail before anything is built
-    return {name: build_fmu(name, out_dir, force=force, fmi_version=fmi_version) for name in names}
+    return {name: build_fmu(name, out_dir, force=force, fmi_version=fmi_version, windows_python=windows_python)
+            for name in names}

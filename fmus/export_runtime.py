@@ -61,6 +61,8 @@ class Runtime:
     cache_name: str
     #: The FMI version (the loader is compiled for it).
     fmi_version: int
+    #: Its platform folder for 64-bit Windows (the FMI standard's name).
+    windows_platform: str
 
     def source_files(self) -> list[Path]:
         """The runtime's sources and the loader's (the FMU's binaries are built from both)."""
@@ -74,12 +76,13 @@ class Runtime:
 
 
 _HERE = Path(__file__).resolve().parent
-#: The loader every FMU's binary is (fmus/loader/loader.c).
+#: The loader every FMU's binary is (fmus/loader/loader.c; on Windows with fmus/loader/loader_windows.h).
 LOADER_SOURCE = _HERE / "loader" / "loader.c"
+LOADER_WINDOWS_HEADER = _HERE / "loader" / "loader_windows.h"
 #: FMI version -> its runtime.
 RUNTIMES: dict[int, Runtime] = {
-    2: Runtime(_HERE / "runtime", "linux64", "pythonfmu-export", 2),
-    3: Runtime(_HERE / "runtime3", "x86_64-linux", "pythonfmu3-export", 3),
+    2: Runtime(_HERE / "runtime", "linux64", "pythonfmu-export", 2, "win64"),
+    3: Runtime(_HERE / "runtime3", "x86_64-linux", "pythonfmu3-export", 3, "x86_64-windows"),
 }
 #: The library CMake builds (the FMU's copy is ``binaries/<platform>/<model>_runtime.so``).
 LIBRARY_NAME = "libpythonfmu-export.so"
@@ -91,6 +94,8 @@ _GENERATOR_VERSION = b"2"
 RUNTIME_SUFFIX = "_runtime.so"
 #: The file in the FMU's resources that names its Python (:func:`python_settings`; read by the loader).
 PYTHON_CONFIG = "python.cfg"
+#: Its counterpart for the Windows binaries (a Windows Python: fmus/windows_python.py).
+WINDOWS_PYTHON_CONFIG = "python-win64.cfg"
 #: The environment variable that overrides it (a Python executable).
 PYTHON_OVERRIDE_ENV = "NFAL_FMU_PYTHON"
 BUILD_TIMEOUT_S = 600
@@ -101,6 +106,12 @@ PYTHON_INFO = r"""
 import os, site, sys, sysconfig
 get = sysconfig.get_config_var
 def libpython():
+    if os.name == "nt":
+        name = "python%d%d.dll" % sys.version_info[:2]
+        for folder in (sys.base_prefix, os.path.dirname(sys.executable)):
+            if os.path.isfile(os.path.join(folder, name)):
+                return os.path.join(folder, name)
+        return ""
     names = [n for n in (get("INSTSONAME"), get("LDLIBRARY")) if n and ".so" in n]
     folders = [f for f in (get("LIBDIR"), get("LIBPL"), os.path.join(sys.base_prefix, "lib")) if f]
     if get("LIBDIR") and get("MULTIARCH"):
@@ -135,15 +146,20 @@ def python_settings(executable: str | os.PathLike | None = None) -> dict[str, st
     return dict(line.split("=", 1) for line in done.stdout.splitlines() if "=" in line)
 
 
-def python_config(settings: dict[str, str]) -> str:
-    """The text of an FMU's ``resources/python.cfg`` for ``settings`` (:func:`python_settings`)."""
+def python_config(settings: dict[str, str], *, windows: bool = False) -> str:
+    """The text of an FMU's ``resources/python.cfg`` (``windows``: ``python-win64.cfg``, read by the Windows
+    binaries) for ``settings`` (:func:`python_settings`)."""
+    binary, library = ("<Model>.dll", "pythonXY.dll beside its python.exe") if windows else ("<Model>.so",
+                                                                                             "shared libpython")
     lines = ["# The Python this FMU runs in a host that has none loaded (written by nfal build; read by the",
-             "# loader, binaries/<platform>/<Model>.so). To run it with another Python, set override= to that",
+             f"# loader, binaries/<platform>/{binary}). To run it with another Python, set override= to that",
              f"# Python's executable, or the environment variable {PYTHON_OVERRIDE_ENV} (which wins): it needs a",
-             "# shared libpython and this FMU's packages (numpy, scipy, numba, control; pyserial, cobs for",
-             "# the HardwareProxy). Check a Python with:",
-             "#   python -c \"import sysconfig; print(sysconfig.get_config_var('Py_ENABLE_SHARED'))\"   (1: shared)",
-             "override="]
+             f"# {library} and this FMU's packages (numpy, scipy, numba, control; pyserial, cobs for",
+             "# the HardwareProxy)."]
+    if not windows:
+        check = "import sysconfig; print(sysconfig.get_config_var('Py_ENABLE_SHARED'))"
+        lines += ["# Check a Python with:", f"#   python -c \"{check}\"   (1: shared)"]
+    lines += ["override="]
     lines += [f"{key}={settings.get(key, '')}" for key in ("executable", "version", "prefix", "base_prefix",
                                                              "libpython", "site")]
     return "\n".join(lines) + "\n"
@@ -253,7 +269,11 @@ def _cache_dir(runtime: Runtime) -> Path:
 
 
 def exported_functions(library: Path) -> set[str]:
-    """The FMI functions ``library`` exports (``nm -D``)."""
+    """The FMI functions ``library`` exports (``nm -D``; a Windows DLL's export table, ``objdump -p``)."""
+    if Path(library).suffix == ".dll":
+        done = subprocess.run([mingw_tool("objdump"), "-p", str(library)], capture_output=True, text=True, check=True)
+        table = done.stdout.split("[Ordinal/Name Pointer] Table", 1)[-1]
+        return set(re.findall(r"^\s*\[\s*\d+\]\s+(fmi[23]\w+)\s*$", table, re.M))
     if shutil.which("nm") is None:
         raise RuntimeBuildError("building the FMU loader needs nm: apt-get install binutils")
     done = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True, check=True)
@@ -261,9 +281,10 @@ def exported_functions(library: Path) -> set[str]:
             if len(fields) >= 3 and fields[-2] == "T" and fields[-1].startswith("fmi")}
 
 
-def _build_loader(runtime: Runtime, library: Path, target: Path, build: Path) -> None:
-    """Compile fmus/loader/loader.c for ``runtime`` (forwarding what ``library`` exports) into ``target``."""
-    compiler = shutil.which("cc") or shutil.which("gcc")
+def _build_loader(runtime: Runtime, library: Path, target: Path, build: Path, *, windows: bool = False) -> None:
+    """Compile fmus/loader/loader.c for ``runtime`` (forwarding what ``library`` exports) into ``target``
+    (``windows``: a DLL, with mingw-w64)."""
+    compiler = mingw_tool("gcc") if windows else shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         raise RuntimeBuildError("building the FMU loader needs a C compiler: apt-get install gcc")
     functions = fmi_functions(runtime.function_types.read_text(encoding="latin-1"))
@@ -273,12 +294,13 @@ def _build_loader(runtime: Runtime, library: Path, target: Path, build: Path) ->
         raise RuntimeBuildError(f"the runtime exports FMI functions the headers do not declare: {sorted(missing)}")
     (build / "nfal_forwarders.h").write_text(forwarders_source(functions, exported, runtime.fmi_version),
                                              encoding="utf-8")
-    (build / "nfal_python_info.h").write_text(f"#define NFAL_PYTHON_INFO {json.dumps(PYTHON_INFO)}\n",
+    (build / "nfal_python_info.h").write_text(f"#define NFAL_PYTHON_INFO {json.dumps(PYTHON_INFO)}\n"
+                                              f"#define NFAL_PYTHON_INFO_HEX \"{PYTHON_INFO.encode().hex()}\"\n",
                                               encoding="utf-8")
-    command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation",
-               "-fvisibility=hidden",
+    platform = ["-static", "-s", "-lpsapi"] if windows else ["-fPIC", "-fvisibility=hidden", "-ldl", "-lpthread"]
+    command = [compiler, "-shared", "-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation",
                f"-DNFAL_FMI_VERSION={runtime.fmi_version}", f"-I{build}", f"-I{runtime.function_types.parent}",
-               "-o", str(target), str(LOADER_SOURCE), "-ldl", "-lpthread"]
+               f"-I{LOADER_SOURCE.parent}", "-o", str(target), str(LOADER_SOURCE), *platform]
     done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
     if done.returncode != 0:
         raise RuntimeBuildError(f"compiling the FMU loader failed:\n{(done.stdout + done.stderr)[-3000:]}")
@@ -324,10 +346,69 @@ def loader_library(fmi_version: int = 2) -> Path:
     """The loader (``fmus/loader/loader.c``) that forwards to :func:`runtime_library`'s runtime: the binary
     a host loads from an FMU (built with the runtime, on first use)."""
     library = runtime_library(fmi_version)
-    key = hashlib.sha256(LOADER_SOURCE.read_bytes() + PYTHON_INFO.encode() + _GENERATOR_VERSION).hexdigest()[:12]
-    target = library.parent / f"{Path(LOADER_NAME).stem}-{key}.so"
+    return _cached_loader(fmi_version, library)
+
+
+def _cached_loader(fmi_version: int, library: Path) -> Path:
+    """The loader in front of ``library`` (a Linux .so or a Windows .dll), built beside it on first use."""
+    windows = library.suffix == ".dll"
+    source = LOADER_SOURCE.read_bytes() + (LOADER_WINDOWS_HEADER.read_bytes() if windows else b"")
+    key = hashlib.sha256(source + PYTHON_INFO.encode() + _GENERATOR_VERSION).hexdigest()[:12]
+    target = library.parent / f"{Path(LOADER_NAME).stem}-{key}{library.suffix}"
     if not target.is_file():
         with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
-            _build_loader(RUNTIMES[fmi_version], library, Path(build) / LOADER_NAME, Path(build))
-            os.replace(Path(build) / LOADER_NAME, target)
+            built = Path(build) / f"{Path(LOADER_NAME).stem}{library.suffix}"
+            _build_loader(RUNTIMES[fmi_version], library, built, Path(build), windows=windows)
+            os.replace(built, target)
     return target
+
+
+#: The mingw-w64 cross compilers (Debian's g++-mingw-w64-x86-64-posix: the posix threads flavour, whose
+#: winpthreads the loader's mutexes use) and binutils.
+MINGW_PREFIX = "x86_64-w64-mingw32-"
+MINGW_PACKAGE = "g++-mingw-w64-x86-64-posix"
+
+
+def mingw_tool(tool: str) -> str:
+    """The path of mingw-w64's ``tool`` (gcc, g++: the posix flavour; objdump), or a RuntimeBuildError naming the
+    Debian package."""
+    for name in (f"{MINGW_PREFIX}{tool}-posix", f"{MINGW_PREFIX}{tool}"):
+        if shutil.which(name):
+            return shutil.which(name)
+    raise RuntimeBuildError(f"building Windows binaries needs mingw-w64's {tool}: apt-get install {MINGW_PACKAGE}")
+
+
+def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
+    """The patched runtime of ``fmi_version`` as a win64 DLL, cross-compiled with mingw-w64 against the headers
+    and ``python3.dll`` of the Windows CPython in ``python_root`` (fmus/windows_python.py): Python's stable ABI,
+    so it runs with any Windows CPython 3.8 or newer. The C++ runtime is linked statically: the DLL needs
+    KERNEL32, msvcrt and python3.dll only. Cached by the hash of the sources and the headers' version."""
+    runtime = RUNTIMES[fmi_version]
+    include, python3 = Path(python_root) / "include", Path(python_root) / "python3.dll"
+    if not (include / "Python.h").is_file() or not python3.is_file():
+        raise RuntimeBuildError(f"{python_root} is not a Windows CPython with its headers (include/Python.h) and "
+                                "python3.dll")
+    digest = hashlib.sha256((include / "patchlevel.h").read_bytes())
+    for path in runtime.source_files():
+        if path != LOADER_SOURCE:
+            digest.update(path.name.encode() + path.read_bytes())
+    target = cache_root() / f"{runtime.cache_name}-win64" / digest.hexdigest()[:16] / "pythonfmu-export.dll"
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    sources = sorted(str(p) for p in (runtime.sources / "src").rglob("*.cpp"))
+    partial = target.with_name(f".{target.name}.{os.getpid()}")
+    command = [mingw_tool("g++"), "-std=c++17", "-O2", "-s", "-shared", "-DPy_LIMITED_API=0x03080000",
+               "-Wno-deprecated-declarations", f"-I{runtime.sources / 'src'}", f"-I{include}", "-o", str(partial),
+               *sources, str(python3), "-static", "-static-libgcc", "-static-libstdc++"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+    if done.returncode != 0:
+        raise RuntimeBuildError(f"cross-compiling the FMU runtime for Windows failed:\n"
+                                f"{(done.stdout + done.stderr)[-3000:]}")
+    os.replace(partial, target)
+    return target
+
+
+def windows_loader_library(fmi_version: int, python_root: Path) -> Path:
+    """The loader as a win64 DLL, in front of :func:`windows_runtime_library` (built on first use)."""
+    return _cached_loader(fmi_version, windows_runtime_library(fmi_version, python_root))

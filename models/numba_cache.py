@@ -20,9 +20,11 @@ from numba.core import caching
 from .disk_cache import cache_root
 
 PACKAGE_DIR = Path(__file__).resolve().parent
+#: numba's locator beside the source (public from numba 0.61 on, ``_InTreeCacheLocator`` before).
+_IN_TREE_LOCATOR = getattr(caching, "InTreeCacheLocator", None) or caching._InTreeCacheLocator
 
 
-class ContentKeyedCacheLocator(caching.InTreeCacheLocator):
+class ContentKeyedCacheLocator(_IN_TREE_LOCATOR):
     """numba cache locator for the kernels of this package: a folder keyed by the source file's content."""
 
     def __init__(self, py_func, py_file) -> None:

@@ -24,15 +24,16 @@ def structure_sources() -> Path:
 
 
 def build_all(out_dir: str | Path = DEFAULT_BUILD_DIR, structures=STRUCTURES + RIG_STRUCTURES, *,
-              fmi_version: int = 2) -> dict[str, Path]:
+              fmi_version: int = 2, windows_python: Path | None = None) -> dict[str, Path]:
     """Build the FMUs into ``out_dir`` (only those missing or older than their sources) and pack
     ``<structure>.ssp`` for each of ``structures``. Returns {structure name: archive path}.
 
     ``fmi_version=3``: the FMUs are FMI 3.0 co-simulation FMUs (pythonfmu3, :mod:`nfal.fmus.fmi3`), and the
-    archives the same structures wired to them (``nfal build --fmi 3`` puts them in ``build/fmi3/``)."""
+    archives the same structures wired to them (``nfal build --fmi 3`` puts them in ``build/fmi3/``).
+    ``windows_python``: the FMUs carry win64 binaries too, which start that Windows CPython."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    fmus = build_fmus(out, fmi_version=fmi_version)
+    fmus = build_fmus(out, fmi_version=fmi_version, windows_python=windows_python)
     logger.info("FMUs in %s: %s", out, ", ".join(sorted(fmus)))
     sources = structure_sources()
     archives = {}

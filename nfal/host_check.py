@@ -25,7 +25,8 @@ from fmpy import read_model_description
 
 from nfal.errors import HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
-from nfal.fmus.export_runtime import RUNTIMES
+from nfal.fmus.export_runtime import RUNTIMES, mingw_tool
+from nfal.fmus.windows_python import wine_path
 
 #: The C hosts' sources, per FMI version.
 C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
@@ -51,8 +52,15 @@ class HostRuns:
 
     @property
     def signals(self) -> int:
-        """Runs killed by a signal (a segmentation fault, an abort): crashes whatever the run was meant to do."""
-        return sum(code < 0 for code in self.exit_codes)
+        """Runs killed by a signal (a segmentation fault, an abort), or under wine by an unhandled exception (wine
+        prints it and exits with the exception code's low byte): crashes whatever the run was meant to do."""
+        return sum(code < 0 or "Unhandled exception" in err for code, (_, err) in zip(self.exit_codes, self.texts))
+
+    def logged_once(self, needle: str, fmus: int = 1) -> int:
+        """Runs whose stdout and stderr each hold ``needle`` on exactly one line per FMU (or stderr only: ecos)."""
+        def once(text: str) -> bool:
+            return sum(needle in line for line in text.splitlines()) == fmus
+        return sum(once(err) and (once(out) or needle not in out) for out, err in self.texts)
 
 
 def bare_environment(**extra: str) -> dict[str, str]:
@@ -61,22 +69,28 @@ def bare_environment(**extra: str) -> dict[str, str]:
     return {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), **extra}
 
 
-def compile_c_host(out_dir: Path, fmi_version: int = 2) -> Path:
-    """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable."""
-    compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
+def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False) -> Path:
+    """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable (``windows``: a
+    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.wine`)."""
     source = C_HOST_SOURCES[fmi_version]
-    executable = Path(out_dir) / source.stem
-    subprocess.run([compiler, "-O1", "-Wall", "-o", str(executable), str(source), "-ldl"], check=True,
-                   capture_output=True, text=True)
+    if windows:
+        executable = Path(out_dir) / f"{source.stem}.exe"
+        command = [mingw_tool("gcc"), "-O1", "-Wall", "-o", str(executable), str(source), "-static"]
+    else:
+        compiler = shutil.which("cc") or shutil.which("gcc")
+        if compiler is None:
+            raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
+        executable = Path(out_dir) / source.stem
+        command = [compiler, "-O1", "-Wall", "-o", str(executable), str(source), "-ldl"]
+    subprocess.run(command, check=True, capture_output=True, text=True)
     return executable
 
 
 def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[list[str], dict[str, str], list[str]]:
     """The C host's command line for the FMU extracted to ``folder`` (up to the stop time), {value reference:
     name} of its Real (Float64) outputs, and the ``VR=TEXT`` arguments that set the String variables
-    ``strings`` before initialisation (FMI 2.0 host only). The host must be the FMU's FMI version's."""
+    ``strings`` before initialisation (FMI 2.0 host only). The host must be the FMU's FMI version's; a Windows
+    one (``.exe``) is given the win64 binary and Windows paths (wine's)."""
     description = read_model_description(str(folder))
     references = {v.name: v.valueReference for v in description.modelVariables if v.type == "String"}
     if set(strings) - set(references):
@@ -84,21 +98,28 @@ def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[
     version = int(description.fmiVersion[0])
     if strings and version != 2:
         raise HostUnavailableError("only the FMI 2.0 C host sets String variables")
-    if host.name != C_HOST_SOURCES[version].stem:
+    if host.stem != C_HOST_SOURCES[version].stem:
         raise HostUnavailableError(f"{folder.name} is FMI {description.fmiVersion}: run it in "
                                    f"{C_HOST_SOURCES[version].stem}, not {host.name}")
     outputs = {str(v.valueReference): v.name for v in description.modelVariables
                if v.causality == "output" and v.type in ("Real", "Float64")}
-    binary = folder / "binaries" / RUNTIMES[version].platform / f"{description.coSimulation.modelIdentifier}.so"
-    # FMI 2.0 passes the resources as a file URI, FMI 3.0 as a path ending in a separator
-    resources = (folder / "resources").as_uri() if version == 2 else f"{folder / 'resources'}{os.sep}"
+    model = description.coSimulation.modelIdentifier
     settings = [f"{references[name]}={value}" for name, value in strings.items()]
+    # FMI 2.0 passes the resources as a file URI, FMI 3.0 as a path ending in a separator
+    if host.suffix == ".exe":
+        binary = wine_path(folder / "binaries" / RUNTIMES[version].windows_platform / f"{model}.dll")
+        resources = wine_path(folder / "resources")
+        resources = "file:///" + resources.replace("\\", "/") if version == 2 else resources + "\\"
+        return [str(host), binary, description.guid, resources], outputs, settings
+    binary = folder / "binaries" / RUNTIMES[version].platform / f"{model}.so"
+    resources = (folder / "resources").as_uri() if version == 2 else f"{folder / 'resources'}{os.sep}"
     return [str(host), str(binary), description.guid, resources], outputs, settings
 
 
 def _run(command: list[str], cwd: Path, env: dict[str, str] | None) -> subprocess.CompletedProcess:
+    # pipes, never files, for the std handles: under wine a Python with a file for one dies (nfal/wine.py)
     return subprocess.run(command, cwd=cwd, env=bare_environment() if env is None else env, capture_output=True,
-                          text=True, timeout=HOST_TIMEOUT_S)
+                          stdin=subprocess.DEVNULL, text=True, timeout=HOST_TIMEOUT_S)
 
 
 def run_in_c_host(host: Path, fmu: Path, work_dir: Path, *, runs: int, stop_time: float = 0.01,
@@ -156,14 +177,17 @@ def ecos_executable(cache_dir: Path) -> Path:
 
 
 def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: float,
-                step_size: float = 5e-4, env: dict[str, str] | None = None) -> HostRuns:
+                step_size: float = 5e-4, env: dict[str, str] | None = None,
+                wrapper: tuple[str, ...] = ()) -> HostRuns:
     """Simulate ``ssp`` (an SSP archive, or one FMU alone: FMI 2.0 or 3.0) ``runs`` times with ``ecos simulate``
-    (in ``env``, default :func:`bare_environment`); ``outputs`` holds each run's CSV columns."""
+    (in ``env``, default :func:`bare_environment`; ``ecos.exe`` under ``wrapper``, wine, gets the Windows path);
+    ``outputs`` holds each run's CSV columns."""
     result = HostRuns()
+    path = wine_path(ssp) if Path(ecos).suffix == ".exe" else str(ssp)
     for k in range(runs):
         folder = Path(work_dir) / f"ecos_{k}"
         folder.mkdir(parents=True)
-        run = _run([str(ecos), "simulate", "--path", str(ssp), "--stopTime", repr(stop_time), "--stepSize",
+        run = _run([*wrapper, str(ecos), "simulate", "--path", path, "--stopTime", repr(stop_time), "--stepSize",
                     repr(step_size)], folder, env)
         result.exit_codes.append(run.returncode)
         result.texts.append((run.stdout, run.stderr))

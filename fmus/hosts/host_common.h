@@ -3,9 +3,23 @@
 #ifndef NFAL_HOST_COMMON_H
 #define NFAL_HOST_COMMON_H
 
-#include <dlfcn.h>
 #include <stdio.h>
 #include <stdlib.h>
+#ifdef _WIN32 /* built with mingw-w64 for the Windows bench (nfal.host_check.compile_c_host) */
+#include <windows.h>
+#define RTLD_NOW 0
+#define RTLD_LOCAL 0
+static void *dlopen(const char *path, int flags) { (void)flags; return (void *)LoadLibraryA(path); }
+static void *dlsym(void *library, const char *name) { return (void *)GetProcAddress((HMODULE)library, name); }
+static int dlclose(void *library) { return !FreeLibrary((HMODULE)library); }
+static const char *dlerror(void) {
+    static char text[64];
+    snprintf(text, sizeof text, "Windows error %lu", (unsigned long)GetLastError());
+    return text;
+}
+#else
+#include <dlfcn.h>
+#endif
 
 static void *symbol(void *library, const char *name) {
     void *found = dlsym(library, name);

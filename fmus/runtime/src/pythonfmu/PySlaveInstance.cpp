@@ -38,6 +38,8 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
     file.open(filename);
 
     if (!file.is_open()) {
+        // nfal: with no Python error set, the caller went on with a null class and crashed the host
+        PyErr_Format(PyExc_ImportError, "cannot read the FMU's slave module %s", filename.c_str());
         return nullptr;
     }
 

@@ -106,7 +106,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName,
     const auto find = resources.find("file://");
 
     if (find != std::string::npos) {
-#ifdef _MSC_VER
+#ifdef _WIN32 // nfal: was _MSC_VER; a mingw-w64 build kept the slash of file:///C:/... and found no file
         resources.replace(find, 8, "");
 #else
         resources.replace(find, 7, "");

@@ -1,0 +1,127 @@
+"""The Windows test bench: Windows hosts run nfal's win64 FMUs under wine (docs/cosimulation.md, "Windows").
+
+:func:`wine_bench` makes a wine prefix of nfal's own (in the user's cache, never ``~/.wine``) and returns what a
+Windows host needs to run in it: the environment (nothing else set up: ``PATH=/usr/bin:/bin``, ``HOME`` and
+wine's own variables), the command prefix (``wine``) and the Windows path of a Linux file. Two stand-ins make
+wine 8.0 (Debian 12's) a Windows that these hosts and packages run on; neither goes into an FMU:
+
+* ``tar``: Windows 10 and later ship ``tar.exe`` (bsdtar) in System32, and ecos.exe unpacks every FMU and SSP
+  with ``tar -xf ARCHIVE -C DIR``; wine has none. The prefix's ``tar.bat`` does the same with the Windows
+  Python's ``zipfile``.
+* C99 complex functions: wine 8.0's ucrtbase leaves ``cexp``, ``carg``, ``csin``, ``ccos``, ``ctan``, their
+  hyperbolic forms and ``cpow`` unimplemented (a call aborts the process; measured through numpy and
+  scipy.signal, which the Controller and SensorChain FMUs use). The prefix's ``ucrtbase.dll``
+  (``fmus/hosts/wine_ucrtbase.c``) implements every complex function of the UCRT with mingw-w64's and forwards
+  each other export to wine's own ucrtbase (copied beside it as ``ucrtbase_wine.dll``).
+
+Windows' own std handles differ too: a Python started by wine 8.0 with a regular file as stdin or stdout dies
+("init_sys_streams: Invalid handle"), so hosts run with pipes (:func:`run`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from nfal.errors import HostUnavailableError
+from nfal.fmus.build import FMUS_DIR
+from nfal.fmus.export_runtime import mingw_tool
+from nfal.fmus.windows_python import wine_path
+from nfal.models.disk_cache import cache_root
+
+#: wine's own PE build of ucrtbase (Debian's wine64 8.0).
+WINE_WINDOWS_DLLS = Path("/usr/lib/x86_64-linux-gnu/wine/x86_64-windows")
+UCRTBASE_SHIM = FMUS_DIR / "hosts" / "wine_ucrtbase.c"
+#: The MSVC runtime DLLs ecos.exe needs (a Windows user has them from the Visual C++ redistributable; here they come
+#: from the Windows Python, which ships them).
+MSVC_RUNTIME = ("msvcp140.dll", "msvcp140_atomic_wait.dll", "vcruntime140.dll", "vcruntime140_1.dll")
+WINE_TIMEOUT_S = 600
+
+
+@dataclass(frozen=True)
+class WineBench:
+    """A wine prefix ready for Windows hosts: run ``[*command, host.exe, ...]`` in ``environment``."""
+
+    prefix: Path
+    python_root: Path
+    environment: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def command(self) -> tuple[str, ...]:
+        return ("wine",)
+
+    @staticmethod
+    def path(path: str | os.PathLike) -> str:
+        """The Windows path of a Linux ``path`` in the prefix (``Z:\\...``)."""
+        return wine_path(path)
+
+
+def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
+    """The wine prefix ``prefix`` (default: nfal's, in the user's cache), made on first use (wineboot, ~20 s) and
+    given the two stand-ins of this module; ``python_root`` is the Windows Python whose ``zipfile`` unpacks."""
+    if shutil.which("wine") is None:
+        raise HostUnavailableError("the Windows bench needs wine: apt-get install wine64")
+    prefix = Path(prefix) if prefix else cache_root() / "wine-prefix"
+    environment = {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), "WINEPREFIX": str(prefix),
+                   "WINEDEBUG": "-all", "WINEDLLOVERRIDES": "ucrtbase=n,b"}
+    system32 = prefix / "drive_c" / "windows" / "system32"
+    if not (system32 / "kernel32.dll").is_file():
+        prefix.mkdir(parents=True, exist_ok=True)
+        _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")
+    tar = (f'@echo off\r\nrem nfal: Windows ships tar.exe; wine does not (nfal/wine.py)\r\n'
+           f'"{wine_path(python_root / "python.exe")}" -m zipfile -e %2 %4 <NUL >NUL 2>NUL\r\n')
+    (system32 / "tar.bat").write_text(tar, encoding="ascii", newline="")
+    _install_ucrtbase(system32)
+    return WineBench(prefix, Path(python_root), environment)
+
+
+def _wine(command: list[str], environment: dict[str, str], what: str) -> None:
+    done = subprocess.run(command, env=environment, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                          timeout=WINE_TIMEOUT_S)
+    if done.returncode != 0:
+        raise HostUnavailableError(f"{what} failed: {(done.stdout + done.stderr)[-1000:]}")
+
+
+def _install_ucrtbase(system32: Path) -> None:
+    """Build the complex-function ucrtbase (once per source) into ``system32``, wine's own beside it."""
+    wine_own = WINE_WINDOWS_DLLS / "ucrtbase.dll"
+    if not wine_own.is_file():
+        raise HostUnavailableError(f"no {wine_own}: the Windows bench needs Debian's wine64 (8.0)")
+    stamp = system32 / "ucrtbase.nfal"
+    key = f"{UCRTBASE_SHIM.stat().st_mtime_ns}:{wine_own.stat().st_mtime_ns}"
+    if stamp.is_file() and stamp.read_text() == key:
+        return
+    objdump = subprocess.run([mingw_tool("objdump"), "-p", str(wine_own)], capture_output=True, text=True,
+                             check=True).stdout
+    exports = re.findall(r"^\s*\[\s*\d+\]\s+(\w+)\s*$", objdump.split("[Ordinal/Name Pointer] Table", 1)[-1], re.M)
+    source = UCRTBASE_SHIM.read_text(encoding="utf-8")
+    ours = set(re.findall(r"\bnfal_(\w+)\(", source))
+    for family in re.findall(r"^(?:COMPLEX|REAL)\((\w+)\)", source, re.M):
+        ours |= {family, f"{family}f", f"{family}l"}
+    definition = system32 / "ucrtbase_nfal.def"
+    definition.write_text("LIBRARY ucrtbase.dll\nEXPORTS\n" + "".join(
+        f"    {name}=nfal_{name}\n" if name in ours else f"    {name}=ucrtbase_wine.{name}\n" for name in exports))
+    shutil.copy2(wine_own, system32 / "ucrtbase_wine.dll")
+    subprocess.run([mingw_tool("gcc"), "-O2", "-Wall", "-Werror", "-shared", "-s", "-o", str(system32 / "ucrtbase.dll"),
+                    str(UCRTBASE_SHIM), str(definition), "-static"], check=True, capture_output=True, text=True)
+    stamp.write_text(key)
+
+
+def ecos_windows(bench: WineBench, cache_dir: Path) -> Path:
+    """ecos.exe of the installed ecospy wheel (which ships the Windows build beside the Linux one), with
+    libecosc.dll, proxyfmu.exe and the MSVC runtime it needs, copied to ``cache_dir``/ecos-win64."""
+    try:
+        import ecospy  # noqa: F401 - on use: optional (the test extra); loads libecosc, fails without libtbb12
+    except (ImportError, OSError) as exc:
+        raise HostUnavailableError(f"ecos.exe comes with the ecospy package: pip install ecospy ({exc})") from exc
+    binaries = Path(ecospy.__file__).resolve().parent / "binaries"
+    target = Path(cache_dir) / "ecos-win64"
+    target.mkdir(parents=True, exist_ok=True)
+    for source in [binaries / "ecos.exe", binaries / "libecosc.dll", binaries / "proxyfmu.exe",
+                   *(bench.python_root / name for name in MSVC_RUNTIME)]:
+        shutil.copy2(source, target / source.name)
+    return target / "ecos.exe"
