@@ -106,10 +106,11 @@ fmi2Component fmi2Instantiate(fmi2String instanceName,
     const auto find = resources.find("file://");
 
     if (find != std::string::npos) {
-#ifdef _WIN32 // nfal: was _MSC_VER; a mingw-w64 build kept the slash of file:///C:/... and found no file
-        resources.replace(find, 8, "");
-#else
         resources.replace(find, 7, "");
+#ifdef _WIN32
+        // nfal: upstream dropped 8 characters, and under _MSC_VER only: a mingw-w64 build kept the slash of
+        // file:///C:/..., and a path with no drive (file:///tmp/..., FMPy's remoting under wine) lost its first one
+        if (resources.size() >= 3 && resources[0] == '/' && resources[2] == ':') resources.erase(0, 1);
 #endif
     }
 

@@ -1,0 +1,119 @@
+"""FMUs for Windows hosts (docs/cosimulation.md, "Windows"): ``nfal build --platform win64`` and the wine bench.
+
+The build cross-compiles with mingw-w64; the hosts run under Debian's wine 8.0 with nothing set up (nfal/wine.py:
+no Python on PATH, Linux or Windows). The Windows CPython is the one nfal prepares from PyPI (fmus/windows_python.py).
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import zipfile
+
+import numpy as np
+import pytest
+
+from nfal.build import build_all
+from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV, exported_functions, mingw_tool
+from nfal.fmus.windows_python import wine_path, windows_python, windows_settings
+from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.wine import ecos_windows, wine_bench
+
+pytestmark = pytest.mark.slow
+STOP_S = 0.05
+
+
+@pytest.fixture(scope="module")
+def python_root():
+    return windows_python()
+
+
+@pytest.fixture(scope="module")
+def bench(python_root):
+    return wine_bench(python_root)
+
+
+@pytest.fixture(scope="module", params=[2, 3], ids=["fmi2", "fmi3"])
+def windows_build(request, python_root, tmp_path_factory):
+    """fig7_slow.ssp and its FMUs, FMI 2.0 or 3.0, with win64 binaries beside the Linux ones."""
+    out = tmp_path_factory.mktemp(f"win64_fmi{request.param}")
+    archive = build_all(out, ("fig7_slow",), fmi_version=request.param, windows_python=python_root)["fig7_slow"]
+    return request.param, out, archive
+
+
+def _dll_imports(path) -> set[str]:
+    text = subprocess.run([mingw_tool("objdump"), "-p", str(path)], capture_output=True, text=True, check=True).stdout
+    return {name.lower() for name in re.findall(r"DLL Name: (\S+)", text)}
+
+
+def test_one_fmu_serves_linux_and_windows(windows_build, tmp_path):
+    version, out, _ = windows_build
+    platform, linux = ("win64", "linux64") if version == 2 else ("x86_64-windows", "x86_64-linux")
+    with zipfile.ZipFile(out / "SlowPlant.fmu") as fmu:
+        names = set(fmu.namelist())
+        fmu.extractall(tmp_path)
+    assert {f"binaries/{platform}/SlowPlant.dll", f"binaries/{platform}/SlowPlant_runtime.dll",
+            f"binaries/{linux}/SlowPlant.so", "resources/python-win64.cfg", "resources/python.cfg"} <= names
+    loader, runtime = (tmp_path / "binaries" / platform / f"SlowPlant{suffix}.dll" for suffix in ("", "_runtime"))
+    # one DLL per platform: the C++ runtime is static, Python is the stable ABI's python3.dll, loaded by the loader
+    assert _dll_imports(loader) == {"kernel32.dll", "msvcrt.dll"}
+    assert _dll_imports(runtime) == {"kernel32.dll", "msvcrt.dll", "python3.dll"}
+    assert exported_functions(loader) == exported_functions(runtime)
+    assert len(exported_functions(loader)) >= (30 if version == 2 else 60)
+    config = (tmp_path / "resources" / "python-win64.cfg").read_text()
+    assert "override=\n" in config and re.search(r"^libpython=Z:\\.*\\python311\.dll$", config, re.M)
+
+
+def test_the_windows_settings_name_the_python_as_wine_sees_it(python_root):
+    settings = windows_settings(python_root)
+    assert settings["executable"] == wine_path(python_root / "python.exe")
+    assert settings["version"] == "3.11" and settings["site"].endswith("\\Lib\\site-packages")
+
+
+def test_the_wine_bench_has_c99_complex_functions(bench):
+    """wine 8.0's own ucrtbase aborts on cexp (numpy's exp of a complex, scipy.signal's filter design); the bench's
+    ucrtbase gives numpy's Linux results."""
+    code = ("import numpy as np; z = np.array([0.3 + 0.4j, -1.5 + 2j]); "
+            "print(repr([complex(v) for f in (np.exp, np.log, np.sin, np.cos, np.tan, np.sinh, np.cosh, np.tanh) "
+            "for v in f(z)] + [complex(v) for v in z ** z]))")
+    done = subprocess.run([*bench.command, str(bench.python_root / "python.exe"), "-c", code], env=bench.environment,
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    z = np.array([0.3 + 0.4j, -1.5 + 2j])
+    ours = [complex(v) for f in (np.exp, np.log, np.sin, np.cos, np.tan, np.sinh, np.cosh, np.tanh) for v in f(z)]
+    np.testing.assert_allclose(eval(done.stdout), ours + [complex(v) for v in z ** z], rtol=1e-14)
+
+
+def test_our_windows_c_host_runs_each_fmu_as_linux_does(windows_build, bench, tmp_path):
+    version, out, _ = windows_build
+    windows, linux = compile_c_host(tmp_path, version, windows=True), compile_c_host(tmp_path, version)
+    for name in ("SlowPlant", "Controller"):
+        result = run_in_c_host(windows, out / f"{name}.fmu", tmp_path / "win", runs=2, stop_time=STOP_S,
+                               env=bench.environment, wrapper=bench.command)
+        assert result.exit_codes == [0, 0] and not result.signals, result.first_failure[-3000:]
+        reference = run_in_c_host(linux, out / f"{name}.fmu", tmp_path / "linux", runs=1, stop_time=STOP_S)
+        for outputs in result.outputs:
+            assert outputs.keys() == reference.outputs[0].keys()
+            np.testing.assert_allclose(list(outputs.values()), list(reference.outputs[0].values()), rtol=1e-12,
+                                       atol=0)
+
+
+def test_ecos_exe_runs_the_loop_as_ecos_does_on_linux(windows_build, bench, tmp_path):
+    version, _, archive = windows_build
+    result = run_in_ecos(ecos_windows(bench, tmp_path), archive, tmp_path / "win", runs=1, stop_time=STOP_S,
+                         env=bench.environment, wrapper=bench.command)
+    assert result.exit_codes == [0] and not result.signals, result.first_failure[-3000:]
+    linux = run_in_ecos(ecos_executable(tmp_path), archive, tmp_path / "linux", runs=1, stop_time=STOP_S)
+    heights = np.array(result.outputs[0]["Plant::height"])
+    assert heights.size == round(STOP_S / 5e-4) and heights.max() > 60e-6  # lifted off
+    np.testing.assert_array_equal(heights, linux.outputs[0]["Plant::height"])  # ecos's 6 decimals, equal
+
+
+def test_a_missing_windows_python_is_one_line_and_an_error(windows_build, bench, tmp_path):
+    version, out, _ = windows_build
+    missing = wine_path(tmp_path / "no" / "python.exe")
+    host = compile_c_host(tmp_path, version, windows=True)
+    result = run_in_c_host(host, out / "SlowPlant.fmu", tmp_path / "c", runs=1, stop_time=STOP_S,
+                           env={**bench.environment, PYTHON_OVERRIDE_ENV: missing}, wrapper=bench.command)
+    assert result.exit_codes == [2] and not result.signals, result.texts
+    assert result.logged_once(missing) == 1, result.texts
