@@ -142,3 +142,21 @@ def test_a_missing_windows_python_is_one_line_and_an_error(windows_build, bench,
                            env={**bench.environment, PYTHON_OVERRIDE_ENV: missing}, wrapper=bench.command)
     assert result.exit_codes == [2] and not result.signals, result.texts
     assert result.logged_once(missing) == 1, result.texts
+
+
+@pytest.mark.slow
+def test_the_override_names_another_windows_python(windows_build, bench, python_root, tmp_path):
+    """The Python the FMU recorded is gone; NFAL_FMU_PYTHON names one that is there (asked for its settings)."""
+    version, out, _ = windows_build
+    moved = tmp_path / "SlowPlant.fmu"
+    with zipfile.ZipFile(out / "SlowPlant.fmu") as source, zipfile.ZipFile(moved, "w") as target:
+        for item in source.infolist():
+            data = source.read(item)
+            if item.filename == "resources/python-win64.cfg":
+                data = re.sub(rb"(?m)^(executable|libpython)=.*$", rb"\1=Z:\\gone\\python.exe", data)
+            target.writestr(item, data)
+    host = compile_c_host(tmp_path, version, windows=True)
+    result = run_in_c_host(host, moved, tmp_path / "c", runs=1, stop_time=STOP_S,
+                           env={**bench.environment, PYTHON_OVERRIDE_ENV: wine_path(python_root / "python.exe")},
+                           wrapper=bench.command)
+    assert result.exit_codes == [0] and not result.signals, result.first_failure[-3000:]

@@ -44,6 +44,7 @@
 #define NFAL_CONFIG_FILE "python.cfg"
 #define NFAL_LIBRARY_SUFFIX ".so"
 #define NFAL_SEPARATOR "/"
+#define NFAL_LIBPYTHON_WORDS "a shared libpython"
 extern char **environ;
 #endif
 
@@ -383,8 +384,8 @@ static int nfal_load(char *message, size_t size)
         const char *from_env = getenv(NFAL_OVERRIDE_ENV);
         char fix[1024];
         snprintf(fix, sizeof fix, "set the environment variable " NFAL_OVERRIDE_ENV
-                 " (or override= in the FMU's resources/" NFAL_CONFIG_FILE ") to a Python executable with a shared "
-                 "libpython and this FMU's packages");
+                 " (or override= in the FMU's resources/" NFAL_CONFIG_FILE ") to a Python executable with "
+                 NFAL_LIBPYTHON_WORDS " and this FMU's packages");
         if (from_env && from_env[0]) {
             char chosen[NFAL_VALUE_SIZE];
             snprintf(chosen, sizeof chosen, "%s", from_env);

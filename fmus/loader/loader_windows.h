@@ -23,6 +23,7 @@
 #define NFAL_CONFIG_FILE "python-win64.cfg"
 #define NFAL_LIBRARY_SUFFIX ".dll"
 #define NFAL_SEPARATOR "\\"
+#define NFAL_LIBPYTHON_WORDS "its pythonXY.dll beside it"
 #define RTLD_NOW 0
 #define RTLD_GLOBAL 0
 #define RTLD_LOCAL 0
