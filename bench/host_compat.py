@@ -30,7 +30,6 @@ import math
 import subprocess
 import sys
 import tempfile
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +40,8 @@ import pythonfmu3
 from nfal.build import structure_sources
 from nfal.fmus.build import SIMULATION_FMUS, build_fmus
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV
-from nfal.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.host_check import (bare_environment, compile_c_host, ecos_executable, fmus_in, run_in_c_host,
+                              run_in_ecos)
 from nfal.orchestration import run_structure
 from nfal.orchestration.libcosim import preload_environment
 from nfal.orchestration.ssp_archive import pack
@@ -72,11 +72,6 @@ def environment(kind: str, folder: Path) -> tuple[dict[str, str], Path | None, s
     return bare_environment(PATH=f"{venv / 'bin'}:/usr/bin:/bin", VIRTUAL_ENV=str(venv)), elsewhere, None
 
 
-def _fmus_in(archive: Path) -> int:
-    with zipfile.ZipFile(archive) as ssp:
-        return sum(name.endswith(".fmu") for name in ssp.namelist())
-
-
 def c_host_runs(fmus: dict, folder: Path, runs: int, stop_s: float, stock: bool, fmi_version: int, kind: str) -> None:
     host = compile_c_host(folder, fmi_version)
     env, cwd, missing = environment(kind, folder)
@@ -105,7 +100,7 @@ def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, f
     if missing:
         print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  killed by a signal {result.signals:3d}  "
               f"exit codes {sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
-              f"{result.logged_once(missing, _fmus_in(archive))}")
+              f"{result.logged_once(missing, fmus_in(archive))}")
         return
     reference = pack(structure_sources() / "fig7_slow.ssd", fmus2["SlowPlant"].parent, folder / "fig7_slow_ours.ssp")
     ours = run_structure(reference, stop_time=stop_s, algorithm="jacobi", out_dir=folder / "ours", plot=False,

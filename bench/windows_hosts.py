@@ -33,7 +33,7 @@ from nfal.build import build_all
 from nfal.fmus.build import SIMULATION_FMUS
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV
 from nfal.fmus.windows_python import wine_path, windows_python
-from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.host_check import compile_c_host, ecos_executable, fmus_in, run_in_c_host, run_in_ecos
 from nfal.wine import ecos_windows, wine_bench
 
 HEIGHT = "Plant::height"
@@ -65,7 +65,7 @@ def ecos(archive: Path, folder: Path, bench, env: dict, runs: int, stop_s: float
     if missing:
         print(f"ecos.exe     FMI {fmi}.0  fig7_slow.ssp runs {runs:3d}  crashes {result.signals:2d}  exit codes "
               f"{sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
-              f"{result.logged_once(missing, len(SIMULATION_FMUS))}")
+              f"{result.logged_once(missing, fmus_in(archive))}")
         return
     linux = run_in_ecos(ecos_executable(folder), archive, folder / "ecos-linux", runs=1, stop_time=stop_s).outputs[0]
     csv = max((np.max(np.abs(np.array(o[HEIGHT]) - np.array(linux[HEIGHT]))) for o in result.outputs),

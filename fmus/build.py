@@ -134,17 +134,23 @@ def sources(name: str, fmi_version: int = 2) -> list[Path]:
             *RUNTIMES[fmi_version].source_files()]
 
 
-def is_up_to_date(fmu: Path, name: str, fmi_version: int = 2, *, windows: bool = False) -> bool:
-    """Whether ``fmu`` exists, is newer than every source of ``name`` (built for ``fmi_version``) and has
-    Windows binaries if ``windows``."""
+def is_up_to_date(fmu: Path, name: str, fmi_version: int = 2, *, windows: Path | None = None) -> bool:
+    """Whether ``fmu`` exists, is newer than every source of ``name`` (built for ``fmi_version``) and, with
+    ``windows`` (the root of a Windows CPython), has Windows binaries that start that Python."""
     if not fmu.is_file():
         return False
     built = fmu.stat().st_mtime
     windows_sources = [LOADER_WINDOWS_HEADER, FMUS_DIR / "windows_python.py"] if windows else []
     if not all(source.stat().st_mtime < built for source in sources(name, fmi_version) + windows_sources):
         return False
-    with zipfile.ZipFile(fmu) as archive:
-        return not windows or _windows_binary(name, fmi_version) in archive.namelist()
+    if not windows:
+        return True
+    with zipfile.ZipFile(fmu) as archive:  # built for this Windows Python (the cfg names it)
+        names = archive.namelist()
+        if _windows_binary(name, fmi_version) not in names or f"resources/{WINDOWS_PYTHON_CONFIG}" not in names:
+            return False
+        return archive.read(f"resources/{WINDOWS_PYTHON_CONFIG}").decode() == python_config(
+            windows_settings(windows), windows=True)
 
 
 def _windows_binary(name: str, fmi_version: int) -> str:
@@ -244,7 +250,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{name}.fmu"
-    if not force and is_up_to_date(target, name, fmi_version, windows=windows_python is not None):
+    if not force and is_up_to_date(target, name, fmi_version, windows=windows_python):
         logger.info("%s is up to date", target)
         return target
     with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:

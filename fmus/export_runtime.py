@@ -271,9 +271,7 @@ def _cache_dir(runtime: Runtime) -> Path:
 def exported_functions(library: Path) -> set[str]:
     """The FMI functions ``library`` exports (``nm -D``; a Windows DLL's export table, ``objdump -p``)."""
     if Path(library).suffix == ".dll":
-        done = subprocess.run([mingw_tool("objdump"), "-p", str(library)], capture_output=True, text=True, check=True)
-        table = done.stdout.split("[Ordinal/Name Pointer] Table", 1)[-1]
-        return set(re.findall(r"^\s*\[\s*\d+\]\s+(fmi[23]\w+)\s*$", table, re.M))
+        return {name for name in dll_exports(library) if re.match(r"fmi[23]", name)}
     if shutil.which("nm") is None:
         raise RuntimeBuildError("building the FMU loader needs nm: apt-get install binutils")
     done = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True, check=True)
@@ -353,7 +351,9 @@ def _cached_loader(fmi_version: int, library: Path) -> Path:
     """The loader in front of ``library`` (a Linux .so or a Windows .dll), built beside it on first use."""
     windows = library.suffix == ".dll"
     source = LOADER_SOURCE.read_bytes() + (LOADER_WINDOWS_HEADER.read_bytes() if windows else b"")
-    key = hashlib.sha256(source + PYTHON_INFO.encode() + _GENERATOR_VERSION).hexdigest()[:12]
+    # the sources, what the loader is generated from, and how it is compiled (_build_loader's flags)
+    key = hashlib.sha256(source + PYTHON_INFO.encode() + _GENERATOR_VERSION + Path(__file__).read_bytes()
+                         ).hexdigest()[:12]
     target = library.parent / f"{Path(LOADER_NAME).stem}-{key}{library.suffix}"
     if not target.is_file():
         with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
@@ -367,6 +367,16 @@ def _cached_loader(fmi_version: int, library: Path) -> Path:
 #: winpthreads the loader's mutexes use) and binutils.
 MINGW_PREFIX = "x86_64-w64-mingw32-"
 MINGW_PACKAGE = "g++-mingw-w64-x86-64-posix"
+#: How the Windows runtime is compiled (part of its cache key): Python's stable ABI from 3.8 on.
+WINDOWS_RUNTIME_FLAGS = ("-std=c++17", "-O2", "-s", "-shared", "-DPy_LIMITED_API=0x03080000",
+                         "-Wno-deprecated-declarations")
+
+
+def dll_exports(library: str | os.PathLike) -> list[str]:
+    """The names a Windows DLL exports (its export table, ``objdump -p`` of mingw-w64)."""
+    done = subprocess.run([mingw_tool("objdump"), "-p", str(library)], capture_output=True, text=True, check=True)
+    table = done.stdout.split("[Ordinal/Name Pointer] Table", 1)[-1]
+    return re.findall(r"^\s*\[\s*\d+\]\s+(\w+)\s*$", table, re.M)
 
 
 def mingw_tool(tool: str) -> str:
@@ -388,7 +398,7 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
     if not (include / "Python.h").is_file() or not python3.is_file():
         raise RuntimeBuildError(f"{python_root} is not a Windows CPython with its headers (include/Python.h) and "
                                 "python3.dll")
-    digest = hashlib.sha256((include / "patchlevel.h").read_bytes())
+    digest = hashlib.sha256((include / "patchlevel.h").read_bytes() + " ".join(WINDOWS_RUNTIME_FLAGS).encode())
     for path in runtime.source_files():
         if path != LOADER_SOURCE:
             digest.update(path.name.encode() + path.read_bytes())
@@ -398,9 +408,8 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
     target.parent.mkdir(parents=True, exist_ok=True)
     sources = sorted(str(p) for p in (runtime.sources / "src").rglob("*.cpp"))
     partial = target.with_name(f".{target.name}.{os.getpid()}")
-    command = [mingw_tool("g++"), "-std=c++17", "-O2", "-s", "-shared", "-DPy_LIMITED_API=0x03080000",
-               "-Wno-deprecated-declarations", f"-I{runtime.sources / 'src'}", f"-I{include}", "-o", str(partial),
-               *sources, str(python3), "-static", "-static-libgcc", "-static-libstdc++"]
+    command = [mingw_tool("g++"), *WINDOWS_RUNTIME_FLAGS, f"-I{runtime.sources / 'src'}", f"-I{include}", "-o",
+               str(partial), *sources, str(python3), "-static", "-static-libgcc", "-static-libstdc++"]
     done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
     if done.returncode != 0:
         raise RuntimeBuildError(f"cross-compiling the FMU runtime for Windows failed:\n"

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -101,7 +102,7 @@ def _unpack(temp: Path, staged: Path) -> None:
 
 def _check(root: Path) -> Path:
     """``root``'s pythonXY.dll, or an error naming what a Windows CPython lacks there."""
-    libraries = sorted(p for p in root.glob("python3*.dll") if p.name != "python3.dll")
+    libraries = sorted(p for p in root.glob("python3*.dll") if re.fullmatch(r"python3\d+\.dll", p.name))
     missing = [name for name in ("python.exe", "python3.dll", "include/Python.h") if not (root / name).is_file()]
     if missing or not libraries:
         missing += [] if libraries else ["python3XY.dll"]

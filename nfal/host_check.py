@@ -198,6 +198,12 @@ def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: 
     return result
 
 
+def fmus_in(archive: Path) -> int:
+    """How many FMUs the SSP ``archive`` holds."""
+    with zipfile.ZipFile(archive) as ssp:
+        return sum(name.endswith(".fmu") for name in ssp.namelist())
+
+
 def read_ecos_csv(path: Path) -> dict[str, list[float]]:
     """ecos's CSV as {"Element::variable": values} for its Real columns (written with 6 decimals)."""
     with open(path, newline="", encoding="utf-8") as handle:

@@ -20,6 +20,7 @@ Windows' own std handles differ too: a Python started by wine 8.0 with a regular
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import shutil
@@ -27,9 +28,9 @@ import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from nfal.errors import HostUnavailableError
+from nfal.errors import HostUnavailableError, RuntimeBuildError
 from nfal.fmus.build import FMUS_DIR
-from nfal.fmus.export_runtime import mingw_tool
+from nfal.fmus.export_runtime import dll_exports, mingw_tool
 from nfal.fmus.windows_python import wine_path
 from nfal.models.disk_cache import cache_root
 
@@ -65,7 +66,7 @@ def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
     """The wine prefix ``prefix`` (default: nfal's, in the user's cache), made on first use (wineboot, ~20 s) and
     given the two stand-ins of this module; ``python_root`` is the Windows Python whose ``zipfile`` unpacks."""
     if shutil.which("wine") is None:
-        raise HostUnavailableError("the Windows bench needs wine: apt-get install wine64")
+        raise HostUnavailableError("the Windows bench needs wine: apt-get install wine wine64")
     prefix = Path(prefix) if prefix else cache_root() / "wine-prefix"
     environment = {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), "WINEPREFIX": str(prefix),
                    "WINEDEBUG": "-all", "WINEDLLOVERRIDES": "ucrtbase=n,b"}
@@ -74,8 +75,8 @@ def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
         prefix.mkdir(parents=True, exist_ok=True)
         _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")
     python = wine_path(Path(python_root) / "python.exe").replace("\\", "\\\\")
-    subprocess.run([mingw_tool("gcc"), "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-o",
-                    str(system32 / "tar.exe"), str(TAR_SHIM), "-static"], check=True, capture_output=True, text=True)
+    _compile(["gcc", "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-o", str(system32 / "tar.exe"),
+              str(TAR_SHIM), "-static"])
     _install_ucrtbase(system32)
     return WineBench(prefix, Path(python_root), environment)
 
@@ -87,18 +88,29 @@ def _wine(command: list[str], environment: dict[str, str], what: str) -> None:
         raise HostUnavailableError(f"{what} failed: {(done.stdout + done.stderr)[-1000:]}")
 
 
+def _compile(command: list[str]) -> None:
+    """Run mingw-w64's ``command[0]`` on the rest; an error with the compiler's words if it fails."""
+    try:
+        done = subprocess.run([mingw_tool(command[0]), *command[1:]], capture_output=True, text=True,
+                              timeout=WINE_TIMEOUT_S)
+    except RuntimeBuildError as exc:
+        raise HostUnavailableError(str(exc)) from exc
+    if done.returncode != 0:
+        raise HostUnavailableError(f"compiling the wine bench's {Path(command[-2]).name} failed:\n"
+                                   f"{(done.stdout + done.stderr)[-2000:]}")
+
+
 def _install_ucrtbase(system32: Path) -> None:
     """Build the complex-function ucrtbase (once per source) into ``system32``, wine's own beside it."""
     wine_own = WINE_WINDOWS_DLLS / "ucrtbase.dll"
     if not wine_own.is_file():
         raise HostUnavailableError(f"no {wine_own}: the Windows bench needs Debian's wine64 (8.0)")
     stamp = system32 / "ucrtbase.nfal"
-    key = f"{UCRTBASE_SHIM.stat().st_mtime_ns}:{wine_own.stat().st_mtime_ns}"
+    # the shim's source, wine's DLL it forwards to, and this module (the .def's generator)
+    key = hashlib.sha256(UCRTBASE_SHIM.read_bytes() + wine_own.read_bytes() + Path(__file__).read_bytes()).hexdigest()
     if stamp.is_file() and stamp.read_text() == key:
         return
-    objdump = subprocess.run([mingw_tool("objdump"), "-p", str(wine_own)], capture_output=True, text=True,
-                             check=True).stdout
-    exports = re.findall(r"^\s*\[\s*\d+\]\s+(\w+)\s*$", objdump.split("[Ordinal/Name Pointer] Table", 1)[-1], re.M)
+    exports = dll_exports(wine_own)
     source = UCRTBASE_SHIM.read_text(encoding="utf-8")
     ours = set(re.findall(r"\bnfal_(\w+)\(", source))
     for family in re.findall(r"^(?:COMPLEX|REAL)\((\w+)\)", source, re.M):
@@ -107,8 +119,8 @@ def _install_ucrtbase(system32: Path) -> None:
     definition.write_text("LIBRARY ucrtbase.dll\nEXPORTS\n" + "".join(
         f"    {name}=nfal_{name}\n" if name in ours else f"    {name}=ucrtbase_wine.{name}\n" for name in exports))
     shutil.copy2(wine_own, system32 / "ucrtbase_wine.dll")
-    subprocess.run([mingw_tool("gcc"), "-O2", "-Wall", "-Werror", "-shared", "-s", "-o", str(system32 / "ucrtbase.dll"),
-                    str(UCRTBASE_SHIM), str(definition), "-static"], check=True, capture_output=True, text=True)
+    _compile(["gcc", "-O2", "-Wall", "-Werror", "-shared", "-s", "-o", str(system32 / "ucrtbase.dll"),
+              str(UCRTBASE_SHIM), str(definition), "-static"])
     stamp.write_text(key)
 
 
@@ -120,6 +132,10 @@ def ecos_windows(bench: WineBench, cache_dir: Path) -> Path:
     except (ImportError, OSError) as exc:
         raise HostUnavailableError(f"ecos.exe comes with the ecospy package: pip install ecospy ({exc})") from exc
     binaries = Path(ecospy.__file__).resolve().parent / "binaries"
+    missing = [name for name in MSVC_RUNTIME if not (bench.python_root / name).is_file()]
+    if missing:
+        raise HostUnavailableError(f"ecos.exe needs the MSVC runtime ({', '.join(missing)}), which the Windows Python "
+                                   f"{bench.python_root} does not have beside it")
     target = Path(cache_dir) / "ecos-win64"
     target.mkdir(parents=True, exist_ok=True)
     for source in [binaries / "ecos.exe", binaries / "libecosc.dll", binaries / "proxyfmu.exe",

@@ -19,8 +19,14 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: tar -xf ARCHIVE [-C DIR] (nfal's stand-in: extraction only)\n");
         return 2;
     }
-    char command[4 * MAX_PATH + 64];
-    snprintf(command, sizeof command, "\"%s\" -m zipfile -e \"%s\" \"%s\"", NFAL_PYTHON, archive, folder);
+    char target[2 * MAX_PATH], command[6 * MAX_PATH];
+    int n = snprintf(target, sizeof target, "%s", folder);
+    while (n > 1 && (target[n - 1] == '\\' || target[n - 1] == '/')) target[--n] = '\0'; /* no \" at the end */
+    n = snprintf(command, sizeof command, "\"%s\" -m zipfile -e \"%s\" \"%s\"", NFAL_PYTHON, archive, target);
+    if (n < 0 || (size_t)n >= sizeof command) {
+        fprintf(stderr, "tar: paths too long\n");
+        return 2;
+    }
     SECURITY_ATTRIBUTES inherit = {sizeof inherit, NULL, TRUE};
     HANDLE nothing = CreateFileA("NUL", GENERIC_READ | GENERIC_WRITE, FILE_SHARE_READ | FILE_SHARE_WRITE, &inherit,
                                  OPEN_EXISTING, 0, NULL);

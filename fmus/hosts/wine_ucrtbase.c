@@ -1,9 +1,10 @@
 /* ucrtbase.dll for the Windows test bench under wine 8.0 (nfal/wine.py): never part of an FMU.
  *
  * wine 8.0's ucrtbase leaves C99 complex functions unimplemented (cexp, carg, csin, ccos, ctan, their hyperbolic
- * forms, cpow: a call aborts the process), and numpy's and scipy's MSVC builds import them. This DLL implements every
- * complex function the UCRT exports with mingw-w64's libm, and nfal/wine.py forwards each other export to wine's own
- * ucrtbase, copied beside it as ucrtbase_wine.dll (a generated .def).
+ * forms, cpow: a call aborts the process), and numpy's and scipy's MSVC builds import them. This DLL implements the
+ * UCRT's complex math functions (c*, and their f and l forms) with mingw-w64's libm; nfal/wine.py forwards each other
+ * export, _Cbuild and _Cmulcc among them (wine has those), to wine's own ucrtbase, copied beside it as
+ * ucrtbase_wine.dll (a generated .def).
  *
  * The UCRT's complex types are structs (_Dcomplex, _Fcomplex; _Lcomplex holds doubles: MSVC's long double is a
  * double), which the Windows x64 calling convention passes and returns as GCC does the same structs.

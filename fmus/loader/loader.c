@@ -196,11 +196,14 @@ static int nfal_run_python_info(nfal_python *python, const char *executable, cha
         CloseHandle(read_end);
     }
     DWORD status = 1;
-    WaitForSingleObject(child.hProcess, 60000);
-    GetExitCodeProcess(child.hProcess, &status);
+    if (WaitForSingleObject(child.hProcess, 60000) != WAIT_OBJECT_0) {
+        TerminateProcess(child.hProcess, 1);  /* a Python that hangs is one that did not tell */
+    } else {
+        GetExitCodeProcess(child.hProcess, &status);
+    }
     CloseHandle(child.hProcess);
     CloseHandle(child.hThread);
-    return (int)status;
+    return status == 0 ? 0 : 1;  /* an NTSTATUS (0xC...) is not a negative "no message" */
 }
 #else
 /* Run ``executable -c NFAL_PYTHON_INFO`` and read its settings; its exit status, or -1 with a message. */
@@ -318,9 +321,11 @@ static int nfal_start_python(const nfal_python *python, const char *fix, char *m
                  python->libpython, fix);
         return 0;
     }
-    if (is_initialized()) return 1;  /* loaded and started by someone else meanwhile */
 #ifdef _WIN32
     if (!nfal_load_stable_abi(python->libpython, message, size)) return 0;
+#endif
+    if (is_initialized()) return 1;  /* loaded and started by someone else meanwhile */
+#ifdef _WIN32
     void (*set_home)(const wchar_t *) = (void (*)(const wchar_t *))dlsym(library, "Py_SetPythonHome");
     if (set_home && python->base_prefix[0]) {
         wchar_t *home = decode(python->base_prefix, NULL);  /* kept for the interpreter's lifetime */
@@ -420,9 +425,14 @@ static int nfal_load(char *message, size_t size)
             ok = 0;
         }
         if (ok && !python.libpython[0]) {
+#ifdef _WIN32
+            snprintf(message, size, "the Python %s has no pythonXY.dll beside it or in its base_prefix: %s",
+                     python.executable, fix);
+#else
             snprintf(message, size, "the Python %s has no shared libpython (built without --enable-shared; check "
                      "with: %s -c \"import sysconfig; print(sysconfig.get_config_var('Py_ENABLE_SHARED'))\"): %s",
                      python.executable, python.executable, fix);
+#endif
             ok = 0;
         }
         if (ok) ok = nfal_start_python(&python, fix, message, size);

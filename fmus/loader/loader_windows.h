@@ -47,6 +47,10 @@ static void *dlopen(const char *path, int flags)
         int n = snprintf(nfal_dl_message, sizeof nfal_dl_message, "Windows error %lu: ", (unsigned long)code);
         FormatMessageA(FORMAT_MESSAGE_FROM_SYSTEM | FORMAT_MESSAGE_IGNORE_INSERTS, NULL, code, 0,
                        nfal_dl_message + n, (DWORD)(sizeof nfal_dl_message - n), NULL);
+        size_t end = strlen(nfal_dl_message); /* the message's own line end: the loader reports one line */
+        while (end > 0 && (nfal_dl_message[end - 1] == '\n' || nfal_dl_message[end - 1] == '\r')) {
+            nfal_dl_message[--end] = '\0';
+        }
     }
     return (void *)library;
 }
