@@ -75,8 +75,8 @@ def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
         prefix.mkdir(parents=True, exist_ok=True)
         _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")
     python = wine_path(Path(python_root) / "python.exe").replace("\\", "\\\\")
-    _compile(["gcc", "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-o", str(system32 / "tar.exe"),
-              str(TAR_SHIM), "-static"])
+    _compile(["gcc", "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-static", str(TAR_SHIM)],
+             system32 / "tar.exe")
     _install_ucrtbase(system32)
     return WineBench(prefix, Path(python_root), environment)
 
@@ -88,16 +88,19 @@ def _wine(command: list[str], environment: dict[str, str], what: str) -> None:
         raise HostUnavailableError(f"{what} failed: {(done.stdout + done.stderr)[-1000:]}")
 
 
-def _compile(command: list[str]) -> None:
-    """Run mingw-w64's ``command[0]`` on the rest; an error with the compiler's words if it fails."""
+def _compile(command: list[str], target: Path) -> None:
+    """Run mingw-w64's ``command[0]`` on the rest into ``target``, replaced in one step (a wine process may have the
+    old one loaded); an error with the compiler's words if it fails."""
+    partial = target.with_name(f".{target.name}.{os.getpid()}")
     try:
-        done = subprocess.run([mingw_tool(command[0]), *command[1:]], capture_output=True, text=True,
-                              timeout=WINE_TIMEOUT_S)
+        done = subprocess.run([mingw_tool(command[0]), *command[1:], "-o", str(partial)], capture_output=True,
+                              text=True, timeout=WINE_TIMEOUT_S)
     except RuntimeBuildError as exc:
         raise HostUnavailableError(str(exc)) from exc
     if done.returncode != 0:
-        raise HostUnavailableError(f"compiling the wine bench's {Path(command[-2]).name} failed:\n"
+        raise HostUnavailableError(f"compiling the wine bench's {target.name} failed:\n"
                                    f"{(done.stdout + done.stderr)[-2000:]}")
+    os.replace(partial, target)
 
 
 def _install_ucrtbase(system32: Path) -> None:
@@ -118,9 +121,10 @@ def _install_ucrtbase(system32: Path) -> None:
     definition = system32 / "ucrtbase_nfal.def"
     definition.write_text("LIBRARY ucrtbase.dll\nEXPORTS\n" + "".join(
         f"    {name}=nfal_{name}\n" if name in ours else f"    {name}=ucrtbase_wine.{name}\n" for name in exports))
-    shutil.copy2(wine_own, system32 / "ucrtbase_wine.dll")
-    _compile(["gcc", "-O2", "-Wall", "-Werror", "-shared", "-s", "-o", str(system32 / "ucrtbase.dll"),
-              str(UCRTBASE_SHIM), str(definition), "-static"])
+    shutil.copy2(wine_own, system32 / ".ucrtbase_wine.dll")
+    os.replace(system32 / ".ucrtbase_wine.dll", system32 / "ucrtbase_wine.dll")
+    _compile(["gcc", "-O2", "-Wall", "-Werror", "-shared", "-s", str(UCRTBASE_SHIM), str(definition), "-static"],
+             system32 / "ucrtbase.dll")
     stamp.write_text(key)
 
 
