@@ -70,8 +70,10 @@ def ecos(archive: Path, folder: Path, bench, env: dict, runs: int, stop_s: float
     linux = run_in_ecos(ecos_executable(folder), archive, folder / "ecos-linux", runs=1, stop_time=stop_s).outputs[0]
     csv = max((np.max(np.abs(np.array(o[HEIGHT]) - np.array(linux[HEIGHT]))) for o in result.outputs),
               default=float("nan"))
+    columns = sum(any(o[name] != linux[name] for o in result.outputs) for name in linux)
     print(f"ecos.exe     FMI {fmi}.0  fig7_slow.ssp runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
-          f"{sorted(set(result.exit_codes))}  max |height - Linux ecos| in the CSVs (6 decimals) {csv:.2g} m  "
+          f"{sorted(set(result.exit_codes))}  max |height - Linux ecos| in the CSVs (6 decimals) {csv:.2g} m, "
+          f"Real columns differing {columns} of {len(linux)}  "
           f"{seconds:.1f} s/run over {stop_s} s")
 
 

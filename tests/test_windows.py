@@ -152,7 +152,10 @@ def test_ecos_exe_runs_the_loop_as_ecos_does_on_linux(windows_build, bench, tmp_
     linux = run_in_ecos(ecos_executable(tmp_path), archive, tmp_path / "linux", runs=1, stop_time=STOP_S)
     heights = np.array(result.outputs[0]["Plant::height"])
     assert heights.size == round(STOP_S / 5e-4) and heights.max() > 60e-6  # lifted off
-    np.testing.assert_array_equal(heights, linux.outputs[0]["Plant::height"])  # ecos's 6 decimals, equal
+    # every Real column at ecos's 6 decimals: the drive voltage (8-25 V) to 1 uV is the finest view of the loop
+    assert result.outputs[0].keys() == linux.outputs[0].keys() and len(result.outputs[0]) > 50
+    for name, values in result.outputs[0].items():
+        np.testing.assert_array_equal(values, linux.outputs[0][name], err_msg=name)
 
 
 @pytest.mark.slow
