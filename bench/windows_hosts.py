@@ -12,6 +12,8 @@ on PATH, Linux or Windows)::
 
 * our C hosts (fmus/hosts/fmi2_host.c, fmi3_host.c) cross-compiled to .exe: each FMU ``--runs`` times, every
   Real output against the Linux C host's run of the same FMU;
+* FMPy's remoting server ``server_tcp.exe`` (FMI 2.0; FMPy's client on Linux): each FMU ``--runs`` times, every
+  output against the Linux C host's (nfal/wine.py says why the server gets no lock file);
 * ``ecos.exe`` (the ecospy wheel's Windows build) on fig7_slow.ssp: ``--ecos-runs`` times, the heights of its CSV
   against the Linux ``ecos``'s (ecos writes 6 decimals: this compares to 1e-6 m; the C hosts compare every output
   at full precision).
@@ -34,7 +36,7 @@ from nfal.fmus.build import SIMULATION_FMUS
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV
 from nfal.fmus.windows_python import wine_path, windows_python
 from nfal.host_check import compile_c_host, ecos_executable, fmus_in, run_in_c_host, run_in_ecos
-from nfal.wine import ecos_windows, wine_bench
+from nfal.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
 
 HEIGHT = "Plant::height"
 
@@ -54,6 +56,19 @@ def c_hosts(fmus: dict, folder: Path, bench, env: dict, runs: int, stop_s: float
         worst = max((abs(value - reference[key]) / max(abs(reference[key]), 1e-300)
                      for outputs in result.outputs for key, value in outputs.items()), default=float("nan"))
         print(f"C host .exe  FMI {fmi}.0  {name:17s} runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
+              f"{sorted(set(result.exit_codes))}  max relative difference from Linux {worst:.2g}  {seconds:.1f} s/run")
+
+
+def fmpy_remoting(fmus: dict, folder: Path, bench, runs: int, stop_s: float) -> None:
+    linux = compile_c_host(folder, 2)
+    for name in SIMULATION_FMUS:
+        started = time.perf_counter()
+        result = run_in_fmpy_remoting(bench, fmus[name], folder / "fmpy" / name, runs=runs, stop_time=stop_s)
+        seconds = (time.perf_counter() - started) / runs
+        reference = run_in_c_host(linux, fmus[name], folder / "linux", runs=1, stop_time=stop_s).outputs[0]
+        worst = max((abs(outputs[key] - value) / max(abs(value), 1e-300)
+                     for outputs in result.outputs for key, value in reference.items()), default=float("nan"))
+        print(f"FMPy remote  FMI 2.0  {name:17s} runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
               f"{sorted(set(result.exit_codes))}  max relative difference from Linux {worst:.2g}  {seconds:.1f} s/run")
 
 
@@ -80,8 +95,10 @@ def ecos(archive: Path, folder: Path, bench, env: dict, runs: int, stop_s: float
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
-    parser.add_argument("--runs", type=int, default=10, help="C-host runs per FMU (default 10)")
+    parser.add_argument("--runs", type=int, default=10, help="C-host runs per FMU (default 10; 0: none)")
     parser.add_argument("--stop-time", type=float, default=0.01, help="C-host stop time [s] (default 0.01)")
+    parser.add_argument("--fmpy-runs", type=int, default=10,
+                        help="FMPy remoting runs per FMU (FMI 2.0, nothing set up only; default 10)")
     parser.add_argument("--ecos-runs", type=int, default=10, help="ecos.exe runs of fig7_slow.ssp (default 10)")
     parser.add_argument("--ecos-stop-time", type=float, default=0.1, help="ecos stop time [s] (default 0.1)")
     parser.add_argument("--environment", choices=("bare", "missing-python"), default="bare",
@@ -97,7 +114,10 @@ def main() -> None:
         if args.environment == "missing-python":
             missing = wine_path(folder / "no" / "python.exe")
             env[PYTHON_OVERRIDE_ENV] = missing
-        c_hosts(fmus, folder, bench, env, args.runs, args.stop_time, args.fmi, missing)
+        if args.runs:
+            c_hosts(fmus, folder, bench, env, args.runs, args.stop_time, args.fmi, missing)
+        if args.fmi == 2 and not missing and args.fmpy_runs:
+            fmpy_remoting(fmus, folder, bench, args.fmpy_runs, args.stop_time)
         if args.ecos_runs:
             ecos(archive, folder, bench, env, args.ecos_runs, args.ecos_stop_time, args.fmi, missing)
 

@@ -14,17 +14,25 @@ wine 8.0 (Debian 12's) a Windows that these hosts and packages run on; neither g
   (``fmus/hosts/wine_ucrtbase.c``) implements every complex function of the UCRT with mingw-w64's and forwards
   each other export to wine's own ucrtbase (copied beside it as ``ucrtbase_wine.dll``).
 
+FMPy's remoting server (``server_tcp.exe``, FMI 2.0) watches a lock file its Linux client holds, and exits as soon
+as it can open it; under wine the client's hold is invisible, so the server quit 0.5 s after it started. The
+``wine64`` that :func:`run_in_fmpy_remoting` puts first on PATH drops that argument; the client still ends the
+server when it is done.
+
 Windows' own std handles differ too: a Python started by wine 8.0 with a regular file as stdin or stdout dies
-("init_sys_streams: Invalid handle"), so hosts run with pipes (:func:`run`).
+("init_sys_streams: Invalid handle"), so hosts run with pipes (as :mod:`nfal.host_check` runs them).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import shutil
 import subprocess
+import sys
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +40,7 @@ from nfal.errors import HostUnavailableError, RuntimeBuildError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import dll_exports, mingw_tool
 from nfal.fmus.windows_python import wine_path
+from nfal.host_check import HostRuns
 from nfal.models.disk_cache import cache_root
 
 #: wine's own PE build of ucrtbase (Debian's wine64 8.0).
@@ -146,3 +155,45 @@ def ecos_windows(bench: WineBench, cache_dir: Path) -> Path:
                    *(bench.python_root / name for name in MSVC_RUNTIME)]:
         shutil.copy2(source, target / source.name)
     return target / "ecos.exe"
+
+
+#: Run by :func:`run_in_fmpy_remoting` in a Python of its own: FMPy simulates the FMU through its remoting server.
+_FMPY_REMOTE = """
+import json, sys
+from fmpy import simulate_fmu
+result = simulate_fmu(sys.argv[1], stop_time=float(sys.argv[2]), step_size=5e-4, output_interval=5e-4,
+                      remote_platform="win64")
+print("NFAL_OUTPUTS=" + json.dumps({name: float(result[name][-1]) for name in result.dtype.names if name != "time"}))
+"""
+
+
+def run_in_fmpy_remoting(bench: WineBench, fmu: Path, work_dir: Path, *, runs: int, stop_time: float) -> HostRuns:
+    """Simulate the FMI 2.0 ``fmu`` ``runs`` times in FMPy's remoting server for win64 (``server_tcp.exe`` under
+    wine, FMPy's own client on Linux), from a copy without its Linux binaries (FMPy remotes only an FMU that does
+    not support the host); ``outputs`` holds each run's outputs at the stop time."""
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    windows_only = work_dir / fmu.name
+    with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(windows_only, "w", zipfile.ZIP_DEFLATED) as target:
+        for item in source.infolist():
+            if not item.filename.startswith("binaries/linux64/"):
+                target.writestr(item, source.read(item))
+    wrappers = bench.prefix / "nfal-bin"
+    wrappers.mkdir(exist_ok=True)
+    (wrappers / "wine64").write_text('#!/bin/sh\n# nfal/wine.py: FMPy remoting without its lock file\n'
+                                     f'exec {shutil.which("wine")} "$1" "$2"\n')
+    (wrappers / "wine64").chmod(0o755)
+    environment = {**bench.environment, "PATH": f"{wrappers}:{bench.environment['PATH']}"}
+    result = HostRuns()
+    for _ in range(runs):
+        done = subprocess.run([sys.executable, "-c", _FMPY_REMOTE, str(windows_only), repr(stop_time)],
+                              env=environment, cwd=work_dir, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                              timeout=WINE_TIMEOUT_S)
+        result.exit_codes.append(done.returncode)
+        result.texts.append((done.stdout, done.stderr))
+        line = next((line for line in done.stdout.splitlines() if line.startswith("NFAL_OUTPUTS=")), None)
+        if done.returncode == 0 and line:
+            result.outputs.append(json.loads(line.split("=", 1)[1]))
+        elif not result.first_failure:
+            result.first_failure = done.stdout + done.stderr
+    return result

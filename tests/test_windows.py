@@ -17,10 +17,11 @@ import pytest
 from nfal.build import build_all
 from nfal.cli import main
 from nfal.errors import RuntimeBuildError
+from nfal.fmus.build import build_fmus
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV, exported_functions, mingw_tool, python_config
 from nfal.fmus.windows_python import wine_path, windows_python, windows_settings
 from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
-from nfal.wine import ecos_windows, wine_bench
+from nfal.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
 
 STOP_S = 0.05
 
@@ -185,3 +186,14 @@ def test_the_override_names_another_windows_python(windows_build, bench, python_
                            env={**bench.environment, PYTHON_OVERRIDE_ENV: wine_path(python_root / "python.exe")},
                            wrapper=bench.command)
     assert result.exit_codes == [0] and not result.signals, result.first_failure[-3000:]
+
+
+@pytest.mark.slow
+def test_fmpys_remoting_server_runs_the_windows_binary(python_root, bench, tmp_path):
+    """FMPy's server_tcp.exe under wine, its client on Linux: the Controller (scipy.signal, complex functions)."""
+    fmu = build_fmus(tmp_path / "build", ["Controller"], windows_python=python_root)["Controller"]
+    result = run_in_fmpy_remoting(bench, fmu, tmp_path / "fmpy", runs=1, stop_time=STOP_S)
+    assert result.exit_codes == [0] and not result.signals, result.first_failure[-3000:]
+    reference = run_in_c_host(compile_c_host(tmp_path, 2), fmu, tmp_path / "linux", runs=1, stop_time=STOP_S)
+    for name, value in reference.outputs[0].items():
+        assert result.outputs[0][name] == pytest.approx(value, rel=1e-12, abs=0), name
