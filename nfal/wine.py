@@ -11,7 +11,7 @@ wine 8.0 (Debian 12's) a Windows that these hosts and packages run on; neither g
 * C99 complex functions: wine 8.0's ucrtbase leaves ``cexp``, ``carg``, ``csin``, ``ccos``, ``ctan``, their
   hyperbolic forms and ``cpow`` unimplemented (a call aborts the process; measured through numpy and
   scipy.signal, which the Controller and SensorChain FMUs use). The prefix's ``ucrtbase.dll``
-  (``fmus/hosts/wine_ucrtbase.c``) implements every complex function of the UCRT with mingw-w64's and forwards
+  (``fmus/hosts/wine_ucrtbase.c``) implements the UCRT's complex math functions with mingw-w64's and forwards
   each other export to wine's own ucrtbase (copied beside it as ``ucrtbase_wine.dll``).
 
 FMPy's remoting server (``server_tcp.exe``, FMI 2.0) watches a lock file its Linux client holds, and exits as soon
