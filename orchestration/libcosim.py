@@ -41,7 +41,7 @@ import numpy as np
 from nfal.errors import (InvalidParameterError, LibcosimUnavailableError, SimulationError, StructureError,
                          UnknownConnectorError, UnknownElementError)
 
-from .ssp import DefaultExperiment, System, read_ssp
+from .ssp import DefaultExperiment, System, parse_boolean, read_ssp
 
 logger = logging.getLogger(__name__)
 
@@ -171,9 +171,9 @@ def _convert(value: object, variable_type: int, name: str):
             return int(value)
         if variable_type == _BOOLEAN:
             if isinstance(value, str):
-                if value.strip().lower() not in ("true", "false", "1", "0"):
+                if parse_boolean(value) is None:
                     raise ValueError
-                return value.strip().lower() in ("true", "1")
+                return parse_boolean(value)
             return bool(value)
         return str(value)
     except (TypeError, ValueError):

@@ -46,7 +46,7 @@ from nfal.errors import (CausalityError, InvalidParameterError, StructureError, 
                          UnknownConnectorError, UnknownElementError, UnsupportedFeatureError)
 
 from .ssp import (BASE_UNITS, Component, Connector, LinearTransformation, ParameterBinding, ParameterValue, System,
-                  SystemStructure, Unit)
+                  SystemStructure, Unit, parse_boolean)
 
 logger = logging.getLogger(__name__)
 
@@ -268,8 +268,8 @@ def coerce_value(variable: ModelVariable, value: object, where: str, *, strict_t
             return value
         if isinstance(value, (int, float)) and value in (0, 1):
             return bool(value)
-        if isinstance(value, str) and value.strip().lower() in ("true", "false", "1", "0"):
-            return value.strip().lower() in ("true", "1")
+        if isinstance(value, str) and parse_boolean(value) is not None:
+            return parse_boolean(value)
         raise bad
     if kind == "String":
         if isinstance(value, str):

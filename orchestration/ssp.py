@@ -370,13 +370,17 @@ def _float(text: str | None, where: str) -> float | None:
     return value
 
 
+def parse_boolean(text: str) -> bool | None:
+    """``text`` as a Boolean (true, false, 1 or 0, any case, spaces around), or None: the one reading of a Boolean
+    written as text, in an SSD, an .ssv, a ``--param`` or a libcosim parameter."""
+    return {"true": True, "1": True, "false": False, "0": False}.get(text.strip().lower())
+
+
 def _boolean(text: str, where: str) -> bool:
-    value = text.strip().lower()
-    if value in ("true", "1"):
-        return True
-    if value in ("false", "0"):
-        return False
-    raise StructureError(f"{where}: {text!r} is not a Boolean (true, false, 1 or 0)")
+    value = parse_boolean(text)
+    if value is None:
+        raise StructureError(f"{where}: {text!r} is not a Boolean (true, false, 1 or 0)")
+    return value
 
 
 def _read_units(parent, where: str) -> dict[str, Unit]:

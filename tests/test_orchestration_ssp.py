@@ -6,6 +6,7 @@ import pytest
 
 from nfal.orchestration import (CausalityError, MissingFmuError, StructureError, TypeMismatchError, UnitMismatchError,
                                 UnknownConnectorError, UnknownElementError, UnsupportedFeatureError, read_ssp, resolve)
+from nfal.orchestration.ssp import parse_boolean
 from toy_fmus import build_toys
 from toy_fmus.ssd import (bindings, component, connection, connector, pack, parameter_set, ssd, ssv_file, system,
                           write_folder)
@@ -277,3 +278,9 @@ def test_a_second_source_for_one_input_is_an_error(tmp_path, toys):
     with read_ssp(write_folder(tmp_path, text, toys)) as structure:
         with pytest.raises(CausalityError, match="C.u already has a source"):
             resolve(structure)
+
+
+@pytest.mark.parametrize("text, value", [("true", True), (" TRUE ", True), ("1", True), ("False", False), ("0", False),
+                                         ("maybe", None), ("", None), ("2", None), ("yes", None)])
+def test_one_reading_of_a_boolean_written_as_text(text, value):
+    assert parse_boolean(text) is value

@@ -218,6 +218,7 @@ def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> t
 def run_cosimulation(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.orchestration import SimulationError, run_structure
+    from nfal.orchestration.ssp import parse_boolean
     from nfal.fig7 import (HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels,
                            step_reference)
 
@@ -231,7 +232,8 @@ def run_cosimulation(args: argparse.Namespace) -> int:
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a "
                                     "device path or socket://host:port); no rig? start `nfal rig-emulator` and give "
                                     "the path it prints first")
-    lockstep = str(parameters.get("proxy.lockstep", "false")).strip().lower() in ("true", "1")
+    # in lockstep the rig's answers pace the loop (a value that is no Boolean is refused when the structure resolves)
+    lockstep = parse_boolean(str(parameters.get("proxy.lockstep", "false"))) is True
     if columns is HARDWARE and not args.realtime and not lockstep:
         print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)",
               file=sys.stderr)
