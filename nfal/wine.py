@@ -65,11 +65,6 @@ class WineBench:
     def command(self) -> tuple[str, ...]:
         return ("wine",)
 
-    @staticmethod
-    def path(path: str | os.PathLike) -> str:
-        """The Windows path of a Linux ``path`` in the prefix (``Z:\\...``)."""
-        return wine_path(path)
-
 
 def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
     """The wine prefix ``prefix`` (default: nfal's, in the user's cache), made on first use (wineboot, ~20 s) and
