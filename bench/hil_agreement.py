@@ -24,6 +24,7 @@ import numpy as np
 from machine import describe
 
 from nfal.build import build_all
+from nfal.commands.cosim import parse_parameter
 from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
@@ -39,7 +40,7 @@ def main() -> int:
     parser.add_argument("--param", action="append", default=[], metavar="Plant.VAR=VALUE",
                         help="override a parameter of the truth, on both sides (repeatable)")
     args = parser.parse_args()
-    overrides = dict(text.split("=", 1) for text in args.param)
+    overrides = dict(parse_parameter(text) for text in args.param)  # ELEMENT.VAR=VALUE, checked as nfal run does
     print(f"machine: {describe()}; {'lockstep' if args.lockstep else 'paced on the wall clock'}; "
           f"truth overrides {overrides or 'none'}\n")
     with tempfile.TemporaryDirectory(prefix="nfal-hil-agreement-") as temp:
