@@ -110,10 +110,10 @@ def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[
         binary = wine_path(folder / "binaries" / RUNTIMES[version].windows_platform / f"{model}.dll")
         resources = wine_path(folder / "resources")
         resources = "file:///" + resources.replace("\\", "/") if version == 2 else resources + "\\"
-        return [str(host), binary, description.guid, resources], outputs, settings
+        return [str(host.resolve()), binary, description.guid, resources], outputs, settings
     binary = folder / "binaries" / RUNTIMES[version].platform / f"{model}.so"
     resources = (folder / "resources").as_uri() if version == 2 else f"{folder / 'resources'}{os.sep}"
-    return [str(host), str(binary), description.guid, resources], outputs, settings
+    return [str(host.resolve()), str(binary), description.guid, resources], outputs, settings
 
 
 def _run(command: list[str], cwd: Path, env: dict[str, str] | None) -> subprocess.CompletedProcess:

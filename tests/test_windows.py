@@ -174,13 +174,9 @@ def test_a_missing_windows_python_is_one_line_and_an_error(windows_build, bench,
 def test_the_override_names_another_windows_python(windows_build, bench, python_root, tmp_path):
     """The Python the FMU recorded is gone; NFAL_FMU_PYTHON names one that is there (asked for its settings)."""
     version, out, _ = windows_build
-    moved = tmp_path / "SlowPlant.fmu"
-    with zipfile.ZipFile(out / "SlowPlant.fmu") as source, zipfile.ZipFile(moved, "w") as target:
-        for item in source.infolist():
-            data = source.read(item)
-            if item.filename == "resources/python-win64.cfg":
-                data = re.sub(rb"(?m)^(executable|libpython)=.*$", rb"\1=Z:\\gone\\python.exe", data)
-            target.writestr(item, data)
+    recorded = zipfile.ZipFile(out / "SlowPlant.fmu").read("resources/python-win64.cfg")
+    moved = _with_config(out / "SlowPlant.fmu", tmp_path / "SlowPlant.fmu",
+                         re.sub(rb"(?m)^(executable|libpython)=.*$", rb"\1=Z:\\gone\\python.exe", recorded))
     host = compile_c_host(tmp_path, version, windows=True)
     result = run_in_c_host(host, moved, tmp_path / "c", runs=1, stop_time=STOP_S,
                            env={**bench.environment, PYTHON_OVERRIDE_ENV: wine_path(python_root / "python.exe")},
@@ -197,3 +193,41 @@ def test_fmpys_remoting_server_runs_the_windows_binary(python_root, bench, tmp_p
     reference = run_in_c_host(compile_c_host(tmp_path, 2), fmu, tmp_path / "linux", runs=1, stop_time=STOP_S)
     for name, value in reference.outputs[0].items():
         assert result.outputs[0][name] == pytest.approx(value, rel=1e-12, abs=0), name
+
+
+@pytest.fixture(scope="module")
+def slow_plant_win64(python_root, tmp_path_factory):
+    out = tmp_path_factory.mktemp("win64_slow_plant")
+    return build_fmus(out, ["SlowPlant"], windows_python=python_root)["SlowPlant"]
+
+
+def _with_config(fmu, target, text: bytes):
+    with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(target, "w") as out:
+        for item in source.infolist():
+            out.writestr(item, text if item.filename == "resources/python-win64.cfg" else source.read(item))
+    return target
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["random-bytes", "empty", "libpython-not-a-dll", "libpython-not-python",
+                                  "override-not-python"])
+def test_a_hostile_python_config_is_one_line_never_a_crash(case, slow_plant_win64, bench, python_root, tmp_path):
+    """What python-win64.cfg or the override may hold that is no Python: each run fails its instantiate call with one
+    line on stderr, and the host exits with its "instantiate failed" code (2), never by an exception."""
+    good = zipfile.ZipFile(slow_plant_win64).read("resources/python-win64.cfg").decode()
+    host = compile_c_host(tmp_path, 2, windows=True)
+
+    def config(key, value):
+        return "\n".join(f"{key}={value}" if line.startswith(f"{key}=") else line for line in good.splitlines())
+
+    texts = {"random-bytes": bytes(np.random.default_rng(1).integers(0, 256, 100_000, dtype=np.uint8)),
+             "empty": b"",
+             "libpython-not-a-dll": config("libpython", wine_path(python_root / "LICENSE.txt")).encode(),
+             "libpython-not-python": config("libpython", "C:\\windows\\system32\\kernel32.dll").encode(),
+             "override-not-python": good.encode()}
+    fmu = _with_config(slow_plant_win64, tmp_path / "SlowPlant.fmu", texts[case])
+    env = {**bench.environment, **({PYTHON_OVERRIDE_ENV: wine_path(host)} if case == "override-not-python" else {})}
+    result = run_in_c_host(host, fmu, tmp_path / "c", runs=1, stop_time=STOP_S, env=env, wrapper=bench.command)
+    assert result.exit_codes == [2] and not result.signals, result.texts
+    lines = [line for line in result.texts[0][1].splitlines() if "(SlowPlant FMU):" in line]
+    assert len(lines) == 1, result.texts
