@@ -32,12 +32,13 @@ from . import piecewise
 from .damping import DampingCorrection
 from .excitation import ExcitationShape
 from .json_fields import as_json, json_number, json_numbers
+from .paper_numbers import paper_value
 from .perturbation import DEFAULT_NODES, as_squeeze_numbers, perturbation_K
 from .rig import RigParameters
 from .scalar_spline import ScalarSpline
 
 #: Eq. (17): the paper's fit to its measured K, ascending powers of sigma.
-PAPER_COEFFICIENTS = (1.2348, 2.2928e-2, -1.301e-4, 2.9826e-7, -2.4985e-10)
+PAPER_COEFFICIENTS = tuple(paper_value(f"eq17.c{power}") for power in range(5))
 #: The squeeze numbers over which eq. (17) is used. Not stated in the paper; the quartic is smooth and
 #: positive there and collapses past 500 (K(600) = 0.2). Covers the 50-200 um work range (sigma 24-384).
 PAPER_SIGMA_RANGE = (10.0, 500.0)

@@ -15,6 +15,7 @@ import numpy as np
 from .calibration import TabulatedK, perturbation_calibration
 from .coupled import CoupledModel
 from .excitation import ExcitationShape, paper_shape
+from .paper_numbers import paper_value
 from .plant import SimplifiedPlant
 from .rig import RigParameters
 
@@ -34,12 +35,14 @@ class Table1Case:
     paper_error_percent: float
 
 
-TABLE1 = (
-    Table1Case("a", 0.1347, 28.5e3, 7e-6, 0.0696, 0.1659),
-    Table1Case("b", 0.1347, 28.5e3, 2.5e-6, 0.0360, 0.0779),
-    Table1Case("c", 1.0, 4e3, 2e-6, 0.0870, 0.3976),
-    Table1Case("d", 20.0, 2e3, 4e-6, 0.3244, 2.3425),
-)
+def _paper_case(name: str) -> Table1Case:
+    value = {field: paper_value(f"table1.{name}.{field}") for field in ("mass", "frequency", "excitation", "delta",
+                                                                         "error")}
+    return Table1Case(name, value["mass"], value["frequency"], value["excitation"], value["delta"], value["error"])
+
+
+#: The four cases of Table 1, from the paper's numbers (``data/paper_numbers.json``).
+TABLE1 = tuple(_paper_case(name) for name in "abcd")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,10 +8,10 @@ import sys
 import traceback
 
 from nfal import __version__
-from nfal.commands import control, cosim, hil, identify, physics, sweep
+from nfal.commands import control, cosim, hil, identify, physics, reproduce, sweep
 from nfal.errors import NfalError
 
-COMMAND_GROUPS = (cosim, hil, identify, physics, control, sweep)
+COMMAND_GROUPS = (cosim, hil, identify, physics, control, sweep, reproduce)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -252,34 +252,14 @@ def _run_metrics(run, reference) -> dict:
 
 def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     """Each controller against the simplified plant (with the calibration's damping), same noise: key -> run."""
-    # on use: `nfal --help` stays fast
-    from nfal.models.closed_loop import simulate_closed_loop
-    from nfal.models.control_law import DiscreteControlLaw
-    from nfal.models.measurement_noise import coloured_noise
-    from nfal.models.pid_design import design_schedule, fixed_design
-    from nfal.models.plant import SimplifiedPlant
-    from nfal.models.stability import realizable_schedule
+    from nfal.models.comparison import simulate_comparison  # on use: `nfal --help` stays fast
 
     rig, model, spec = _model(args)
-    plant = SimplifiedPlant(rig, model.calibration, excess_damping=model.damping)
-    noise = coloured_noise(reference.samples(args.sample_rate), sample_rate_hz=args.sample_rate,
-                           cutoff_hz=args.noise_cutoff, peak_m=args.noise_peak, seed=args.seed)
-    work_range = (min(reference.levels_m), max(reference.levels_m))
-    runs = {}
     with progress_bar(len(keys), "closed-loop runs") as bar:
-        for key in keys:
-            if key == "gs":
-                gains = design_schedule(None, rig, model.calibration, spec, damping=model.damping)
-                if not args.full_schedule:
-                    gains = realizable_schedule(gains, rig, sample_rate_hz=args.sample_rate,
-                                                discretisation="zoh" if spec.sample_rate_hz else "forward_euler")
-            else:
-                gains = fixed_design(float(key) * 1e-6, rig, model.calibration, spec, damping=model.damping)
-            law = DiscreteControlLaw(gains, sample_rate_hz=args.sample_rate, max_excitation_m=args.max_excitation,
-                                     reference_range_m=work_range, reference_zero_ratio=spec.reference_zero)
-            runs[key] = simulate_closed_loop(law, plant, reference, noise)
-            bar.update()
-    return runs
+        return simulate_comparison(keys, rig, model.calibration, spec, reference, sample_rate_hz=args.sample_rate,
+                                   max_excitation_m=args.max_excitation, noise_peak_m=args.noise_peak,
+                                   noise_cutoff_hz=args.noise_cutoff, seed=args.seed, damping=model.damping,
+                                   full_schedule=args.full_schedule, progress=bar.update)
 
 
 def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:

@@ -72,12 +72,13 @@ def _half(cmap, start: float):
     return colors.ListedColormap(cmap(np.linspace(start, start + 0.5, 128)), name=f"{cmap.name}_{start:g}")
 
 
-def plot_comparison(path, runs: dict) -> None:
+def plot_comparison(path, runs: dict, **labels) -> None:
     """Write :func:`comparison_figure` to ``path``."""
-    save(comparison_figure(runs), path)
+    save(comparison_figure(runs, **labels), path)
 
 
-def comparison_figure(runs: dict) -> Figure:
+def comparison_figure(runs: dict, *, title: str = "Closed-loop responses to the reference (Figs. 9-10 analogue)",
+                      height_label: str = "clearance") -> Figure:
     """Figs. 9-10: per controller, its clearance against the reference over the run (left) and, zoomed on the
     second half of the highest level's last hold, with the measured height (right): the sensor's 2 um of noise
     is a pixel or two on the full range's scale, hidden under the clearance's line."""
@@ -85,7 +86,7 @@ def comparison_figure(runs: dict) -> Figure:
     axes = figure.subplots(len(runs), 2, sharex="col", sharey="col", squeeze=False, width_ratios=(3, 1))
     for (full, zoom), (key, run) in zip(axes, runs.items()):
         colour = "tab:blue" if key == "gs" else "tab:orange"
-        full.plot(run.time_s, run.height_m * 1e6, color=colour, lw=1.2, label="clearance")
+        full.plot(run.time_s, run.height_m * 1e6, color=colour, lw=1.2, label=height_label)
         full.step(run.time_s, run.reference_m * 1e6, where="post", color="black", ls="--", lw=1, label="reference")
         full.set_ylabel("clearance [µm]")
         full.set_title(run.controller if key == "gs" else f"linear controller designed at {key} µm", fontsize=10)
@@ -95,7 +96,7 @@ def comparison_figure(runs: dict) -> Figure:
         if not np.array_equal(run.measured_m, run.height_m):  # on a rig the measured height is the clearance
             zoom.plot(run.time_s[window], run.measured_m[window] * 1e6, color="0.5", lw=0.8, zorder=1,
                       label="measured (with noise)")
-        zoom.plot(run.time_s[window], run.height_m[window] * 1e6, color=colour, lw=1.2, zorder=2, label="clearance")
+        zoom.plot(run.time_s[window], run.height_m[window] * 1e6, color=colour, lw=1.2, zorder=2, label=height_label)
         zoom.step(run.time_s[window], run.reference_m[window] * 1e6, where="post", color="black", ls="--", lw=1,
                   zorder=3, label="reference")
         for axis in (full, zoom):
@@ -106,7 +107,7 @@ def comparison_figure(runs: dict) -> Figure:
     figure.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3, fontsize=8)
     for axis in axes[-1]:
         axis.set_xlabel("time [s]")
-    figure.suptitle("Closed-loop responses to the reference (Figs. 9-10 analogue)", fontsize=11)
+    figure.suptitle(title, fontsize=11)
     return figure
 
 
