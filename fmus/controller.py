@@ -83,6 +83,9 @@ class Controller(NfalSlave):
                            description="|a| per volt at resonance (assumption)")
         self.add_parameter("reference_filter_time", 0.0, unit="s", description="time constant of the critically "
                            "damped pair the reference passes through (smoother steps); 0: the reference as given")
+        self.add_parameter("feedforward", False, description="add the drive the design model (eq. 13 with the "
+                           "calibration) needs to follow the reference pair's path; needs reference_filter_time > 0 "
+                           "(the reference zero is then off)")
         self.add_parameter("lift_off_time", LIFT_OFF_TIME_S, unit="s", description="time constant of the lift-off "
                            "reference pair when the first sample finds the object below reference_min; "
                            "0: no lift-off mode")
@@ -141,7 +144,9 @@ class Controller(NfalSlave):
                                       max_excitation_m=require_positive("max_excitation", self.max_excitation),
                                       reference_range_m=(low, high), reference_filter_s=smoothing,
                                       lift_off_time_s=lift_off, actuator_lag_s=self.actuator_lag,
-                                      reference_zero_ratio=reference_zero)
+                                      reference_zero_ratio=reference_zero,
+                                      feedforward=SimplifiedPlant(rig, calibration, excess_damping=model.damping)
+                                      if self.feedforward else None)
         reference = self._checked_reference()
         equilibrium = float(SimplifiedPlant(rig, calibration).equilibrium_excitation(reference))
         self._state = self.law.initial_state(reference, equilibrium)

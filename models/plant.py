@@ -14,6 +14,7 @@ gaps, as the rig shows (Sec. 3.3).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable
 
 import numpy as np
@@ -82,6 +83,28 @@ class ExcessDamping:
     def factor_scalar(self, height: float) -> float:
         """:meth:`factor` at one clearance, in plain Python (plants call it per sub-step)."""
         return 1.0 + (height / self.height) ** self.exponent
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalFilm:
+    """Eq. (13) at one clearance: m h'' = ``force_per_square`` |a|^2 - ``damping`` h' - ``weight`` (SI floats)."""
+
+    mass: float
+    weight: float
+    force_per_square: float  #: the levitation force per |a|^2 [N/m^2], eq. (12)
+    damping: float           #: the squeeze film's damping coefficient [N s/m], eq. (6) with any correction
+
+    def acceleration(self, velocity: float, excitation: float) -> float:
+        """h'' [m/s^2] under the drive ``excitation`` [m] at ``velocity`` [m/s]."""
+        return (self.force_per_square * excitation**2 - self.damping * velocity - self.weight) / self.mass
+
+    def excitation(self, velocity: float, acceleration: float) -> float | None:
+        """The drive |a| [m] that gives ``acceleration`` at ``velocity``: 0 where the film would have to pull; None
+        where K(sigma) <= 0 (no drive pushes)."""
+        if not self.force_per_square > 0.0:
+            return None
+        needed = self.mass * acceleration + self.weight + self.damping * velocity
+        return math.sqrt(max(needed, 0.0) / self.force_per_square)
 
 
 #: A correction of eq. (6)'s damping: parametric (:class:`ExcessDamping`) or identified (:class:`DampingCorrection`).
@@ -154,6 +177,21 @@ class SimplifiedPlant:
         """h'' [m/s^2] in free flight."""
         net = self.levitation_force(height, excitation) + self.damping_force(height, velocity) - self.weight
         return net / self.rig.mass
+
+    def local_film(self, height: float) -> LocalFilm:
+        """Eq. (13) at the clearance ``height`` [m], in plain floats (a control law's per-sample path)."""
+        rig = self.rig
+        sigma = 12.0 * rig.viscosity * rig.omega * rig.radius**2 / (rig.ambient_pressure * height**2)  # eq. (2)
+        damping = 3.0 * math.pi * rig.viscosity * rig.radius**4 / (2.0 * height**3)  # eq. (6)
+        if self.excess_damping is not None:
+            damping *= self.excess_damping.factor_scalar(height)
+        return LocalFilm(rig.mass, self.weight, rig.film_force_scale * self.calibration.scalar(sigma) / height**2,
+                         damping)
+
+    def excitation_for(self, height: float, velocity: float, acceleration: float) -> float | None:
+        """|a| [m] that gives the object ``acceleration`` [m/s^2] at ``height`` [m] and ``velocity`` [m/s]: eq. (13)
+        solved for u (:meth:`LocalFilm.excitation`)."""
+        return self.local_film(height).excitation(velocity, acceleration)
 
     def rhs_nondimensional(self, T: float, state, u: float):
         """Eq. (13) in the paper's variables: state (Hbar, dHbar/dT), excitation u = |a| / h0.

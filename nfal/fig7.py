@@ -9,8 +9,11 @@ in both variants: simulated (fig7_slow, fig7_reynolds) and hardware in the loop 
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
+from pathlib import Path
 
 import numpy as np
+from lxml import etree
 
 from nfal.errors import InvalidParameterError
 from nfal.fig7_names import (  # noqa: F401
@@ -32,6 +35,7 @@ from nfal.models.reference import StepSequence
 from nfal.models.step_metrics import REACHED_BAND, level_reach, step_metrics, total_iae
 from nfal.orchestration import Finding, PiecewiseConstant, PlotPanel
 from nfal.orchestration.signals import steps_of
+from nfal.orchestration.ssp import read_parameter_set
 
 #: The staircase of the Reynolds loop: the part of Figs. 9-10's range the film of the Fig. 3 stand-in form
 #: holds with |a| <= 10 um (up to ~107 um; its K is negative above 118 um): the paper's 60 -> 100 and
@@ -100,6 +104,18 @@ def matched_design(parameters: dict) -> dict:
     if PLANT_SHAPE in parameters and CONTROLLER_CALIBRATION not in parameters:
         return {**parameters, CONTROLLER_CALIBRATION: f"perturbation:{parameters[PLANT_SHAPE]}"}
     return parameters
+
+
+#: The Reynolds loop's design parameters that are its control law, not its film (ssp/reynolds_design.ssv binds all).
+REYNOLDS_LAW_PARAMETERS = ("placement", "closed_loop_cutoff", "feedforward", "reference_filter_time")
+
+
+def reynolds_law() -> dict:
+    """The Controller parameters of the Reynolds loop's law (placement, cut-off, feedforward path), read from
+    ssp/reynolds_design.ssv: with them fig7_slow runs the same law on its own plant."""
+    path = Path(str(importlib.resources.files("nfal.ssp") / "reynolds_design.ssv"))
+    values = read_parameter_set(etree.parse(str(path)).getroot(), source=path).values
+    return {f"Controller.{v.name}": v.value for v in values if v.name in REYNOLDS_LAW_PARAMETERS}
 
 
 def loop_columns(element_names) -> LoopColumns:

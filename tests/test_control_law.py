@@ -7,7 +7,8 @@ import pytest
 
 from nfal.errors import InvalidParameterError
 from nfal.models.control_law import LEAD_RATIO, LIFT_OFF_TIME_S, ControllerState, DiscreteControlLaw
-from nfal.models.calibration import paper_calibration
+from nfal.models.calibration import paper_calibration, perturbation_calibration
+from nfal.models.excitation import paper_shape
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -290,3 +291,70 @@ def test_the_laws_scalar_terms_are_the_schedules(gains):
     slow = [1.0 / (d.slow_pole * d.lpv.omega) for d in designs]
     design_heights = [d.height_m for d in designs]
     np.testing.assert_allclose(terms[:, 3], np.interp(heights, design_heights, slow), rtol=1e-12)
+
+
+PLANT = SimplifiedPlant(RigParameters(), paper_calibration())
+
+
+@pytest.mark.parametrize(("height", "velocity", "acceleration"),
+                         [(60e-6, 0.0, 0.0), (100e-6, -1e-3, 0.5), (180e-6, 2e-3, -3.0), (80e-6, 0.0, 9.0)])
+def test_the_plant_solved_for_the_drive_gives_back_the_acceleration(height, velocity, acceleration):
+    drive = PLANT.excitation_for(height, velocity, acceleration)
+    assert float(PLANT.acceleration(height, velocity, drive)) == pytest.approx(acceleration, abs=1e-9)
+    assert PLANT.excitation_for(height, 0.0, 0.0) == pytest.approx(float(PLANT.equilibrium_excitation(height)))
+
+
+def test_where_the_film_would_have_to_pull_the_drive_is_zero_and_where_it_cannot_push_there_is_none():
+    assert PLANT.excitation_for(100e-6, 0.0, -20.0) == 0.0  # faster than falling: no drive does it
+    assert SimplifiedPlant(RigParameters(), paper_calibration()).excitation_for(100e-6, 0.0, 0.0) > 0
+    film = SimplifiedPlant(RigParameters(), perturbation_calibration(paper_shape()))
+    assert film.excitation_for(140e-6, 0.0, 0.0) is None  # the stand-in form's K is negative there
+
+
+def _feedforward_run(law, plant, reference):
+    from nfal.models.closed_loop import simulate_closed_loop
+    from nfal.models.step_metrics import step_metrics
+
+    run = simulate_closed_loop(law, plant, reference)
+    return run, step_metrics(run, reference)
+
+
+@pytest.mark.parametrize("calibration", ["eq17", "film"])
+def test_the_feedforward_path_tracks_every_step_of_its_own_model_without_overshoot(calibration):
+    """On the plant it was designed on (eq. 17; and the Fig. 3 stand-in's film, whose K falls so steeply that the
+    PID alone drives |a| to 0 on 100 -> 60 um), the path and its feedforward step without overshoot, and the drive
+    never reaches 0."""
+    from nfal.models.closed_loop import Staircase
+
+    model = PLANT if calibration == "eq17" else SimplifiedPlant(RigParameters(),
+                                                                perturbation_calibration(paper_shape()))
+    levels = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6, 60e-6) if calibration == "eq17" else (
+        60e-6, 100e-6, 60e-6)
+    reference = Staircase(levels)
+    spec = DesignSpec(sample_rate_hz=2000.0, closed_loop_cutoff_hz=10.6, reference_zero=1.0)
+    schedule = design_schedule(np.linspace(min(levels), max(levels), 11), RigParameters(), model.calibration, spec)
+    law = DiscreteControlLaw(schedule, reference_range_m=(min(levels), max(levels)), reference_filter_s=0.008,
+                             feedforward=model, reference_zero_ratio=1.0)
+    run, steps = _feedforward_run(law, model, reference)
+    assert max(step.overshoot_percent for step in steps) < 0.1
+    assert np.min(run.excitation_m[1:]) > 0.0
+    without = DiscreteControlLaw(schedule, reference_range_m=(min(levels), max(levels)), reference_zero_ratio=1.0)
+    run, _ = _feedforward_run(without, model, reference)
+    assert bool(np.min(run.excitation_m) == 0.0) == (calibration == "film")
+
+
+def test_the_feedforward_starts_and_holds_an_equilibrium_bumplessly():
+    law = DiscreteControlLaw(SCHEDULE, reference_filter_s=0.008, feedforward=PLANT)
+    equilibrium = float(PLANT.equilibrium_excitation(100e-6))
+    state = law.initial_state(100e-6, equilibrium)
+    for _ in range(5):
+        command, state = law.step(state, 100e-6, 100e-6)
+        assert command == pytest.approx(equilibrium, rel=1e-12)
+    assert state.feedforward_m == pytest.approx(equilibrium, rel=1e-12)
+    assert ControllerState.from_list(state.as_list()) == state
+
+
+@pytest.mark.parametrize("kwargs", [{"feedforward": PLANT}, {"feedforward": "eq17", "reference_filter_s": 0.008}])
+def test_a_feedforward_needs_a_model_and_a_path(kwargs):
+    with pytest.raises(InvalidParameterError, match="feedforward"):
+        DiscreteControlLaw(SCHEDULE, **kwargs)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
-from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase
+from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase, reynolds_law
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
@@ -84,24 +84,23 @@ def hold_ends(table, reference: Staircase, window_s: float = 0.02) -> np.ndarray
 
 @pytest.fixture(scope="module")
 def slow_short(fig7_archives, tmp_path_factory):
-    """fig7_slow without the reference zero: the Reynolds loop's continuous placement leaves it no room (its PI
-    zero is already faster than its slow pole), so both loops run the law as the paper has it."""
+    """fig7_slow running the Reynolds loop's law (its placement, cut-off and feedforward path) on its own plant."""
     return run_fig7(fig7_archives["fig7_slow"], tmp_path_factory.mktemp("slow"), SHORT_REYNOLDS,
-                    parameters={"Controller.reference_zero": 0.0})
+                    parameters=reynolds_law())
 
 
 @pytest.mark.parametrize("shape", ["paper", "piston", MEASURED_SHAPE])
 def test_reynolds_loop_tracks_like_the_slow_loop(fig7_archives, tmp_path, slow_short, shape):
     """fig7_reynolds (harmonic-balance film, controller designed on the numerical K of the same form): every
-    hold ends within 1 % of its reference, each step's overshoot within 5 percentage points of fig7_slow on
-    the same steps, and the drive never saturates long."""
+    hold ends within 1 % of its reference, each step overshoots by at most 2 percentage points more than fig7_slow
+    running the same law on the same steps (issue 29), and the drive never saturates long."""
     parameters = matched_design({"Plant.shape": shape})
     result = run_fig7(fig7_archives["fig7_reynolds"], tmp_path, SHORT_REYNOLDS, parameters=parameters)
     table = result.table()
     assert np.all(np.abs(hold_ends(table, SHORT_REYNOLDS) / SHORT_REYNOLDS.levels_m[1:] - 1) <= 0.01)
     metrics, slow = loop_metrics(table, SHORT_REYNOLDS), loop_metrics(slow_short.table(), SHORT_REYNOLDS)
     for step, baseline in zip(metrics["steps"], slow["steps"]):
-        assert abs(step["overshoot_percent"] - baseline["overshoot_percent"]) <= 5.0
+        assert step["overshoot_percent"] <= baseline["overshoot_percent"] + 2.0
     assert metrics["saturation"] == []
 
 

@@ -64,8 +64,9 @@ def _print_summary(report) -> None:
             if c.holds is None:
                 continue
             unit = "" if c.paper.unit in ("", "1") else f" {c.paper.unit}"
-            print(f"  {c.key} ({c.paper.where}): {c.paper.what}: paper {_shown(c.paper.relation, c.paper.value)}{unit}, "
-                  f"ours {_shown('', c.ours)}{unit}: {c.verdict}")
+            paper = _shown(c.paper.relation, c.paper.value)
+            print(f"  {c.key} ({c.paper.where}): {c.paper.what}: paper {paper}{unit}, ours {_shown('', c.ours)}{unit}: "
+                  f"{c.verdict}")
     judged = [c for c in report.comparisons if c.holds is not None]
     print(f"{sum(bool(c.holds) for c in judged)} of {len(judged)} judged numbers and claims hold; "
           f"{len(report.unexpected)} unexpected; {report.seconds:.0f} s. Report: {report.out_dir / 'report.html'}")
