@@ -32,7 +32,7 @@ from pathlib import Path
 import timed_emulator
 from machine import describe
 
-from nfal.build import build_all
+from nfal.apps.build import build_all
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 from nfal.errors import FmuCallError
@@ -104,7 +104,7 @@ def paced(archive: Path, seconds: float, out: Path, parameters: dict, rt_priorit
         return summary
     summary.update(result.summary)
     if "proxy" in summary["timing"]:
-        from nfal.fig7 import link_summary
+        from nfal.apps.fig7 import link_summary
 
         summary["link"] = link_summary(result.table())
     return summary

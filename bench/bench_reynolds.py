@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from machine import describe
 
-from nfal.build import build_all
-from nfal.fig7 import DEFAULT_STAIRCASES
+from nfal.apps.build import build_all
+from nfal.apps.fig7 import DEFAULT_STAIRCASES
 from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.coupled import CoupledModel
 from nfal.models.excitation import paper_shape

@@ -3,7 +3,7 @@
     python bench/bench_rig_truth.py
 
 Each built-in rig structure (rig_slow, rig_reynolds: ``nfal rig-emulator --truth slow|reynolds``) is run
-in-process as the emulator runs it (:func:`nfal.rig_model.open_rig`) for 10 s of rig time from rest
+in-process as the emulator runs it (:func:`nfal.apps.rig_model.open_rig`) for 10 s of rig time from rest
 (45 V, lift-off, then 60 V), twice, the second time with the imports, numba kernels and the Reynolds
 plant's film table warm; then rig_slow once more through the co-simulation master (:class:`StructureRig`, the
 path of a rig structure that is not all nfal FMUs). Per tick: ``reading`` + ``advance``, in wall time and in
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 from machine import describe
 
-from nfal.build import build_all
-from nfal.rig_model import StructureRig, open_rig
+from nfal.apps.build import build_all
+from nfal.apps.rig_model import StructureRig, open_rig
 
 TICK_S = 5e-4
 TICKS = 20000

@@ -23,9 +23,9 @@ from pathlib import Path
 
 from machine import describe
 
-from nfal.build import build_all
+from nfal.apps.build import build_all
 from nfal.orchestration.sweep import read_table, run_sweep
-from nfal.sweeps import parse_spec
+from nfal.apps.sweeps import parse_spec
 
 
 def spec(stop_time: float, name: str = "robustness32"):

@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
-from nfal.host_check import ecos_executable, run_in_ecos
+from nfal.apps.host_check import ecos_executable, run_in_ecos
 
 FMUS = [name for name in FMU_SCRIPTS if name != "HardwareProxy"]
 

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 from machine import describe
 
-from nfal.build import build_all
-from nfal.commands.cosim import parse_parameter
-from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
+from nfal.apps.build import build_all
+from nfal.cli.commands.cosim import parse_parameter
+from nfal.apps.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 

@@ -37,10 +37,10 @@ import pythonfmu
 from fmpy import simulate_fmu
 
 import pythonfmu3
-from nfal.build import structure_sources
+from nfal.apps.build import structure_sources
 from nfal.fmus.build import SIMULATION_FMUS, build_fmus
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV
-from nfal.host_check import (bare_environment, compile_c_host, ecos_executable, fmus_in, run_in_c_host,
+from nfal.apps.host_check import (bare_environment, compile_c_host, ecos_executable, fmus_in, run_in_c_host,
                               run_in_ecos)
 from nfal.orchestration import run_structure
 from nfal.orchestration.libcosim import preload_environment

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 from loop_agreement import AS_PURE_LOOP, run
 
-from nfal.build import build_all
-from nfal.commands.cosim import parse_parameter
-from nfal.fig7 import loop_metrics
-from nfal.fig7_names import PAPERS_LAW
+from nfal.apps.build import build_all
+from nfal.cli.commands.cosim import parse_parameter
+from nfal.apps.fig7 import loop_metrics
+from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.closed_loop import Staircase
 from nfal.models.damping import DampingCorrection

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from identify_truths import cases, emulator_arguments, identify, truth_parameters
 
-from nfal.fig7_names import PAPERS_LAW
+from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.rig import RigParameters
 from nfal.models.table2 import STAIRCASE_LEVELS_M
 

@@ -14,8 +14,8 @@ import tempfile
 
 import numpy as np
 
-from nfal.build import build_all
-from nfal.fig7 import SIMULATED
+from nfal.apps.build import build_all
+from nfal.apps.fig7 import SIMULATED
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 

@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 
 from nfal.fmus.build import build_fmus
-from nfal.host_check import compile_c_host, run_in_c_host
+from nfal.apps.host_check import compile_c_host, run_in_c_host
 
 
 def main() -> None:

@@ -3,7 +3,7 @@ writes bench/results/reynolds-tracking.json.
 
     python bench/reynolds_tracking.py [--noise-off]
 
-Rows: fig7_slow with its defaults and running the Reynolds loop's law (``nfal.fig7.reynolds_law()``), and
+Rows: fig7_slow with its defaults and running the Reynolds loop's law (``nfal.apps.fig7.reynolds_law()``), and
 fig7_reynolds with its defaults and with the paper's law (``PAPERS_LAW``: continuous placement, none of the law's
 additions), on the stand-in form (its 60/100 um steps), a piston (Figs. 9-10's whole staircase) and the vibrometer
 scan of examples/shapes. The issue's criterion: fig7_reynolds' worst overshoot at most fig7_slow's + 2 points on the
@@ -20,9 +20,9 @@ from pathlib import Path
 
 from machine import describe
 
-from nfal.build import build_all
-from nfal.fig7 import DEFAULT_STAIRCASES, loop_metrics, matched_design, reynolds_law
-from nfal.fig7_names import PAPERS_LAW
+from nfal.apps.build import build_all
+from nfal.apps.fig7 import DEFAULT_STAIRCASES, loop_metrics, matched_design, reynolds_law
+from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 

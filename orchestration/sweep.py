@@ -17,7 +17,7 @@ is "ok" with warnings, as ``nfal run``'s status rule has it (:mod:`.checks`). Wr
 (the expanded spec), ``summary.json`` and ``sweep.png`` (each metric over each swept parameter, :mod:`.sweep_plot`).
 
 What a run is comes from the spec's :class:`~.sweep_spec.SweepKind` (its task and metric columns):
-this engine knows no kind of its own (nfal's kinds: :mod:`nfal.sweeps`).
+this engine knows no kind of its own (nfal's kinds: :mod:`nfal.apps.sweeps`).
 """
 
 from __future__ import annotations

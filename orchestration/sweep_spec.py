@@ -8,7 +8,7 @@ values: every combination is run) and/or a ``[random]`` table (``draws`` and ``s
     name = "robustness"              # optional; used in plot titles
 
     [run]
-    kind = "ssp"                     # a kind of the registry given to load_spec (nfal's: nfal/sweeps.py)
+    kind = "ssp"                     # a kind of the registry given to load_spec (nfal's: nfal/apps/sweeps.py)
     structure = "fig7_slow"          # built-in structure or path of an .ssp (relative to the spec)
     stop_time = 0.4
     reference = {levels_m = [100e-6, 140e-6], hold_s = 0.3, lead_s = 0.1}

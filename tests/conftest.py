@@ -41,7 +41,7 @@ def pytest_collection_modifyitems(items):
 @pytest.fixture(scope="session")
 def fig7_archives(tmp_path_factory):
     """The FMUs built and both Fig. 7 structures packed once per test session: {name: .ssp path}."""
-    from nfal.build import build_all
+    from nfal.apps.build import build_all
 
     return build_all(tmp_path_factory.mktemp("fig7_build"))
 

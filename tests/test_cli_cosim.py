@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nfal.cli import main
-from nfal.commands.cosim import parse_parameter
+from nfal.cli.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError
 
 

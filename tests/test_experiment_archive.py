@@ -31,9 +31,9 @@ from nfal.orchestration import read_results, read_ssp, resolve
 from nfal.orchestration.signals import as_signal
 
 from nfal.cli import main
-from nfal.commands.cosim import _stop_time
+from nfal.cli.commands.cosim import _stop_time
 from nfal.errors import DataFormatError, InvalidParameterError
-from nfal.fig7 import DEFAULT_STAIRCASES, generated_reference
+from nfal.apps.fig7 import DEFAULT_STAIRCASES, generated_reference
 
 pytestmark = pytest.mark.slow  # whole experiments in FMPy and ecos
 
@@ -252,7 +252,7 @@ def test_an_edited_reference_in_the_ssd_drives_the_run(fig7_archives, tmp_path, 
 @pytest.fixture(scope="module")
 def fmi3_archives(tmp_path_factory):
     """``nfal build --fmi 3``'s archives: {structure: .ssp}."""
-    from nfal.build import build_all
+    from nfal.apps.build import build_all
 
     return build_all(tmp_path_factory.mktemp("fmi3_build") / "fmi3", fmi_version=3)
 
@@ -272,7 +272,7 @@ def test_the_fmi3_archive_equals_the_fmi2_run(fig7_archives, fmi3_archives, tmp_
 def test_a_structure_mixing_fmi2_and_fmi3_runs_as_either(fig7_archives, fmi3_archives, tmp_path):
     from nfal.orchestration.ssp_archive import pack
 
-    from nfal.build import structure_sources
+    from nfal.apps.build import structure_sources
 
     mixed = tmp_path / "mixed"
     mixed.mkdir()
@@ -296,7 +296,7 @@ def test_a_structure_mixing_fmi2_and_fmi3_runs_as_either(fig7_archives, fmi3_arc
 @pytest.fixture(scope="module")
 def ecos(tmp_path_factory):
     from nfal.errors import HostUnavailableError
-    from nfal.host_check import ecos_executable
+    from nfal.apps.host_check import ecos_executable
 
     try:
         return ecos_executable(tmp_path_factory.mktemp("ecos_bin"))
@@ -317,7 +317,7 @@ def jacobi_run(fig7_archives, tmp_path_factory):
 @pytest.mark.parametrize("fmi", [2, 3])
 def test_the_ecos_command_line_runs_the_whole_staircase(fig7_archives, fmi3_archives, ecos, jacobi_run, tmp_path, fmi):
     """ecos with nothing but the archive: the staircase of Figs. 9-10, the heights of nfal run to ecos's 6 decimals."""
-    from nfal.host_check import run_in_ecos
+    from nfal.apps.host_check import run_in_ecos
 
     archive = (fig7_archives if fmi == 2 else fmi3_archives)["fig7_slow"]
     runs = run_in_ecos(ecos, archive, tmp_path, runs=1, stop_time=3.7)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
-from nfal.fig7 import DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase, reynolds_law
+from nfal.apps.fig7 import (DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase,
+                            reynolds_law)
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import Staircase, simulate_closed_loop
 from nfal.models.control_law import DiscreteControlLaw
@@ -127,7 +128,7 @@ def test_matched_design(given, added):
 
 def test_first_level_is_measured_apart_from_the_steps():
     """A rig's lift-off before the first step: its peak and IAE, and the steps' IAE, which add up to the total."""
-    from nfal.fig7 import first_level
+    from nfal.apps.fig7 import first_level
     from nfal.models.closed_loop import ClosedLoopRun
     from nfal.models.step_metrics import total_iae
 

@@ -1,4 +1,4 @@
-"""nfal/fig7_names.py against the structures it names: every name there is a variable of the loop it is for."""
+"""nfal/apps/fig7_names.py against the structures it names: every name there is a variable of the loop it is for."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from nfal import fig7_names
+from nfal.apps import fig7_names
 from nfal.orchestration import read_ssp, resolve
 
 

@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from nfal.fig7 import EXCITATION_COMMAND, SIMULATED, response_panels
-from nfal.figures.control import comparison_figure, stability_map_figure
-from nfal.figures.physics import calibration_figure
+from nfal.apps.fig7 import EXCITATION_COMMAND, SIMULATED, response_panels
+from nfal.apps.figures.control import comparison_figure, stability_map_figure
+from nfal.apps.figures.physics import calibration_figure
 from nfal.models.calibration import paper_calibration
 from nfal.models.closed_loop import ClosedLoopRun
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.stability import StabilityMap
 from nfal.orchestration.results import ResultTable, response_figure
 from nfal.orchestration.sweep_plot import sweep_figure
-from nfal.sweeps import TABLE1_METRICS, parse_spec
+from nfal.apps.sweeps import TABLE1_METRICS, parse_spec
 
 
 def _stability_map(low: float, high: float) -> StabilityMap:

@@ -103,7 +103,7 @@ def test_fmi3_fmu_exits_cleanly_from_a_non_python_host(builds, name, tmp_path):
     """The ``ecos`` command line starts Python through the FMU (libpython preloaded): every run must exit with 0
     (the runtime of fmus/runtime3/ never finalises the interpreter) after simulating to the stop time."""
     from nfal.errors import HostUnavailableError
-    from nfal.host_check import ecos_executable, run_in_ecos
+    from nfal.apps.host_check import ecos_executable, run_in_ecos
 
     try:
         ecos = ecos_executable(tmp_path / "bin")
@@ -120,7 +120,7 @@ def test_fmi3_fmu_exits_cleanly_from_a_non_python_host(builds, name, tmp_path):
 def c_host(tmp_path_factory):
     """fmus/hosts/fmi3_host.c, compiled (or a skip without a C compiler)."""
     from nfal.errors import HostUnavailableError
-    from nfal.host_check import compile_c_host
+    from nfal.apps.host_check import compile_c_host
 
     try:
         return compile_c_host(tmp_path_factory.mktemp("c_host"), fmi_version=3)
@@ -133,7 +133,7 @@ def c_host(tmp_path_factory):
 def test_fmi3_fmu_in_a_c_host_exits_cleanly_with_fmpys_results(builds, c_host, name, tmp_path):
     """Load, simulate 10 ms from the start values, free, dlclose, exit: every run exits with 0 and its Float64
     outputs equal those of the FMI 2.0 build in FMPy."""
-    from nfal.host_check import run_in_c_host
+    from nfal.apps.host_check import run_in_c_host
 
     runs = run_in_c_host(c_host, builds[3][name], tmp_path, runs=EXIT_RUNS, stop_time=0.01, step_size=STEP)
     assert runs.crashes == 0, f"exit codes {runs.exit_codes}:\n{runs.first_failure[-3000:]}"
@@ -144,7 +144,7 @@ def test_fmi3_fmu_in_a_c_host_exits_cleanly_with_fmpys_results(builds, c_host, n
 
 def test_fmi3_error_in_a_c_host_is_one_logged_line_and_fmi3error(builds, c_host, tmp_path):
     """A step that does not divide the Controller's 0.5 ms: fmi3Error with its reason, the host exits cleanly."""
-    from nfal.host_check import run_in_c_host
+    from nfal.apps.host_check import run_in_c_host
 
     runs = run_in_c_host(c_host, builds[3]["Controller"], tmp_path, runs=1, stop_time=0.003, step_size=3e-4)
     assert runs.exit_codes == [3]  # the host's "an FMI call did not return fmi3OK", not a signal

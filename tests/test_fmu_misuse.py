@@ -18,7 +18,7 @@ import sys
 
 import pytest
 
-from nfal import host_check
+from nfal.apps import host_check
 from nfal.fmus import build
 
 pytestmark = [pytest.mark.slow,

@@ -19,7 +19,7 @@ import pytest
 from helpers.rig import STEP, Emulator, run_hil, simulate_the_truth
 
 from nfal.cli import main
-from nfal.fig7 import HARDWARE, SIMULATED, loop_metrics
+from nfal.apps.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import SimulationError
 
@@ -156,7 +156,7 @@ def test_the_proxy_in_a_c_host_talks_to_the_emulator_and_exits_cleanly(fig7_arch
     the first sample), steps 10 ms, terminates (STOP), frees and exits: every process exits with 0, each run a
     session of its own with a live measurement."""
     from nfal.errors import HostUnavailableError
-    from nfal.host_check import compile_c_host, run_in_c_host
+    from nfal.apps.host_check import compile_c_host, run_in_c_host
 
     try:
         host = compile_c_host(tmp_path)

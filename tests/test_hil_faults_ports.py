@@ -289,7 +289,7 @@ def test_the_emulator_reports_a_failed_port_and_reopens_it_every_interval():
     """The first attempt comes at once, the next REOPEN_INTERVAL_S of rig time later."""
     import socket
 
-    from nfal.rig_emulator import REOPEN_INTERVAL_S, Emulator
+    from nfal.apps.rig_emulator import REOPEN_INTERVAL_S, Emulator
 
     events: list[str] = []
     with socket.create_server(("127.0.0.1", 0)) as server:

@@ -24,7 +24,7 @@ from fmpy import simulate_fmu
 from nfal.errors import HostUnavailableError
 from nfal.fmus import build
 from nfal.fmus.export_runtime import PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME_SUFFIX, RUNTIMES, exported_functions
-from nfal.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.apps.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.orchestration.ssp_archive import pack
 
 pytestmark = [pytest.mark.slow,
@@ -205,7 +205,7 @@ def ecos(tmp_path_factory):
 @pytest.mark.parametrize("environment", ["nothing set up", "another Python active"])
 def test_the_fig7_archive_runs_in_ecos_without_a_crash(environment, fmus, ecos, other_python, tmp_path):
     """ecos (Jacobi, as libcosim) against our orchestrator's Jacobi run of the same archive."""
-    from nfal.build import structure_sources
+    from nfal.apps.build import structure_sources
     from nfal.orchestration import run_structure
 
     archive = pack(structure_sources() / "fig7_slow.ssd", fmus["SlowPlant"].parent, tmp_path / "fig7_slow.ssp")

@@ -10,9 +10,9 @@ import pytest
 from simulated_rig import SimulatedRig
 
 from nfal.cli import main
-from nfal.commands.identify import _run
+from nfal.cli.commands.identify import _run
 from nfal.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
-from nfal.identify import APPLIED, TIME, Experiments, SampleRecorder, analyse
+from nfal.apps.identify import APPLIED, TIME, Experiments, SampleRecorder, analyse
 from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration, rig_calibration_from_dict
 from nfal.models.damping import DampingCorrection
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,

@@ -15,10 +15,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Import name -> folder, as pyproject.toml's package-dir maps them.
 FOLDERS = {"nfal.models": "models", "nfal.fmus": "fmus", "nfal.orchestration": "orchestration", "nfal.hil": "hil",
            "nfal": "nfal"}
-#: The package root's foundation: the package itself and modules every layer may import.
-FOUNDATION = ("nfal", "nfal.errors", "nfal.csvdata", "nfal.realtime")
-#: Layer -> the layers it may import besides itself and the foundation. "applications" is every other
-#: module of nfal/ (the Fig. 7 loop, sweep kinds, the rig emulator, ...); "cli" is nfal.cli and nfal.commands.
+#: Layer -> the layers it may import besides itself and the foundation. Each layer is a folder: the foundation is
+#: the modules of nfal/ itself, "applications" nfal/apps/, "cli" nfal/cli/ (and nfal/__main__.py, its entry point).
 ALLOWED = {
     "foundation": set(),
     "models": set(),
@@ -28,20 +26,21 @@ ALLOWED = {
     "applications": {"models", "fmus", "orchestration", "hil"},
     "cli": {"models", "fmus", "orchestration", "hil", "applications"},
 }
+#: nfal's subfolders that are layers, and the layer each is.
+SUBFOLDER_LAYERS = {"models": "models", "fmus": "fmus", "orchestration": "orchestration", "hil": "hil",
+                    "apps": "applications", "cli": "cli"}
 
 
 def layer_of(module: str) -> str | None:
-    """The layer of a module of nfal (None for other packages)."""
-    if module in FOUNDATION:
-        return "foundation"
+    """The layer of a module of nfal (None for other packages), read off its folder."""
     parts = module.split(".")
     if parts[0] != "nfal":
         return None
-    if len(parts) > 1 and parts[1] in ("models", "fmus", "orchestration", "hil"):
-        return parts[1]
-    if module == "nfal.cli" or module.startswith("nfal.commands") or module == "nfal.__main__":
+    if module == "nfal.__main__":
         return "cli"
-    return "applications"
+    if len(parts) > 2 or (len(parts) == 2 and parts[1] in SUBFOLDER_LAYERS):
+        return SUBFOLDER_LAYERS.get(parts[1])
+    return "foundation"
 
 
 def modules(root: Path = ROOT) -> dict[str, Path]:
@@ -50,7 +49,7 @@ def modules(root: Path = ROOT) -> dict[str, Path]:
     for package, folder in FOLDERS.items():
         for path in sorted((root / folder).rglob("*.py")):
             relative = path.relative_to(root / folder).with_suffix("").parts
-            if package == "nfal" and relative and relative[0] in ("models", "fmus", "orchestration", "hil"):
+            if package == "nfal" and relative and relative[0] in FOLDERS.keys() - {"nfal"}:
                 continue
             name = ".".join((package, *relative))
             found[name.removesuffix(".__init__")] = path
@@ -165,10 +164,13 @@ def test_the_check_catches_a_deliberate_violation(tmp_path):
     assert violations(tmp_path) == ["models/plant.py:5: nfal.models.plant (models) imports nfal.fmus.base (fmus)"]
     assert layer_cycles(tmp_path) == [("fmus", "models")]
     assert unexplained_local_imports(tmp_path) == ["models/plant.py:5: from nfal.fmus.base import NfalSlave"]
-    (tmp_path / "orchestration" / "run.py").write_text("from .. import fig7\nfrom nfal.fmus import base\n")
-    (tmp_path / "nfal" / "fig7.py").write_text("")
+    (tmp_path / "orchestration" / "run.py").write_text("from ..apps import fig7\nfrom nfal.fmus import base\n")
+    (tmp_path / "nfal" / "apps").mkdir()
+    (tmp_path / "nfal" / "apps" / "__init__.py").write_text("")
+    (tmp_path / "nfal" / "apps" / "fig7.py").write_text("")
     assert violations(tmp_path)[1:] == [
-        "orchestration/run.py:1: nfal.orchestration.run (orchestration) imports nfal.fig7 (applications)",
+        "orchestration/run.py:1: nfal.orchestration.run (orchestration) imports nfal.apps (applications)",
+        "orchestration/run.py:1: nfal.orchestration.run (orchestration) imports nfal.apps.fig7 (applications)",
         "orchestration/run.py:2: nfal.orchestration.run (orchestration) imports nfal.fmus (fmus)",
         "orchestration/run.py:2: nfal.orchestration.run (orchestration) imports nfal.fmus.base (fmus)"]
 

@@ -301,7 +301,7 @@ def fig7_fmu_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def fig7_slow_ssp(fig7_fmu_dir) -> Path:
-    from nfal.build import structure_sources
+    from nfal.apps.build import structure_sources
 
     return pack(structure_sources() / "fig7_slow.ssd", fig7_fmu_dir, fig7_fmu_dir / "fig7_slow.ssp")
 
@@ -327,7 +327,7 @@ def test_fig7_archive_runs_in_libcosim_and_follows_the_first_step(libcosim_fig7)
 
 def test_fig7_reynolds_archive_runs_in_libcosim(fig7_fmu_dir):
     """The other structure: the plant swapped for the full squeeze film, same archive layout, same host."""
-    from nfal.build import structure_sources
+    from nfal.apps.build import structure_sources
     from nfal.models.closed_loop import Staircase
 
     archive = pack(structure_sources() / "fig7_reynolds.ssd", fig7_fmu_dir, fig7_fmu_dir / "fig7_reynolds.ssp")
@@ -340,7 +340,7 @@ def test_fig7_reynolds_archive_runs_in_libcosim(fig7_fmu_dir):
 
 def test_fig7_table2_reaches_the_controller_only_through_run_ssp(fig7_slow_ssp, tmp_path):
     """The Controller's second binding (table2.ssv) is dropped by libcosim itself and applied by run_ssp."""
-    from nfal.build import structure_sources
+    from nfal.apps.build import structure_sources
 
     sources = structure_sources()
     table2 = tmp_path / "table2.ssv"

@@ -20,7 +20,7 @@ PERIOD_US = 500
 @pytest.fixture
 def rig(tmp_path):
     """A lockstep emulator running in a thread; yields it and its events."""
-    import nfal.rig_emulator as module
+    import nfal.apps.rig_emulator as module
 
     events: list[str] = []
     emulator = module.Emulator(PtyPort(tmp_path / "rig"), StillRig(), on_event=events.append, lockstep=True)
@@ -58,10 +58,10 @@ def test_each_drive_is_answered_by_one_tick_and_the_rig_waits_for_the_next(rig, 
 
 
 def test_a_host_gone_silent_hands_the_rig_back_to_the_wall_clock_and_its_watchdog(rig, host, monkeypatch):
-    import nfal.rig_emulator
+    import nfal.apps.rig_emulator
 
     emulator, events = rig
-    monkeypatch.setattr(nfal.rig_emulator, "LOCKSTEP_WAIT_S", 0.3)  # read at each wait
+    monkeypatch.setattr(nfal.apps.rig_emulator, "LOCKSTEP_WAIT_S", 0.3)  # read at each wait
     assert host.send_drive(40.0) and host.wait_applied(2.0)
     deadline = time.monotonic() + 5
     while not any("drive down: 0 V" in event for event in events) and time.monotonic() < deadline:

@@ -11,7 +11,7 @@ import weakref
 import numpy as np
 import pytest
 
-from nfal.identify import RigSample, SampleRecorder
+from nfal.apps.identify import RigSample, SampleRecorder
 from nfal.realtime import (BINS_PER_DECADE, YOUNG_THRESHOLD, BackgroundWriter, GapStats, LatencyStats,
                            realtime_section)
 

@@ -9,7 +9,7 @@ from nfal.cli import main
 from nfal.models.calibration import PAPER_COEFFICIENTS
 from nfal.models.paper_numbers import paper_numbers, paper_value
 from nfal.models.table1 import TABLE1
-from nfal.reproduce import KNOWN_DIFFERENCES, SECTIONS, _compare, reproduce
+from nfal.apps.reproduce import KNOWN_DIFFERENCES, SECTIONS, _compare, reproduce
 
 
 def test_every_paper_number_says_where_it_is_from_and_what_it_is():

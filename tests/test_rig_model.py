@@ -1,4 +1,4 @@
-"""The emulated rig's hardware (nfal.rig_model): the rig structure rig_slow stepped a sample at a time.
+"""The emulated rig's hardware (nfal.apps.rig_model): the rig structure rig_slow stepped a sample at a time.
 
 :class:`InProcessRig` (the nfal FMUs' slave classes wired by hand) must play exactly what :class:`StructureRig`
 (the same structure through the co-simulation master) plays.
@@ -12,7 +12,7 @@ import pytest
 
 from nfal.errors import UnknownConnectorError, UnknownElementError
 from nfal.hil.firmware import RigReading
-from nfal.rig_model import InProcessRig, StructureRig, open_rig
+from nfal.apps.rig_model import InProcessRig, StructureRig, open_rig
 
 PERIOD = 5e-4
 REST_GAP = 5e-6  # rig_truth.ssv: the object starts resting at the rest gap

@@ -1,12 +1,12 @@
-"""The Fig. 7 loop's checks of a run (nfal.fig7.loop_checks) and the step reference they and the metrics use
-(nfal.fig7.step_reference), on results made up here: no FMU runs."""
+"""The Fig. 7 loop's checks of a run (nfal.apps.fig7.loop_checks) and the step reference they and the metrics use
+(nfal.apps.fig7.step_reference), on results made up here: no FMU runs."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from nfal.fig7 import HARDWARE, SATURATED_TIME, SIMULATED, loop_checks, loop_metrics, step_reference
+from nfal.apps.fig7 import HARDWARE, SATURATED_TIME, SIMULATED, loop_checks, loop_metrics, step_reference
 from nfal.models.closed_loop import Staircase
 from nfal.models.reference import StepSequence
 from nfal.orchestration import PiecewiseConstant, ResultTable
@@ -112,7 +112,7 @@ def test_metrics_without_steps_are_the_iae_and_why():
 def test_the_step_table_marks_a_settling_time_its_noise_decides(capsys):
     """A 40 um step judged on a height with 0.67 um RMS of noise (the rig's sensor): the 2 % band (0.8 um) is
     narrower than twice the noise, so its settling time is marked and explained; a quiet step's is not."""
-    from nfal.commands.common import print_step_table
+    from nfal.cli.commands.common import print_step_table
 
     row = {"from_m": 100e-6, "to_m": 140e-6, "rise_time_s": 0.03, "overshoot_percent": 4.0, "settling_time_s": 0.59,
            "iae": 1e-6}

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from lxml import etree
 
-from nfal.build import structure_sources
+from nfal.apps.build import structure_sources
 from nfal.fmus.controller import Controller
 from nfal.fmus.resonance_tracker import ResonanceTracker
 from nfal.fmus.sensor_chain import SensorChain

@@ -22,7 +22,7 @@ from nfal.models.closed_loop import Staircase
 from nfal.orchestration.sweep import (ResultsTable, cached_structure, columns, localised, read_table, run_sweep,
                                       run_task, shipped_files)
 from nfal.orchestration.sweep_spec import expand
-from nfal.sweeps import KINDS, Ramp, file_in, load_spec, parse_spec
+from nfal.apps.sweeps import KINDS, Ramp, file_in, load_spec, parse_spec
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
 SCAN_CSV = EXAMPLES.parent / "shapes" / "vibrometer_scan.csv"
@@ -387,7 +387,7 @@ def test_cli_sweep_runs_a_long_plan_when_accepted(tmp_path, capsys, monkeypatch)
 
 @pytest.mark.parametrize("name", ["robustness.toml", "k_sigma.toml", "table1_grid.toml"])
 def test_the_example_specs_are_short_plans(name):
-    from nfal.commands.sweep import _require_short
+    from nfal.cli.commands.sweep import _require_short
 
     _require_short(load_spec(EXAMPLES / name), name)
 
@@ -462,8 +462,8 @@ def test_an_extended_spec_skips_its_old_runs_and_a_changed_one_keeps_their_rows(
 
 
 def test_a_sweep_takes_the_structures_default_staircase_as_nfal_run_does():
-    from nfal.fig7 import DEFAULT_STAIRCASES
-    from nfal.sweeps import _staircase
+    from nfal.apps.fig7 import DEFAULT_STAIRCASES
+    from nfal.apps.sweeps import _staircase
 
     assert _staircase("staircase", "fig7_reynolds") == DEFAULT_STAIRCASES["fig7_reynolds"]  # within the film's reach
     assert _staircase("staircase", "some/where/fig7_slow.ssp") == Staircase()

@@ -1,6 +1,6 @@
 """FMUs for Windows hosts (docs/cosimulation.md, "Windows"): ``nfal build --platform win64`` and the wine bench.
 
-The build cross-compiles with mingw-w64; the hosts run under Debian's wine 8.0 with nothing set up (nfal/wine.py:
+The build cross-compiles with mingw-w64; the hosts run under Debian's wine 8.0 with nothing set up (nfal/apps/wine.py:
 no Python on PATH, Linux or Windows). The Windows CPython is the one nfal prepares from PyPI (fmus/windows_python.py).
 """
 
@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nfal.build import build_all
+from nfal.apps.build import build_all
 from nfal.cli import main
 from nfal.errors import RuntimeBuildError
 from nfal.fmus.build import build_fmus
 from nfal.fmus.export_runtime import PYTHON_OVERRIDE_ENV, exported_functions, mingw_tool, python_config
 from nfal.fmus.windows_python import wine_path, windows_python, windows_settings
-from nfal.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
-from nfal.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
+from nfal.apps.host_check import compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
+from nfal.apps.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
 
 STOP_S = 0.05
 

@@ -5,7 +5,7 @@
 
 #include <stdio.h>
 #include <stdlib.h>
-#ifdef _WIN32 /* built with mingw-w64 for the Windows bench (nfal.host_check.compile_c_host) */
+#ifdef _WIN32 /* built with mingw-w64 for the Windows bench (nfal.apps.host_check.compile_c_host) */
 #include <windows.h>
 #define RTLD_NOW 0
 #define RTLD_LOCAL 0

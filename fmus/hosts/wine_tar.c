@@ -1,8 +1,8 @@
-/* tar.exe for the Windows test bench under wine 8.0 (nfal/wine.py): never part of an FMU.
+/* tar.exe for the Windows test bench under wine 8.0 (nfal/apps/wine.py): never part of an FMU.
  *
  * Windows 10 and later ship tar.exe (bsdtar) in System32, and ecos unpacks every FMU and SSP with
  * "tar -xf ARCHIVE -C DIR"; wine has no tar. This one does that much with the Windows Python's zipfile module
- * (NFAL_PYTHON, the python.exe nfal/wine.py compiles in), and exits with its status.
+ * (NFAL_PYTHON, the python.exe nfal/apps/wine.py compiles in), and exits with its status.
  */
 #include <stdio.h>
 #include <string.h>

@@ -1,8 +1,8 @@
-/* ucrtbase.dll for the Windows test bench under wine 8.0 (nfal/wine.py): never part of an FMU.
+/* ucrtbase.dll for the Windows test bench under wine 8.0 (nfal/apps/wine.py): never part of an FMU.
  *
  * wine 8.0's ucrtbase leaves C99 complex functions unimplemented (cexp, carg, csin, ccos, ctan, their hyperbolic
  * forms, cpow: a call aborts the process), and numpy's and scipy's MSVC builds import them. This DLL implements the
- * UCRT's complex math functions (c*, and their f and l forms) with mingw-w64's libm; nfal/wine.py forwards each other
+ * UCRT's complex math functions (c*, and their f and l forms) with mingw-w64's libm; nfal/apps/wine.py forwards each other
  * export, _Cbuild and _Cmulcc among them (wine has those), to wine's own ucrtbase, copied beside it as
  * ucrtbase_wine.dll (a generated .def).
  *

@@ -8,7 +8,7 @@ import html
 import numpy as np
 from matplotlib.figure import Figure
 
-from nfal.figures import save
+from nfal.apps.figures import save
 
 
 def plot_constant_excitation(path, rig_run, model_run, steps) -> None:

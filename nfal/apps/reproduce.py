@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-from nfal.build import DEFAULT_BUILD_DIR, build_all
-from nfal.fig7 import HARDWARE, loop_run
-from nfal.figures.control import plot_comparison, plot_stability_map
-from nfal.figures.physics import plot_table1
-from nfal.figures.reproduce import plot_calibrations, plot_constant_excitation, write_html
-from nfal.fig7_names import PAPERS_LAW
+from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
+from nfal.apps.fig7 import HARDWARE, loop_run
+from nfal.apps.figures.control import plot_comparison, plot_stability_map
+from nfal.apps.figures.physics import plot_table1
+from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitation, write_html
+from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.calibration import paper_calibration, perturbation_calibration
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
 from nfal.models.comparison import GAIN_SCHEDULED, simulate_comparison

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from nfal.figures import save
+from nfal.apps.figures import save
 
 
 def plot_calibration(path, sigma, K, label: str, reference=None) -> None:

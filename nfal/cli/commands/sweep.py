@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from nfal.commands.common import add_accept_long_plan, duration_text, print_json, refuse_given
+from nfal.cli.commands.common import add_accept_long_plan, duration_text, print_json, refuse_given
 from nfal.errors import InvalidParameterError, PlanError
 
 #: The longest sweep run without --accept-long-plan: this many runs, and SSP runs simulating this long in all [s]
@@ -47,9 +47,9 @@ def register(commands) -> None:
 
 def run_sweep_command(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.build import DEFAULT_BUILD_DIR, STRUCTURES, build_all
+    from nfal.apps.build import DEFAULT_BUILD_DIR, STRUCTURES, build_all
     from nfal.orchestration.sweep import run_sweep
-    from nfal.sweeps import load_spec
+    from nfal.apps.sweeps import load_spec
 
     if args.workers is not None and args.workers < 0:
         raise InvalidParameterError("--workers", args.workers, "a whole number >= 0 (0: in this process)")

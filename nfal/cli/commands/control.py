@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nfal.commands.common import (add_output_options, add_rig_options, fill_defaults, finite_float, number_list,
+from nfal.cli.commands.common import (add_output_options, add_rig_options, fill_defaults, finite_float, number_list,
                                   print_json, print_step_table, progress_bar, refuse_given, rig_from_args)
 from nfal.errors import InvalidParameterError, optional_positive
 from nfal.models.table2 import (  # light: constants only
@@ -156,7 +156,7 @@ def run_design(args: argparse.Namespace) -> int:
     }
     if args.plot:
         # on use: `nfal --help` stays fast
-        from nfal.figures.control import plot_stability_map
+        from nfal.apps.figures.control import plot_stability_map
 
         plot_stability_map(args.plot, grid)
     if args.json:
@@ -192,7 +192,7 @@ def _parse_controllers(text: str) -> list[str]:
 
 def run_compare(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.commands.cosim import HARDWARE_LEAD_S
+    from nfal.cli.commands.cosim import HARDWARE_LEAD_S
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration.run import MAX_STEPS
 
@@ -219,7 +219,7 @@ def run_compare(args: argparse.Namespace) -> int:
               "runtime_s": time.perf_counter() - started}
     if args.plot:
         # on use: `nfal --help` stays fast
-        from nfal.figures.control import plot_comparison
+        from nfal.apps.figures.control import plot_comparison
 
         plot_comparison(args.plot, runs)
     if args.json:
@@ -265,9 +265,9 @@ def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dic
 def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     """Each controller on the rig at ``args.port`` (fig7_hil, real time, from rest): key -> run."""
     # on use: `nfal --help` stays fast
-    from nfal.build import DEFAULT_BUILD_DIR, build_all
-    from nfal.commands.cosim import parse_parameter
-    from nfal.fig7 import HARDWARE, REFERENCE, loop_run
+    from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
+    from nfal.cli.commands.cosim import parse_parameter
+    from nfal.apps.fig7 import HARDWARE, REFERENCE, loop_run
     from nfal.orchestration import run_structure
 
     archive = build_all(args.build_dir or DEFAULT_BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]

@@ -8,7 +8,7 @@ import dataclasses
 import signal
 from pathlib import Path
 
-from nfal.commands.common import finite_float, output_file, positive_float, print_json
+from nfal.cli.commands.common import finite_float, output_file, positive_float, print_json
 from nfal.errors import InvalidParameterError
 from nfal.hil.firmware import RigTiming  # light: the firmware's defaults are the flags' defaults
 
@@ -86,7 +86,7 @@ def register(commands) -> None:
 
 def _truth_path(truth: str, build_dir: str) -> Path:
     # on use: `nfal --help` stays fast
-    from nfal.build import build_all
+    from nfal.apps.build import build_all
 
     if truth in ("slow", "reynolds"):
         name = f"rig_{truth}"
@@ -103,13 +103,13 @@ def _say(text: str) -> None:
 
 def run_emulator(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.commands.cosim import parse_parameter
+    from nfal.cli.commands.cosim import parse_parameter
     from nfal.hil.faults import FaultSettings
     from nfal.hil.ports import PtyPort, UrlPort
     from nfal.orchestration.interrupts import STOP_SIGNALS
     from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
-    from nfal.rig_emulator import Disconnection, Emulator
-    from nfal.rig_model import open_rig
+    from nfal.apps.rig_emulator import Disconnection, Emulator
+    from nfal.apps.rig_model import open_rig
 
     if not 10.0 <= args.sample_rate <= 20_000.0:
         raise InvalidParameterError("--sample-rate", args.sample_rate, "from 10 to 20000 Hz")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from nfal.errors import InvalidParameterError, SweepSpecError
-from nfal.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
+from nfal.apps.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
 from nfal.fmus.base import CALIBRATION_CHOICES
 from nfal.models.calibration import perturbation_calibration
 from nfal.models.closed_loop import Staircase

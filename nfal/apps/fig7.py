@@ -16,7 +16,7 @@ import numpy as np
 from lxml import etree
 
 from nfal.errors import InvalidParameterError
-from nfal.fig7_names import (  # noqa: F401
+from nfal.apps.fig7_names import (  # noqa: F401
     CONTROLLER_CALIBRATION,
     EXCITATION_COMMAND,
     GENERATED_REFERENCE,

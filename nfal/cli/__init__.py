@@ -1,4 +1,4 @@
-"""The ``nfal`` command line: parse, call, print. Each command group lives in ``nfal.commands``."""
+"""The ``nfal`` command line: parse, call, print. Each command group lives in ``nfal.cli.commands``."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 import traceback
 
 from nfal import __version__
-from nfal.commands import control, cosim, hil, identify, physics, reproduce, sweep
+from nfal.cli.commands import control, cosim, hil, identify, physics, reproduce, sweep
 from nfal.errors import NfalError
 
 COMMAND_GROUPS = (cosim, hil, identify, physics, control, sweep, reproduce)

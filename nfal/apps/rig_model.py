@@ -21,7 +21,7 @@ import os
 from collections.abc import Mapping
 
 from nfal.errors import InvalidParameterError, require_positive
-from nfal.fig7_names import RIG_DRIVE_INPUT, RIG_READINGS, RIG_TRUE_HEIGHT
+from nfal.apps.fig7_names import RIG_DRIVE_INPUT, RIG_READINGS, RIG_TRUE_HEIGHT
 from nfal.fmus.resonance_tracker import ResonanceTracker
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.sensor_chain import SensorChain

@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from nfal.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file,
+from nfal.cli.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file,
                                   print_json, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
 
@@ -97,7 +97,7 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
         TabulatedK(sigma, K, name=f"{args.method}, {shape.name}").save(args.out)
     if args.plot:
         # on use: `nfal --help` stays fast
-        from nfal.figures.physics import plot_calibration
+        from nfal.apps.figures.physics import plot_calibration
 
         plot_calibration(args.plot, sigma, K, label=f"{args.method}, {shape.name}", reference=paper_calibration())
     if args.json:
@@ -126,7 +126,7 @@ def calibrate_experimental(args: argparse.Namespace) -> int:
         result.fit.save(args.out)
     if args.plot:
         # on use: `nfal --help` stays fast
-        from nfal.figures.physics import plot_experimental_fit
+        from nfal.apps.figures.physics import plot_experimental_fit
 
         plot_experimental_fit(args.plot, result, reference=paper_calibration())
     report = result.report()
@@ -167,7 +167,7 @@ def validate_table1(args: argparse.Namespace) -> int:
                                     steps_per_period=args.steps_per_period, progress=advance))
     if args.plot:
         # on use: `nfal --help` stays fast
-        from nfal.figures.physics import plot_table1
+        from nfal.apps.figures.physics import plot_table1
 
         plot_table1(args.plot, results)
     rows = [result.summary() for result in results]

@@ -6,7 +6,7 @@ import argparse
 import datetime
 from pathlib import Path
 
-from nfal.commands.common import print_json, progress_bar
+from nfal.cli.commands.common import print_json, progress_bar
 from nfal.errors import ResultsExistError
 
 #: The files of a report (refused in --out unless --overwrite).
@@ -37,7 +37,7 @@ def register(commands) -> None:
 
 
 def run_reproduce(args: argparse.Namespace) -> int:
-    from nfal.reproduce import SECTIONS, reproduce  # on use: numerics, FMUs and matplotlib
+    from nfal.apps.reproduce import SECTIONS, reproduce  # on use: numerics, FMUs and matplotlib
 
     out = Path(args.out or Path("runs") / f"reproduce-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     existing = [name for name in REPORT_FILES if (out / name).exists()]

@@ -20,7 +20,7 @@ as it can open it; under wine the client's hold is invisible, so the server quit
 server when it is done.
 
 Windows' own std handles differ too: a Python started by wine 8.0 with a regular file as stdin or stdout dies
-("init_sys_streams: Invalid handle"), so hosts run with pipes (as :mod:`nfal.host_check` runs them).
+("init_sys_streams: Invalid handle"), so hosts run with pipes (as :mod:`nfal.apps.host_check` runs them).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from nfal.errors import HostUnavailableError, RuntimeBuildError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import dll_exports, mingw_tool
 from nfal.fmus.windows_python import wine_path
-from nfal.host_check import HostRuns
+from nfal.apps.host_check import HostRuns
 from nfal.models.disk_cache import cache_root
 
 #: wine's own PE build of ucrtbase (Debian's wine64 8.0).
@@ -175,7 +175,7 @@ def run_in_fmpy_remoting(bench: WineBench, fmu: Path, work_dir: Path, *, runs: i
                 target.writestr(item, source.read(item))
     wrappers = bench.prefix / "nfal-bin"
     wrappers.mkdir(exist_ok=True)
-    (wrappers / "wine64").write_text('#!/bin/sh\n# nfal/wine.py: FMPy remoting without its lock file\n'
+    (wrappers / "wine64").write_text('#!/bin/sh\n# nfal/apps/wine.py: FMPy remoting without its lock file\n'
                                      f'exec {shutil.which("wine")} "$1" "$2"\n')
     (wrappers / "wine64").chmod(0o755)
     environment = {**bench.environment, "PATH": f"{wrappers}:{bench.environment['PATH']}"}

@@ -71,7 +71,7 @@ def bare_environment(**extra: str) -> dict[str, str]:
 
 def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False) -> Path:
     """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable (``windows``: a
-    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.wine`)."""
+    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`)."""
     source = C_HOST_SOURCES[fmi_version]
     if windows:
         executable = Path(out_dir) / f"{source.stem}.exe"
@@ -117,7 +117,7 @@ def _c_host_command(host: Path, folder: Path, strings: dict[str, str]) -> tuple[
 
 
 def _run(command: list[str], cwd: Path, env: dict[str, str] | None) -> subprocess.CompletedProcess:
-    # pipes, never files, for the std handles: under wine a Python with a file for one dies (nfal/wine.py)
+    # pipes, never files, for the std handles: under wine a Python with a file for one dies (nfal/apps/wine.py)
     return subprocess.run(command, cwd=cwd, env=bare_environment() if env is None else env, capture_output=True,
                           stdin=subprocess.DEVNULL, text=True, timeout=HOST_TIMEOUT_S)
 

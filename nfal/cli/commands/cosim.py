@@ -8,9 +8,9 @@ import datetime
 import sys
 from pathlib import Path
 
-from nfal.commands.common import finite_float, positive_float, print_json, print_step_table
+from nfal.cli.commands.common import finite_float, positive_float, print_json, print_step_table
 from nfal.errors import InvalidParameterError
-from nfal.fig7_names import REFERENCE
+from nfal.apps.fig7_names import REFERENCE
 
 
 def register(commands) -> None:
@@ -118,7 +118,7 @@ def _register_run(commands) -> None:
 
 def run_build(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.build import build_all
+    from nfal.apps.build import build_all
     from nfal.fmus.windows_python import windows_python
 
     if args.windows_python and args.platform != "win64":
@@ -145,9 +145,10 @@ def parse_parameter(text: str) -> tuple[str, str]:
 
 def parse_input(text: str) -> tuple[str, object]:
     """``Element.var=SIGNAL`` -> (name, signal of time): a staircase as ``--reference`` takes it
-    (:func:`~nfal.fig7.reference_staircase`), else as :func:`~nfal.orchestration.signals.signal_from_spec` reads it."""
+    (:func:`~nfal.apps.fig7.reference_staircase`), else as :func:`~nfal.orchestration.signals.signal_from_spec`
+    reads it."""
     # on use: `nfal --help` stays fast
-    from nfal.fig7 import reference_staircase
+    from nfal.apps.fig7 import reference_staircase
     from nfal.orchestration.signals import signal_from_spec
 
     name, sep, spec = text.partition("=")
@@ -158,7 +159,7 @@ def parse_input(text: str) -> tuple[str, object]:
 
 def _structure_path(args: argparse.Namespace) -> Path:
     # on use: `nfal --help` stays fast
-    from nfal.build import STRUCTURES, build_all
+    from nfal.apps.build import STRUCTURES, build_all
 
     if args.structure in STRUCTURES:
         return build_all(args.build_dir, structures=(args.structure,))[args.structure]
@@ -176,7 +177,7 @@ HARDWARE_LEAD_S = 1.0
 
 def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
     # on use: `nfal --help` stays fast
-    from nfal.fig7 import reference_staircase
+    from nfal.apps.fig7 import reference_staircase
     from nfal.orchestration.signals import csv_signal
 
     spec = args.reference or "staircase"
@@ -188,7 +189,7 @@ def _read_structure(structure: Path, parameters: dict):
     """(element names, the DefaultExperiment's start time (0 if none) and stop time (or None), the GeneratedReference
     or None)."""
     # on use: `nfal --help` stays fast
-    from nfal.fig7 import generated_reference
+    from nfal.apps.fig7 import generated_reference
     from nfal.orchestration import read_ssp
     from nfal.orchestration.resolve import resolve
 
@@ -219,7 +220,7 @@ def run_cosimulation(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
     from nfal.orchestration import SimulationError, run_structure
     from nfal.orchestration.ssp import parse_boolean
-    from nfal.fig7 import (HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels,
+    from nfal.apps.fig7 import (HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels,
                            step_reference)
 
     if args.max_steps is not None and args.max_steps < 1:
@@ -284,7 +285,7 @@ def _finish(result, columns, experiment: dict, out: Path, as_json: bool) -> None
 
 def _add_link_summary(result, columns) -> None:
     # on use: `nfal --help` stays fast
-    from nfal.fig7 import HARDWARE, link_summary
+    from nfal.apps.fig7 import HARDWARE, link_summary
 
     if columns is HARDWARE and result.csv_path.is_file() and result.summary.get("steps_completed"):
         result.update_summary(link=link_summary(result.table()))

@@ -7,7 +7,7 @@ import numpy as np
 from matplotlib import colors, ticker
 from matplotlib.figure import Figure
 
-from nfal.figures import save
+from nfal.apps.figures import save
 
 #: Fig. 8's colours: green below |z| = 1 (stable), red above; the two halves meet at |z| = 1.
 STABILITY_COLOURS = "RdYlGn_r"

@@ -7,7 +7,7 @@ than real time: the host sees the stall as samples that did not come):
 
 1. read what the host sent and hand it to the :class:`~nfal.hil.firmware.Firmware` (HELLO, DRIVE, STOP);
 2. the firmware decides the voltage for this period (command, limit, watchdog ramp);
-3. the rig model (:mod:`nfal.rig_model`: the rig structure's blocks) takes it, and its sensors are read;
+3. the rig model (:mod:`nfal.apps.rig_model`: the rig structure's blocks) takes it, and its sensors are read;
 4. MEASUREMENT (and, when due, RIG_HEARTBEAT and any FAULT) go out through the
    :class:`~nfal.hil.faults.FaultInjector`;
 5. the rig model advances one period.

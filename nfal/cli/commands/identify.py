@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from nfal import __version__
-from nfal.commands.common import (add_accept_long_plan, add_rig_options, duration_text, number_list, print_json,
+from nfal.cli.commands.common import (add_accept_long_plan, add_rig_options, duration_text, number_list, print_json,
                                   progress_bar, rig_from_args)
 from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, PlanError,
                          require_duration, require_finite, require_positive)
@@ -129,7 +129,7 @@ def _print_plan(plan, as_json: bool) -> None:
 
 def run_identify(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.identify import Experiments, LinkRig, SampleRecorder, move_law, recorder_capacity
+    from nfal.apps.identify import Experiments, LinkRig, SampleRecorder, move_law, recorder_capacity
     from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S, LONGEST_HOLD_S
     from nfal.models.pid_design import design_schedule
     from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
@@ -194,7 +194,7 @@ def run_identify(args: argparse.Namespace) -> int:
     provenance = _provenance(args, hello, recorder, raw, lag, timing)
     out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
     # on use: `nfal --help` stays fast
-    from nfal.figures.identify import plot_identification
+    from nfal.apps.figures.identify import plot_identification
 
     plot_identification(out.with_suffix(".png"), result, rig, lag)
     _report(result, recorder, out, raw, timing, args.json)
@@ -232,7 +232,7 @@ def _margin(timing: dict) -> str:
 
 def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
     # on use: `nfal --help` stays fast
-    from nfal.identify import analyse
+    from nfal.apps.identify import analyse
 
     try:
         return analyse(equilibria, steps, rig, metres_per_volt=args.metres_per_volt, lag_s=lag)
@@ -241,7 +241,7 @@ def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
 
 
 def _provenance(args, hello, recorder, raw: Path, lag: float, timing: dict) -> dict:
-    from nfal.identify import FREQUENCY  # on use, as above
+    from nfal.apps.identify import FREQUENCY  # on use, as above
 
     frequencies = recorder.column(FREQUENCY)
     return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
