@@ -25,6 +25,7 @@ Windows' own std handles differ too: a Python started by wine 8.0 with a regular
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -75,13 +76,16 @@ def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
     environment = {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), "WINEPREFIX": str(prefix),
                    "WINEDEBUG": "-all", "WINEDLLOVERRIDES": "ucrtbase=n,b"}
     system32 = prefix / "drive_c" / "windows" / "system32"
-    if not (system32 / "kernel32.dll").is_file():
-        prefix.mkdir(parents=True, exist_ok=True)
-        _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")
-    python = wine_path(Path(python_root) / "python.exe").replace("\\", "\\\\")
-    _compile(["gcc", "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-static", str(TAR_SHIM)],
-             system32 / "tar.exe")
-    _install_ucrtbase(system32)
+    prefix.parent.mkdir(parents=True, exist_ok=True)
+    with open(prefix.with_name(prefix.name + ".lock"), "a") as lock:  # one process sets the prefix up at a time
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (system32 / "kernel32.dll").is_file():
+            prefix.mkdir(parents=True, exist_ok=True)
+            _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")
+        python = wine_path(Path(python_root) / "python.exe").replace("\\", "\\\\")
+        _compile(["gcc", "-O1", "-Wall", "-Werror", f'-DNFAL_PYTHON="{python}"', "-static", str(TAR_SHIM)],
+                 system32 / "tar.exe")
+        _install_ucrtbase(system32)
     return WineBench(prefix, Path(python_root), environment)
 
 
@@ -125,8 +129,9 @@ def _install_ucrtbase(system32: Path) -> None:
     definition = system32 / "ucrtbase_nfal.def"
     definition.write_text("LIBRARY ucrtbase.dll\nEXPORTS\n" + "".join(
         f"    {name}=nfal_{name}\n" if name in ours else f"    {name}=ucrtbase_wine.{name}\n" for name in exports))
-    shutil.copy2(wine_own, system32 / ".ucrtbase_wine.dll")
-    os.replace(system32 / ".ucrtbase_wine.dll", system32 / "ucrtbase_wine.dll")
+    partial = system32 / f".ucrtbase_wine.{os.getpid()}.dll"
+    shutil.copy2(wine_own, partial)
+    os.replace(partial, system32 / "ucrtbase_wine.dll")
     _compile(["gcc", "-O2", "-Wall", "-Werror", "-shared", "-s", str(UCRTBASE_SHIM), str(definition), "-static"],
              system32 / "ucrtbase.dll")
     stamp.write_text(key)
