@@ -74,7 +74,7 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
 from nfal import __version__
-from nfal.errors import FmuStateError, InvalidParameterError, SlaveCallError, require_non_negative, require_positive
+from nfal.errors import (FmuStateError, InvalidParameterError, SlaveCallError, require_amplitude, require_positive)
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_rig_calibration,
                                      paper_calibration, perturbation_calibration)
 from nfal.models.excitation import parse_shape
@@ -351,7 +351,7 @@ class NfalSlave(Fmi2Slave):
 
     def checked_excitation(self) -> float:
         """The ``excitation_amplitude`` input [m], checked."""
-        value = require_non_negative("excitation_amplitude", self.excitation_amplitude, "a finite amplitude >= 0 m")
+        value = require_amplitude("excitation_amplitude", self.excitation_amplitude)
         return require_plausible("excitation_amplitude", value, MAX_EXCITATION_M, "m")
 
     def checked_frequency(self) -> float:

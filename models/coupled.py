@@ -31,8 +31,8 @@ from typing import Callable
 import numba
 import numpy as np
 
-from nfal.errors import (ConvergenceError, GapClosedError, InvalidParameterError, require_finite,
-                         require_non_negative, require_positive)
+from nfal.errors import (ConvergenceError, GapClosedError, InvalidParameterError, require_amplitude, require_finite,
+                         require_positive)
 
 from . import numba_cache
 from .excitation import ExcitationShape
@@ -414,7 +414,7 @@ class CoupledModel:
         quasi-steady film of the excitation |a| = ``amplitude`` [m], at time ``time_s`` [s] (period 0 starts there)."""
         height0 = require_positive("height", height)
         velocity0 = require_finite("velocity", velocity, "a finite number (m/s)")
-        amplitude0 = require_non_negative("amplitude", amplitude, "a finite amplitude >= 0 m")
+        amplitude0 = require_amplitude("amplitude", amplitude)
         time0 = require_finite("time_s", time_s, "a finite time (s)")
         h0, omega = self.rig.reference_clearance, self.rig.omega
         vector = self._initial_state(height0 / h0, velocity0 / (h0 * omega), amplitude0 / h0)
@@ -444,7 +444,7 @@ class CoupledModel:
             raise InvalidParameterError("state", f"{state.vector.size} values",
                                         f"a state of a model with {self.nodes} nodes")
         step = require_positive("step_s", step_s)
-        amplitude = require_non_negative("amplitude", amplitude, "a finite amplitude >= 0 m")
+        amplitude = require_amplitude("amplitude", amplitude)
         envelope = self.envelope if envelope is None else envelope
         rig = self.rig
         end = state.time_s + step
@@ -594,12 +594,5 @@ def _sample_excitation(excitation: Excitation, times: np.ndarray) -> np.ndarray:
             raise InvalidParameterError("excitation", values[bad[0]],
                                         f"finite amplitudes >= 0 m (at t = {times[bad[0]]:.6g} s)")
         return values
-    try:
-        value = float(excitation)
-    except (TypeError, ValueError):
-        raise InvalidParameterError("excitation", excitation,
-                                    "a finite amplitude >= 0 m, or a function of time") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time")
-    return np.full(times.size, value)
+    return np.full(times.size, require_amplitude("excitation", excitation, or_function=True))
 

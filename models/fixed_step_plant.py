@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 
-from nfal.errors import InvalidParameterError, require_non_negative, require_positive
+from nfal.errors import InvalidParameterError, require_amplitude, require_positive
 
 from . import piecewise, slow_kernels
 from .damping import DampingCorrection
@@ -91,7 +91,7 @@ class FixedStepPlant:
     def advance(self, state: PlantState, excitation: float, step: float) -> PlantState:
         """The state ``step`` seconds later under a constant |a| = ``excitation`` [m] (zero-order hold)."""
         step = require_positive("step", step)
-        excitation = require_non_negative("excitation", excitation, "a finite amplitude >= 0 m")
+        excitation = require_amplitude("excitation", excitation)
         h, v = float(state.height), float(state.velocity)
         if not (math.isfinite(h) and math.isfinite(v)):
             raise InvalidParameterError("state", state, "a finite height and velocity")

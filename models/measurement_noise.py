@@ -26,7 +26,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from nfal.errors import InvalidParameterError, require_non_negative, require_positive
+from nfal.errors import InvalidParameterError, require_amplitude, require_positive
 
 from .plausibility import MAX_CLEARANCE_M, require_plausible
 from .table2 import NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
@@ -44,7 +44,7 @@ def _check_settings(sample_rate_hz, cutoff_hz, peak_m) -> tuple[float, float, fl
     cutoff = require_positive("cutoff_hz", cutoff_hz)
     if cutoff >= rate / 2:
         raise InvalidParameterError("cutoff_hz", cutoff_hz, f"below the Nyquist frequency {rate / 2:g} Hz")
-    peak = require_non_negative("peak_m", peak_m, "a finite amplitude >= 0 m")
+    peak = require_amplitude("peak_m", peak_m)
     return rate, cutoff, require_plausible("peak_m", peak, MAX_CLEARANCE_M, "m")
 
 

@@ -20,7 +20,8 @@ from typing import Callable
 import numpy as np
 from scipy import integrate, optimize
 
-from nfal.errors import ConvergenceError, InvalidParameterError, require_finite, require_non_negative, require_positive
+from nfal.errors import (ConvergenceError, InvalidParameterError, require_amplitude, require_finite,
+                         require_positive)
 
 from .calibration import CalibrationFunction
 from .damping import DampingCorrection
@@ -256,7 +257,7 @@ class SimplifiedPlant:
         the step if the film force at rest_gap beats its weight, and rests otherwise.
         """
         step = require_positive("step", step)
-        excitation = require_non_negative("excitation", excitation, "a finite amplitude >= 0 m")
+        excitation = require_amplitude("excitation", excitation)
         self._check_state(state)
         path = self._integrate(state, lambda t: excitation, np.array([0.0, step]), rtol)
         return PlantState(float(path.height[-1]), float(path.velocity[-1]), bool(path.resting[-1]))
@@ -347,7 +348,5 @@ class SimplifiedPlant:
 def _as_function(excitation: Excitation) -> Callable[[float], float]:
     if callable(excitation):
         return excitation
-    value = float(excitation)
-    if not (np.isfinite(value) and value >= 0):
-        raise InvalidParameterError("excitation", excitation, "a finite amplitude >= 0 m, or a function of time")
+    value = require_amplitude("excitation", excitation, or_function=True)
     return lambda t: value

@@ -305,6 +305,16 @@ def require_non_negative(name: str, value: float, allowed: str = "a finite numbe
     return number
 
 
+#: What an excitation amplitude may be, as every message says it.
+AMPLITUDE = "a finite amplitude >= 0 m"
+
+
+def require_amplitude(name: str, value: float, *, or_function: bool = False) -> float:
+    """An amplitude [m]: ``value`` as float if it is finite and >= 0 (:data:`AMPLITUDE`); ``or_function``: the message
+    says that a function of time was allowed too."""
+    return require_non_negative(name, value, AMPLITUDE + (", or a function of time" if or_function else ""))
+
+
 def require_duration(name: str, value: float, longest_s: float) -> float:
     """A timeout or wait [s]: ``value`` as float if it is > 0 and at most ``longest_s`` (a wait of a day is a typo, and
     a process that waits for it looks hung), else raise :class:`InvalidParameterError`."""
