@@ -272,7 +272,37 @@ def _archive_path(spec: SweepSpec, archives: Mapping[str, os.PathLike] | None) -
     return path
 
 
+class _InProcess:
+    """``workers=0``: the tasks run one after another in this process, each when its result is collected, with no
+    Dask at all (tests, a debugger's breakpoints). What :func:`run_sweep` uses of a Dask client."""
+
+    def scheduler_info(self) -> dict:
+        return {"workers": {"in-process": {}}}
+
+    def scatter(self, data, broadcast: bool = True):
+        return data
+
+    def submit(self, function, *args, pure: bool = False) -> "_Deferred":
+        return _Deferred(function, args)
+
+    def close(self) -> None:
+        pass
+
+
+@dataclasses.dataclass
+class _Deferred:
+    """A task of :class:`_InProcess`: run when its result is asked for."""
+
+    function: object
+    args: tuple
+
+    def result(self):
+        return self.function(*self.args)
+
+
 def _client(scheduler: str | None, workers: int | None):
+    if workers == 0 and not scheduler:  # in this process: no cluster, no event loop to start
+        return _InProcess(), None
     from dask.distributed import Client, LocalCluster  # on use: Dask takes a second to import
 
     if scheduler:
@@ -281,12 +311,8 @@ def _client(scheduler: str | None, workers: int | None):
         except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address (no port, unknown protocol)
             raise SweepError(f"cannot reach the Dask scheduler at {scheduler!r} (expected tcp://host:port): "
                              f"{exc}") from None
-    if workers == 0:  # in this process, one thread: no cluster to start (tests, a debugger's breakpoints)
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None,
-                               silence_logs=logging.ERROR)
-    else:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -304,8 +330,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | os.PathLike, *, scheduler: str | N
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:port``); default: a local cluster.
     workers : int, optional
-        Worker processes of the local cluster (default: this machine's cores); 0: one worker thread in this
-        process (no processes to start: tests, a debugger). Ignored with ``scheduler``.
+        Worker processes of the local cluster (default: this machine's cores); 0: the runs one after another in
+        this process, without Dask (tests, a debugger). Ignored with ``scheduler``.
     archives : mapping, optional
         Built-in structure name -> ``.ssp`` path (the CLI builds them); other ``structure`` values are paths.
     progress : bool, optional
@@ -394,11 +420,7 @@ def _write_spec(path: Path, spec: SweepSpec, runs: list[RunSpec]) -> None:
 
 def _as_finished(futures, todo: list[RunSpec]):
     """(run, row) as each task finishes; a task that died (worker lost) is a failed row."""
-    from dask.distributed import as_completed  # on use: Dask takes a second to import
-
-    by_future = {f.key: r for f, r in zip(futures, todo)}
-    for future in as_completed(futures):
-        run = by_future[future.key]
+    for future, run in _finishing(futures, todo):
         try:
             row = future.result()
         except Exception as exc:  # noqa: BLE001 - the task died: a failed row, the sweep goes on
@@ -408,6 +430,18 @@ def _as_finished(futures, todo: list[RunSpec]):
         if row["status"] != "ok":
             logger.warning("run %s (%s) failed: %s", run.run_id, canonical_json(run.parameters), row["error"])
         yield run, row
+
+
+def _finishing(futures, todo: list[RunSpec]):
+    """(future, run) in the order the tasks finish: in-process tasks in order, Dask's as they complete."""
+    if all(isinstance(future, _Deferred) for future in futures):
+        yield from zip(futures, todo)
+        return
+    from dask.distributed import as_completed  # on use: Dask takes a second to import
+
+    by_future = {f.key: r for f, r in zip(futures, todo)}
+    for future in as_completed(futures):
+        yield future, by_future[future.key]
 
 
 def _close_summary(out: Path, summary: dict, runs: list[RunSpec]) -> list[dict]:

@@ -32,8 +32,8 @@ def register(commands) -> None:
     sweep.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
                        "(default: a local cluster)")
     sweep.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster, not with "
-                       "--scheduler (default: this machine's cores); 0: one worker thread in this process (for "
-                       "debugging)")
+                       "--scheduler (default: this machine's cores); 0: the runs one after another in this process, "
+                       "without Dask (for debugging)")
     sweep.add_argument("--out", metavar="DIR", help="result folder (default runs/sweep-<spec name>); continued if it "
                        "holds the same spec's table")
     sweep.add_argument("--build-dir", metavar="DIR", help="where built-in structures (fig7_slow, fig7_reynolds) are "
