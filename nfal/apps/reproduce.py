@@ -49,7 +49,7 @@ from nfal.models.rig import RigParameters
 from nfal.models.stability import stability_map
 from nfal.models.step_metrics import step_metrics
 from nfal.models.table1 import TABLE1, run_case
-from nfal.models.table2 import MAX_EXCITATION_M
+from nfal.models.table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ
 from nfal.models.transducer import METRES_PER_VOLT
 from nfal.orchestration import run_structure
 
@@ -212,7 +212,7 @@ def fig6(context: _Context) -> Section:
     steps = Staircase(tuple(heights), hold_s=FIG6_HOLD_S, lead_s=FIG6_LIFT_OFF_S)
     drive = Staircase(tuple(excitation / METRES_PER_VOLT), hold_s=FIG6_HOLD_S, lead_s=FIG6_LIFT_OFF_S)
     archive = build_all(context.build_dir, structures=("rig_slow",))["rig_slow"]
-    result = run_structure(archive, stop_time=steps.duration_s, step_size=1.0 / 2000.0,
+    result = run_structure(archive, stop_time=steps.duration_s, step_size=1.0 / SAMPLING_RATE_HZ,
                            inputs={"ResonanceTracker.drive_voltage": drive}, plot=False, progress=False,
                            out_dir=context.out_dir / "runs" / "fig6_rig", overwrite=True)
     table = result.table()
@@ -229,7 +229,7 @@ def fig6(context: _Context) -> Section:
     start = steps.step_times_s[0]
     amplitude_steps = Staircase(tuple(excitation), hold_s=FIG6_HOLD_S, lead_s=FIG6_LIFT_OFF_S)
     path = plant.simulate(steps.duration_s - start, lambda t: float(amplitude_steps(t + start)), PlantState(heights[0]),
-                          samples=int((steps.duration_s - start) * 2000) + 1)
+                          samples=int((steps.duration_s - start) * SAMPLING_RATE_HZ) + 1)
     model_time = path.time + start
     model_run = ClosedLoopRun("eq. (13),(17)", model_time, steps(model_time), path.height, path.height,
                               amplitude_steps(model_time))
@@ -374,7 +374,7 @@ def figs11_12(context: _Context, progress: Callable[[], None] | None = None) -> 
         design = ({"Controller.design": "gain-scheduled"} if key == GAIN_SCHEDULED
                   else {"Controller.design": "fixed", "Controller.design_height": float(key) * 1e-6})
         with _emulator(context.out_dir / "runs" / f"rig_{key}.pty", context.build_dir) as port:
-            result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / 2000.0,
+            result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / SAMPLING_RATE_HZ,
                                    inputs={"Controller.reference": reference}, plot=False, progress=False,
                                    parameters={"proxy.port": port, "proxy.lockstep": True, **PAPERS_LAW, **design},
                                    out_dir=context.out_dir / "runs" / f"rig_{key}", overwrite=True)
