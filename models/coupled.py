@@ -37,8 +37,11 @@ from nfal.errors import (ConvergenceError, GapClosedError, InvalidParameterError
 from . import numba_cache
 from .excitation import ExcitationShape
 from .perturbation import radial_grid
-from .reynolds import SLOWEST_FILM_EIGENVALUE, check_grid, perturbation_film
+from .reynolds import SLOWEST_FILM_EIGENVALUE, check_grid, perturbation_film, thomas_factor, thomas_substitute
 from .rig import RigParameters
+
+#: The files whose kernels these kernels call (the Thomas solver's): numba's cache of them is keyed by both sources.
+KERNEL_DEPENDENCIES = ("reynolds.py",)
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
@@ -70,23 +73,6 @@ STATUS_OK, STATUS_NEWTON, STATUS_GAP = 0, 1, 2
 
 
 @numba.njit(cache=True)
-def _thomas_two(lower, diag, upper, rhs_a, rhs_b, out_a, out_b, work):
-    """Solve T x = rhs_a and T y = rhs_b for one tridiagonal T (``lower[i]`` multiplies x[i-1])."""
-    n = diag.shape[0]
-    inv = 1.0 / diag[0]
-    out_a[0] = rhs_a[0] * inv
-    out_b[0] = rhs_b[0] * inv
-    for i in range(1, n):
-        work[i] = upper[i - 1] * inv
-        inv = 1.0 / (diag[i] - lower[i] * work[i])
-        out_a[i] = (rhs_a[i] - lower[i] * out_a[i - 1]) * inv
-        out_b[i] = (rhs_b[i] - lower[i] * out_b[i - 1]) * inv
-    for i in range(n - 2, -1, -1):
-        out_a[i] -= work[i + 1] * out_a[i + 1]
-        out_b[i] -= work[i + 1] * out_b[i + 1]
-
-
-@numba.njit(cache=True)
 def _march_coupled(state, amplitudes, eps_nodes, eps_faces, conductance, volumes, film_number, stiffness,
                    gravity, steps, out_height, out_velocity, out_cos, out_sin):
     """March len(amplitudes) excitation periods of the coupled film + object with BDF2 + Newton.
@@ -112,7 +98,7 @@ def _march_coupled(state, amplitudes, eps_nodes, eps_faces, conductance, volumes
     column = np.empty(m)
     x = np.empty(m)
     y = np.empty(m)
-    work = np.empty(m)
+    work = np.empty(2 * m)
     hist = np.empty(m)
     h_nodes = np.empty(nodes)
     inv_h_faces = np.empty(nodes - 1)
@@ -178,7 +164,9 @@ def _march_coupled(state, amplitudes, eps_nodes, eps_faces, conductance, volumes
                     dflux_below = dflux
                 w = (3.0 * z + z_hist) * inv_2dt
                 res_z = -((3.0 * w + w_hist) * inv_2dt - 2.0 * stiffness * force + gravity)
-                _thomas_two(lower, diag, upper, res, column, x, y, work)
+                thomas_factor(lower, diag, upper, work)  # one factorisation, two right-hand sides
+                thomas_substitute(lower, work, res, x)
+                thomas_substitute(lower, work, column, y)
                 # border row: z_gain dZ - 2 C_s sum V du = res_z, with du = x - y dZ
                 row_x = 0.0
                 row_y = 0.0

@@ -29,7 +29,11 @@ class ContentKeyedCacheLocator(_IN_TREE_LOCATOR):
 
     def __init__(self, py_func, py_file) -> None:
         super().__init__(py_func, py_file)
-        digest = hashlib.sha256(Path(py_file).read_bytes()).hexdigest()[:24]
+        source = Path(py_file)
+        # numba checks a cache against its own function's file only: the kernels of other files it calls
+        # (the module's KERNEL_DEPENDENCIES, beside it) are part of the key too
+        files = [source, *(source.with_name(name) for name in py_func.__globals__.get("KERNEL_DEPENDENCIES", ()))]
+        digest = hashlib.sha256(b"".join(path.read_bytes() for path in files)).hexdigest()[:24]
         self._cache_path = str(cache_root() / "numba" / f"{Path(py_file).stem}-{digest}")
 
     @classmethod

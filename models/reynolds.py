@@ -64,21 +64,35 @@ K_SCALE_FLOOR = 1e-2
 # numba kernels
 # --------------------------------------------------------------------------------------------------
 @numba.njit(cache=True)
-def thomas_solve(lower, diag, upper, rhs, out, work):
-    """Solve a tridiagonal system in place: ``lower[i]`` multiplies x[i-1], ``upper[i]`` x[i+1].
+def thomas_factor(lower, diag, upper, work):
+    """Factor a tridiagonal matrix (``lower[i]`` multiplies x[i-1], ``upper[i]`` x[i+1]) into ``work`` (size >= 2n):
+    ``work[i]`` the modified upper diagonal, ``work[n + i]`` the reciprocal of pivot i.
 
-    ``work`` (size >= n) holds the modified upper diagonal. No pivoting: the film Jacobians are
-    diagonally dominant (the BDF2 mass term plus an M-matrix of conductances).
+    No pivoting: the film Jacobians are diagonally dominant (the BDF2 mass term plus an M-matrix of conductances).
     """
     n = diag.shape[0]
-    beta = diag[0]
-    out[0] = rhs[0] / beta
+    work[n] = 1.0 / diag[0]
     for i in range(1, n):
-        work[i] = upper[i - 1] / beta
-        beta = diag[i] - lower[i] * work[i]
-        out[i] = (rhs[i] - lower[i] * out[i - 1]) / beta
+        work[i] = upper[i - 1] * work[n + i - 1]
+        work[n + i] = 1.0 / (diag[i] - lower[i] * work[i])
+
+
+@numba.njit(cache=True)
+def thomas_substitute(lower, work, rhs, out):
+    """Solve the system :func:`thomas_factor` factored into ``work`` for ``rhs``, into ``out``."""
+    n = rhs.shape[0]
+    out[0] = rhs[0] * work[n]
+    for i in range(1, n):
+        out[i] = (rhs[i] - lower[i] * out[i - 1]) * work[n + i]
     for i in range(n - 2, -1, -1):
         out[i] -= work[i + 1] * out[i + 1]
+
+
+@numba.njit(cache=True)
+def thomas_solve(lower, diag, upper, rhs, out, work):
+    """Solve a tridiagonal system (the Thomas algorithm): :func:`thomas_factor`, then :func:`thomas_substitute`."""
+    thomas_factor(lower, diag, upper, work)
+    thomas_substitute(lower, work, rhs, out)
 
 
 @numba.njit(cache=True)
@@ -100,7 +114,7 @@ def _march_fixed_film(u_now, u_prev, eps_nodes, eps_faces, conductance, volumes,
     upper = np.empty(m)
     res = np.empty(m)
     du = np.empty(m)
-    work = np.empty(m)
+    work = np.empty(2 * m)  # the factorisation: modified upper diagonal and reciprocal pivots
     hist = np.empty(m)
     h_nodes = np.empty(nodes)
     c_faces = np.empty(nodes - 1)
