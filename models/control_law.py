@@ -222,15 +222,17 @@ class DiscreteControlLaw:
         if (state.previous_measurement_m is None and self.lift_off_time_s is not None
                 and measured < self.reference_range_m[0]):  # at rest below the work range: lift off from nothing
             state = ControllerState(0.0, reference_pair_m=(measured, measured), lifting=True)
-        target, pair, lifting = self._shaped_reference(state, reference)
+        feedforward = path = None
+        if self.feedforward is not None and not state.lifting:  # the path takes the reference pair's place
+            start = state.reference_pair_m[1] if state.reference_pair_m else reference  # lifted off, or bumpless
+            path, feedforward = self._reference_path(state.reference_model_m or (start, 0.0), reference)
+            target, pair, lifting = path[0], None, False
+        else:
+            target, pair, lifting = self._shaped_reference(state, reference)
         previous = measured if state.previous_measurement_m is None else state.previous_measurement_m
         ts, wl = self.period_s, self.filter_rad_s
         rate = (1.0 - ts * wl) * state.derivative_m_per_s + wl * (measured - previous)
         kp, ki, kd, slow_time = self.gains.law_terms(measured)
-        feedforward = path = None
-        if self.feedforward is not None and not lifting:
-            path, feedforward = self._reference_path(state.reference_model_m or (target, 0.0), reference)
-            target, pair = path[0], None
         if feedforward is None:
             target, reference_lag = self._weighted_reference(state.reference_lag_m, target, measured, kp, ki,
                                                              slow_time)

@@ -358,3 +358,18 @@ def test_the_feedforward_starts_and_holds_an_equilibrium_bumplessly():
 def test_a_feedforward_needs_a_model_and_a_path(kwargs):
     with pytest.raises(InvalidParameterError, match="feedforward"):
         DiscreteControlLaw(SCHEDULE, **kwargs)
+
+
+def test_after_lift_off_the_feedforward_path_starts_where_the_lift_off_pair_ended():
+    law = DiscreteControlLaw(SCHEDULE, lift_off_time_s=LIFT_OFF_TIME_S, reference_filter_s=0.008, feedforward=PLANT)
+    command, state = law.step(law.initial_state(60e-6, 1.5e-6), 60e-6, 5e-6)  # at rest: lifting off
+    for _ in range(4000):
+        assert state.reference_model_m is None and state.feedforward_m is None  # no path while lifting
+        command, state = law.step(state, 60e-6, state.reference_pair_m[1])
+        if not state.lifting:
+            break
+    assert not state.lifting
+    pair_end = state.reference_pair_m[1]
+    _, state = law.step(state, 60e-6, pair_end)
+    point, drive = law._reference_path((pair_end, 0.0), 60e-6)
+    assert state.reference_model_m == law._advance_path(point) and state.feedforward_m == drive
