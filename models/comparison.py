@@ -18,6 +18,18 @@ from .stability import realizable_schedule
 GAIN_SCHEDULED = "gs"
 
 
+def controller_name(key: str) -> str:
+    """How a controller key reads: ``"gain-scheduled"`` or ``"linear at 80 um"`` (the gains' own names)."""
+    return "gain-scheduled" if key == GAIN_SCHEDULED else f"linear at {float(key):g} um"
+
+
+def controller_design(key: str) -> dict:
+    """The Controller FMU's design parameters of controller ``key`` (the same design, in co-simulation)."""
+    if key == GAIN_SCHEDULED:
+        return {"Controller.design": "gain-scheduled"}
+    return {"Controller.design": "fixed", "Controller.design_height": float(key) * 1e-6}
+
+
 def controller_gains(key: str, rig: RigParameters, calibration: CalibrationFunction, spec: DesignSpec, *,
                      sample_rate_hz: float, damping: DampingModel | None = None,
                      full_schedule: bool = False) -> GainSchedule:

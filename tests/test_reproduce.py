@@ -78,3 +78,15 @@ def test_the_report_has_every_figure_and_number(report):
 def test_the_command_refuses_to_replace_a_report(report, capsys):
     assert main(["reproduce", "--out", str(report.out_dir)]) == 2
     assert "already holds a report" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("key", "name", "design"), [
+    ("gs", "gain-scheduled", {"Controller.design": "gain-scheduled"}),
+    ("80", "linear at 80 um", {"Controller.design": "fixed", "Controller.design_height": pytest.approx(80e-6)}),
+])
+def test_a_controller_key_names_its_rig_run_and_its_fmu_design(key, name, design):
+    """What nfal compare --port and nfal reproduce's rig runs share."""
+    from nfal.models.comparison import controller_design, controller_name
+
+    assert controller_name(key) == name
+    assert controller_design(key) == design

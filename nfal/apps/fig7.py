@@ -106,6 +106,9 @@ def matched_design(parameters: dict) -> dict:
     return parameters
 
 
+#: The staircase's first hold against hardware [s]: the rig starts with the object at rest, and lift-off to
+#: the first level takes about half a second (the simulated loops start at 60 um: 0.1 s, as in Figs. 9-10).
+HARDWARE_LEAD_S = 1.0
 #: The Reynolds loop's design parameters that are its control law, not its film (ssp/reynolds_design.ssv binds all).
 REYNOLDS_LAW_PARAMETERS = ("placement", "closed_loop_cutoff", "feedforward", "reference_filter_time")
 

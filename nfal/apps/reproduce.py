@@ -31,14 +31,14 @@ import numpy as np
 from scipy import signal
 
 from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
-from nfal.apps.fig7 import HARDWARE, loop_run
+from nfal.apps.fig7 import HARDWARE, HARDWARE_LEAD_S, loop_run
 from nfal.apps.figures.control import plot_comparison, plot_stability_map
 from nfal.apps.figures.physics import plot_table1
 from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitation, write_html
 from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.calibration import paper_calibration, perturbation_calibration
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
-from nfal.models.comparison import GAIN_SCHEDULED, simulate_comparison
+from nfal.models.comparison import GAIN_SCHEDULED, controller_design, controller_name, simulate_comparison
 from nfal.models.excitation import paper_shape
 from nfal.models.measured_calibration import EquilibriumData, fit_calibration
 from nfal.models.paper_numbers import PaperNumber, paper_numbers, paper_value
@@ -70,8 +70,6 @@ STEADY_WINDOW_S = 0.2
 RISE_STEP_M = (170e-6, 190e-6)
 #: The controllers of Figs. 9-12: the gain-scheduled design and linear designs at these heights [um].
 CONTROLLERS = (GAIN_SCHEDULED, "80", "120", "160")
-#: The rig runs' staircase (Figs. 11-12): Figs. 9-10's, with 1 s at the first level for the lift-off.
-RIG_LEAD_S = 1.0
 #: A claim "about X" holds within this factor of X.
 ABOUT_FACTOR = 1.5
 
@@ -367,21 +365,20 @@ def figs9_10(context: _Context) -> Section:
 
 def figs11_12(context: _Context, progress: Callable[[], None] | None = None) -> Section:
     """Figs. 11-12: the same four controllers on the rig emulator, over the rig protocol, in lockstep."""
-    reference = Staircase(hold_s=0.6, lead_s=RIG_LEAD_S)
+    reference = Staircase(lead_s=HARDWARE_LEAD_S)  # Figs. 9-10's, a rig's lift-off first
     archive = build_all(context.build_dir, structures=("fig7_hil",))["fig7_hil"]
     runs, metrics = {}, {}
     for key in CONTROLLERS:
-        design = ({"Controller.design": "gain-scheduled"} if key == GAIN_SCHEDULED
-                  else {"Controller.design": "fixed", "Controller.design_height": float(key) * 1e-6})
         with _emulator(context.out_dir / "runs" / f"rig_{key}.pty", context.build_dir) as port:
             result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / SAMPLING_RATE_HZ,
                                    inputs={"Controller.reference": reference}, plot=False, progress=False,
-                                   parameters={"proxy.port": port, "proxy.lockstep": True, **PAPERS_LAW, **design},
+                                   parameters={"proxy.port": port, "proxy.lockstep": True, **PAPERS_LAW,
+                                               **controller_design(key)},
                                    out_dir=context.out_dir / "runs" / f"rig_{key}", overwrite=True)
         if result.summary["status"] != "ok":
-            raise RuntimeError(f"the rig run of the {_controller_name(key)} controller failed: "
+            raise RuntimeError(f"the rig run of the {controller_name(key)} controller failed: "
                                f"{result.summary['error']}")
-        raw = loop_run(result.table(), _controller_name(key), HARDWARE)
+        raw = loop_run(result.table(), controller_name(key), HARDWARE)
         runs[key] = dataclasses.replace(raw, height_m=low_pass(raw.measured_m, raw.time_s))
         metrics[key] = _metrics(runs[key], reference)
         if progress is not None:
@@ -397,10 +394,6 @@ def figs11_12(context: _Context, progress: Callable[[], None] | None = None) -> 
         "fig11_12.png", _ordering_claims(metrics, simulated=False))
 
 
-def _controller_name(key: str) -> str:
-    return "gain-scheduled" if key == GAIN_SCHEDULED else f"linear at {key} um"
-
-
 def _metrics(run: ClosedLoopRun, reference: Staircase) -> dict:
     steps = step_metrics(run, reference)
     return {"iae": sum(s.iae for s in steps), "overshoot": max(s.overshoot_percent for s in steps),
@@ -409,7 +402,7 @@ def _metrics(run: ClosedLoopRun, reference: Staircase) -> dict:
 
 def _ordering_claims(metrics: dict, *, simulated: bool) -> list[Comparison]:
     iae = {key: m["iae"] for key, m in metrics.items()}
-    table = "; ".join(f"{_controller_name(k)}: IAE {m['iae'] * 1e6:.2f} um s, worst overshoot {m['overshoot']:.1f} %, "
+    table = "; ".join(f"{controller_name(k)}: IAE {m['iae'] * 1e6:.2f} um s, worst overshoot {m['overshoot']:.1f} %, "
                       f"noise RMS {m['noise'] * 1e6:.2f} um" for k, m in metrics.items())
     if simulated:
         tradeoff = metrics["80"]["noise"] > metrics["160"]["noise"] and \

@@ -192,7 +192,7 @@ def _parse_controllers(text: str) -> list[str]:
 
 def run_compare(args: argparse.Namespace) -> int:
     # on use: `nfal --help` stays fast
-    from nfal.cli.commands.cosim import HARDWARE_LEAD_S
+    from nfal.apps.fig7 import HARDWARE_LEAD_S
     from nfal.models.closed_loop import Staircase
     from nfal.orchestration.run import MAX_STEPS
 
@@ -268,6 +268,7 @@ def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
     from nfal.cli.commands.cosim import parse_parameter
     from nfal.apps.fig7 import HARDWARE, REFERENCE, loop_run
+    from nfal.models.comparison import controller_design, controller_name
     from nfal.orchestration import run_structure
 
     archive = build_all(args.build_dir or DEFAULT_BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
@@ -282,12 +283,10 @@ def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     runs = {}
     with progress_bar(len(keys), "runs on the rig") as bar:
         for key in keys:
-            design = ({"Controller.design": "gain-scheduled"} if key == "gs"
-                      else {"Controller.design": "fixed", "Controller.design_height": float(key) * 1e-6})
             result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / args.sample_rate,
-                                   inputs={REFERENCE: reference}, parameters={**common, **design}, realtime=True,
-                                   out_dir=folder / key, plot=False, progress=False)
-            runs[key] = loop_run(result.table(), "gain-scheduled" if key == "gs" else f"linear at {key} um", HARDWARE)
+                                   inputs={REFERENCE: reference}, parameters={**common, **controller_design(key)},
+                                   realtime=True, out_dir=folder / key, plot=False, progress=False)
+            runs[key] = loop_run(result.table(), controller_name(key), HARDWARE)
             bar.update()
     print(f"nfal compare: the runs on the rig are in {folder}", file=sys.stderr)
     return runs

@@ -170,14 +170,9 @@ def _structure_path(args: argparse.Namespace) -> Path:
     return path
 
 
-#: The staircase's first hold against hardware [s]: the rig starts with the object at rest, and lift-off to
-#: the first level takes about half a second (the simulated loops start at 60 um: 0.1 s, as in Figs. 9-10).
-HARDWARE_LEAD_S = 1.0
-
-
 def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
     # on use: `nfal --help` stays fast
-    from nfal.apps.fig7 import reference_staircase
+    from nfal.apps.fig7 import HARDWARE_LEAD_S, reference_staircase
     from nfal.orchestration.signals import csv_signal
 
     spec = args.reference or "staircase"
