@@ -34,7 +34,7 @@ from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
 from nfal.apps.fig7 import HARDWARE, HARDWARE_LEAD_S, loop_run
 from nfal.apps.figures.control import plot_comparison, plot_stability_map
 from nfal.apps.figures.physics import plot_table1
-from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitation, write_html
+from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitation, shown, write_html
 from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.calibration import paper_calibration, perturbation_calibration
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
@@ -102,6 +102,16 @@ class Comparison:
             return None
         return float(self.ours) - float(self.paper.value)
 
+    @property
+    def unit(self) -> str:
+        """The unit as shown ("" for a pure number)."""
+        return "" if self.paper.unit == "1" else self.paper.unit
+
+    @property
+    def paper_shown(self) -> str:
+        """The paper's value with its relation ("< 2", "~ 9", "0.0696")."""
+        return ("" if self.paper.relation == "=" else self.paper.relation + " ") + shown(self.paper.value)
+
     def to_dict(self) -> dict:
         return {"key": self.key, "paper_id": self.paper.id, "where": self.paper.where, "what": self.paper.what,
                 "unit": self.paper.unit, "relation": self.paper.relation, "paper": self.paper.value,
@@ -146,8 +156,18 @@ class Report:
         return [c for c in self.comparisons
                 if c.holds is not None and c.holds == (c.key in KNOWN_DIFFERENCES)]
 
+    @property
+    def judged(self) -> list[Comparison]:
+        return [c for c in self.comparisons if c.holds is not None]
+
+    @property
+    def summary(self) -> str:
+        """One line: how many judged numbers hold, how many differ unexpectedly, and the time."""
+        return (f"{sum(bool(c.holds) for c in self.judged)} of {len(self.judged)} judged numbers and claims hold; "
+                f"{len(self.unexpected)} unexpected; {self.seconds:.0f} s")
+
     def to_dict(self) -> dict:
-        judged = [c for c in self.comparisons if c.holds is not None]
+        judged = self.judged
         return {"paper": "Ilssar, Bucher, Flashner", "quick": self.quick, "seconds": self.seconds,
                 "judged": len(judged), "hold": sum(bool(c.holds) for c in judged),
                 "known_differences": sorted(KNOWN_DIFFERENCES), "unexpected": [c.key for c in self.unexpected],

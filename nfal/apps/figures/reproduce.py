@@ -58,16 +58,13 @@ def plot_calibrations(path, sigma, numerical, measured, eq17) -> None:
     save(figure, path)
 
 
-def _shown(value) -> str:
+def shown(value) -> str:
+    """A number or a claim as the report shows it: 4 significant figures, yes or no, a dash for none."""
     if value is None:
         return "—"
     if isinstance(value, bool):
         return "yes" if value else "no"
     return f"{value:.4g}"
-
-
-def _unit(unit: str) -> str:
-    return "" if unit == "1" else unit
 
 
 #: The table cell's class of each verdict.
@@ -76,7 +73,6 @@ VERDICT_CLASS = {"holds": "ok", "differs": "differs", "known difference": "diffe
 
 def write_html(path, report) -> None:
     """One page: per section what was run, its figure, and a table of our numbers beside the paper's."""
-    judged = [c for c in report.comparisons if c.holds is not None]
     quick = " (--quick: smaller grids)" if report.quick else ""
     parts = [f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>nfal reproduce: the paper's results</title>
@@ -89,7 +85,7 @@ th {{ background: #f3f3f3; }} .ok {{ background: #e3f6e3; }} .differs {{ backgro
 </style></head><body>
 <h1>The paper's results, reproduced by nfal</h1>
 <p>Ilssar, Bucher, Flashner: modelling and closed-loop control of near-field acoustically levitated objects.
-{sum(bool(c.holds) for c in judged)} of {len(judged)} judged numbers and claims hold{quick}; {report.seconds:.0f} s.
+{report.summary}{quick}.
 Every number is also in <code>report.json</code>; the paper's are in
 <code>nfal/models/data/paper_numbers.json</code>.</p>
 """]
@@ -102,12 +98,10 @@ Every number is also in <code>report.json</code>; the paper's are in
                      "<th>tolerance</th><th>result</th><th>note</th></tr>\n")
         for c in section.comparisons:
             row = c.to_dict()
-            relation = "" if row["relation"] == "=" else row["relation"] + " "
             why = f" Why: {row['known_difference']}" if c.verdict == "known difference" else ""
             quote = f'<br><i>"{html.escape(row["quote"])}"</i>' if row["quote"] else ""
-            cells = [html.escape(row["where"]), html.escape(row["what"]) + quote, relation + _shown(row["paper"]),
-                     _shown(row["ours"]), _shown(row["difference"]), html.escape(_unit(row["unit"])),
-                     html.escape(row["tolerance"])]
+            cells = [html.escape(row["where"]), html.escape(row["what"]) + quote, html.escape(c.paper_shown),
+                     shown(c.ours), shown(c.difference), html.escape(c.unit), html.escape(row["tolerance"])]
             parts.append("<tr>" + "".join(f"<td>{cell}</td>" for cell in cells)
                          + f'<td class="{VERDICT_CLASS[c.verdict]}">{c.verdict}</td>'
                          + f'<td class="note">{html.escape(row["note"] + why)}</td></tr>\n')

@@ -58,22 +58,12 @@ def run_reproduce(args: argparse.Namespace) -> int:
 
 
 def _print_summary(report) -> None:
+    from nfal.apps.figures.reproduce import shown  # on use: matplotlib
+
     for section in report.sections:
         print(section.title)
-        for c in section.comparisons:
-            if c.holds is None:
-                continue
-            unit = "" if c.paper.unit in ("", "1") else f" {c.paper.unit}"
-            paper = _shown(c.paper.relation, c.paper.value)
-            print(f"  {c.key} ({c.paper.where}): {c.paper.what}: paper {paper}{unit}, ours {_shown('', c.ours)}{unit}: "
-                  f"{c.verdict}")
-    judged = [c for c in report.comparisons if c.holds is not None]
-    print(f"{sum(bool(c.holds) for c in judged)} of {len(judged)} judged numbers and claims hold; "
-          f"{len(report.unexpected)} unexpected; {report.seconds:.0f} s. Report: {report.out_dir / 'report.html'}")
-
-
-def _shown(relation: str, value) -> str:
-    prefix = "" if relation in ("", "=") else relation
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    return f"{prefix}{value:.4g}"
+        for c in (c for c in section.comparisons if c.holds is not None):
+            unit = f" {c.unit}" if c.unit else ""
+            print(f"  {c.key} ({c.paper.where}): {c.paper.what}: paper {c.paper_shown}{unit}, "
+                  f"ours {shown(c.ours)}{unit}: {c.verdict}")
+    print(f"{report.summary}. Report: {report.out_dir / 'report.html'}")
