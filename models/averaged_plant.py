@@ -47,7 +47,6 @@ class AveragedFilmPlant(SimplifiedPlant):
     def __init__(self, rig: RigParameters, table: FilmForceTable, rest_gap: float = DEFAULT_REST_GAP) -> None:
         super().__init__(rig, _DeltaZeroView(table), rest_gap)
         self.table = table
-        self._sigma_scale = float(rig.squeeze_number(1.0))  # sigma h^2
         # |zeta / delta| at the table's squeeze numbers, for oscillation()
         self._log_sigmas = np.log(table.sigmas)
         self._response = np.abs([table.response(sigma) for sigma in table.sigmas])

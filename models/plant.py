@@ -155,6 +155,9 @@ class SimplifiedPlant:
             raise InvalidParameterError("excess_damping", excess_damping,
                                         "an ExcessDamping, a DampingCorrection or None")
         self.excess_damping = excess_damping
+        # sigma h^2 and the damping coefficient h^3 (eqs. 2, 6) for the per-sample path of local_film
+        self._sigma_scale = float(rig.squeeze_number(1.0))
+        self._damping_scale = float(rig.squeeze_film_damping(1.0))
 
     # --- forces -------------------------------------------------------------------------------
     def levitation_force(self, height, excitation):
@@ -181,13 +184,12 @@ class SimplifiedPlant:
 
     def local_film(self, height: float) -> LocalFilm:
         """Eq. (13) at the clearance ``height`` [m], in plain floats (a control law's per-sample path)."""
-        rig = self.rig
-        sigma = 12.0 * rig.viscosity * rig.omega * rig.radius**2 / (rig.ambient_pressure * height**2)  # eq. (2)
-        damping = 3.0 * math.pi * rig.viscosity * rig.radius**4 / (2.0 * height**3)  # eq. (6)
+        sigma = self._sigma_scale / height**2  # eq. (2)
+        damping = self._damping_scale / height**3  # eq. (6)
         if self.excess_damping is not None:
             damping *= self.excess_damping.factor_scalar(height)
-        return LocalFilm(rig.mass, self.weight, rig.film_force_scale * self.calibration.scalar(sigma) / height**2,
-                         damping)
+        return LocalFilm(self.rig.mass, self.weight,
+                         self.rig.film_force_scale * self.calibration.scalar(sigma) / height**2, damping)
 
     def excitation_for(self, height: float, velocity: float, acceleration: float) -> float | None:
         """|a| [m] that gives the object ``acceleration`` [m/s^2] at ``height`` [m] and ``velocity`` [m/s]: eq. (13)
