@@ -1,6 +1,6 @@
 """Identification of a rig from its measured responses (Sec. 3.2.2, 3.3): settling, step fits, damping table.
 
-Pure numerics for ``nfal identify`` (the driving over the link lives in :mod:`nfal.apps.identify`):
+Pure numerics for ``nfal identify`` (the driving over the link lives in :mod:`nfal.apps.rig_experiments`):
 
 * :func:`settled`: has a measured height stopped moving? A moving-window test on the data: the means of
   the two halves of the last ``window_s`` differ by less than ``drift`` of the height.

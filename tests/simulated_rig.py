@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable
 
 from nfal.errors import ExperimentError
-from nfal.apps.identify import RigSample
+from nfal.apps.rig_io import RigSample
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S
 from nfal.models.measurement_noise import ColouredNoise
@@ -18,7 +18,7 @@ PERIOD_S = 5e-4
 
 
 class SimulatedRig:
-    """:class:`nfal.apps.identify.RigIO` played by ``truth`` (a SimplifiedPlant); the object starts at rest."""
+    """:class:`nfal.apps.rig_io.RigIO` played by ``truth`` (a SimplifiedPlant); the object starts at rest."""
 
     def __init__(self, truth: SimplifiedPlant, *, metres_per_volt: float = 1e-7, max_voltage: float = 150.0,
                  noise_peak_m: float = 2e-6, seed: int = 0, silent_after_s: float = math.inf,

@@ -1,6 +1,8 @@
 """Every command's --help as a user reads it."""
 
 import argparse
+import subprocess
+import sys
 
 import pytest
 
@@ -21,3 +23,25 @@ def _commands(parser: argparse.ArgumentParser, path=()):
 def test_help_shows_no_escaped_percent(parser):
     # argparse %-formats help= strings but prints a description as written: '%%' there reaches the user
     assert "%%" not in parser.format_help()
+
+
+PROBE = """
+import contextlib, io, sys
+from nfal.cli import main
+with contextlib.redirect_stdout(io.StringIO()) as out, contextlib.suppress(SystemExit):
+    main(sys.argv[1:])
+print(sorted(m for m in sys.modules if m.startswith("nfal.cli.commands.")))
+print("rig-emulator" in out.getvalue() and "reproduce" in out.getvalue())
+"""
+
+
+@pytest.mark.parametrize("argv, imported", [
+    (["--help"], []),  # lists every command, imports none
+    (["run", "--help"], ["nfal.cli.commands.common", "nfal.cli.commands.cosim"]),
+    (["-v", "identify", "--help"], ["nfal.cli.commands.common", "nfal.cli.commands.identify"]),
+])
+def test_a_command_module_is_imported_when_dispatched(argv, imported):
+    done = subprocess.run([sys.executable, "-c", PROBE, *argv], capture_output=True, text=True, check=True)
+    modules, listed = done.stdout.splitlines()[-2:]
+    assert modules == repr(imported)
+    assert listed == str(argv == ["--help"])

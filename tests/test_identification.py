@@ -12,7 +12,9 @@ from simulated_rig import SimulatedRig
 from nfal.cli import main
 from nfal.cli.commands.identify import _run
 from nfal.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
-from nfal.apps.identify import APPLIED, TIME, Experiments, SampleRecorder, analyse
+from nfal.apps.rig_analysis import analyse
+from nfal.apps.rig_experiments import Experiments
+from nfal.apps.sample_recorder import APPLIED, TIME, SampleRecorder
 from nfal.models.calibration import PAPER_SIGMA_RANGE, PolynomialK, paper_calibration, rig_calibration_from_dict
 from nfal.models.damping import DampingCorrection
 from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,

@@ -11,7 +11,8 @@ import weakref
 import numpy as np
 import pytest
 
-from nfal.apps.identify import RigSample, SampleRecorder
+from nfal.apps.rig_io import RigSample
+from nfal.apps.sample_recorder import SampleRecorder
 from nfal.realtime import (BINS_PER_DECADE, YOUNG_THRESHOLD, BackgroundWriter, GapStats, LatencyStats,
                            realtime_section)
 

@@ -1,20 +1,22 @@
-"""The ``nfal`` command line: parse, call, print. Each command group lives in ``nfal.cli.commands``."""
+"""The ``nfal`` command line: parse, call, print. Each command group lives in ``nfal.cli.commands``, imported only when
+one of its commands is dispatched (``nfal --help`` imports none)."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 import traceback
 
 from nfal import __version__
-from nfal.cli.commands import control, cosim, hil, identify, physics, reproduce, sweep
+from nfal.cli.commands import COMMANDS
 from nfal.errors import NfalError
 
-COMMAND_GROUPS = (cosim, hil, identify, physics, control, sweep, reproduce)
 
-
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(dispatched: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser. The commands in ``dispatched`` (default: all) come with their options, their modules imported; the
+    others with their line of ``nfal --help`` only."""
     parser = argparse.ArgumentParser(
         prog="nfal",
         description="Near-field acoustic levitation: squeeze-film physics (Reynolds and the simplified "
@@ -26,14 +28,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details to stderr")
     parser.add_argument("--debug", action="store_true", help="show the Python traceback of an error (for a bug report)")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for group in COMMAND_GROUPS:
-        group.register(commands)
+    wanted = {COMMANDS[name].module for name in (COMMANDS if dispatched is None else dispatched) if name in COMMANDS}
+    for module in dict.fromkeys(command.module for command in COMMANDS.values()):
+        if module in wanted:
+            importlib.import_module(f"nfal.cli.commands.{module}").register(commands)
+        else:
+            for name, command in COMMANDS.items():
+                if command.module == module:
+                    commands.add_parser(name, help=command.summary)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((arg for arg in argv if not arg.startswith("-")), None)  # the top level's options take no value
+    args = build_parser([command] if command else []).parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     fmu_logger = logging.getLogger("nfal.fmus.base")

@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.gridspec import GridSpec  # noqa: E402
 
-from nfal.apps.identify import Identification  # noqa: E402
+from nfal.apps.rig_analysis import Identification  # noqa: E402
 from nfal.models.calibration import paper_calibration  # noqa: E402
 from nfal.models.identification import simulate_step  # noqa: E402
 from nfal.models.plant import SimplifiedPlant  # noqa: E402

@@ -13,6 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from nfal.errors import PlanError
+from nfal.models.rig import RigParameters
 from nfal.models.step_metrics import noise_limits_settling
 
 
@@ -170,8 +171,6 @@ RIG_OPTIONS = (
 
 def add_rig_options(parser: argparse.ArgumentParser) -> None:
     """--mass, --radius, ... overriding the paper's rig (defaults shown by --help)."""
-    # on use: `nfal --help` stays fast
-    from nfal.models.rig import RigParameters
 
     defaults = RigParameters()
     group = parser.add_argument_group("rig (SI; defaults: the paper's rig)")
@@ -181,9 +180,6 @@ def add_rig_options(parser: argparse.ArgumentParser) -> None:
 
 
 def rig_from_args(args: argparse.Namespace):
-    # on use: `nfal --help` stays fast
-    from nfal.models.rig import RigParameters
-
     changes = {name: getattr(args, f"rig_{name}") for name, _, _ in RIG_OPTIONS
                if getattr(args, f"rig_{name}") is not None}
     return RigParameters(**changes)

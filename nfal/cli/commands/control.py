@@ -10,10 +10,22 @@ from pathlib import Path
 
 import numpy as np
 
+from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
+from nfal.apps.fig7 import HARDWARE, HARDWARE_LEAD_S, REFERENCE, loop_run
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import (add_output_options, add_rig_options, fill_defaults, finite_float, number_list,
-                                  print_json, print_step_table, progress_bar, refuse_given, rig_from_args)
+                                      print_json, print_step_table, progress_bar, refuse_given, rig_from_args)
+from nfal.cli.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError, optional_positive
-from nfal.models.table2 import (  # light: constants only
+from nfal.fmus.rig_contract import rig_parameter_values
+from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
+from nfal.models.closed_loop import Staircase
+from nfal.models.comparison import controller_design, controller_name, simulate_comparison
+from nfal.models.pid_design import DesignSpec, design_schedule
+from nfal.models.plausibility import require_clearances
+from nfal.models.stability import realizable_schedule, stability_map
+from nfal.models.step_metrics import step_metrics, total_iae
+from nfal.models.table2 import (
     CLOSED_LOOP_CUTOFF_HZ,
     FILTER_CUTOFF_HZ,
     MAX_EXCITATION_M,
@@ -24,6 +36,8 @@ from nfal.models.table2 import (  # light: constants only
     STAIRCASE_LEVELS_M,
     WORK_RANGE_M,
 )
+from nfal.orchestration import run_structure
+from nfal.orchestration.run import MAX_STEPS
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
 PLACEMENTS = ("continuous", "sampled")
@@ -34,7 +48,7 @@ NOISE_DEFAULTS = {"seed": 0, "noise_peak": NOISE_PEAK_M, "noise_cutoff": NOISE_C
 
 def register(commands) -> None:
     design = commands.add_parser(
-        "design", help="gain-scheduled PID over the work range and its stability map (Sec. 4.1, Fig. 8)",
+        "design", help=COMMANDS["design"].summary,
         description="Design the PID of eqs. (21)-(22) at every height (two double pole pairs, -3 dB bandwidth of the "
         "closed loop = the closed-loop cut-off, derivative filter at the filter cut-off), for the loop sampled at "
         "--sample-rate (default) or the continuous one of eqs. (23)-(24) (--placement continuous, the paper), and "
@@ -53,7 +67,7 @@ def register(commands) -> None:
     design.set_defaults(handler=run_design)
 
     compare = commands.add_parser(
-        "compare", help="gain-scheduled vs. linear controllers on a staircase reference (Figs. 9-10)",
+        "compare", help=COMMANDS["compare"].summary,
         description="Simulate the sampled closed loop (simplified plant eq. (13), coloured sensor noise, the "
         "discrete PID with saturation and anti-windup) for each controller on the same reference and noise, "
         "and report per step: rise time (10-90 %), overshoot, 2 % settling time, steady-state noise RMS, IAE. "
@@ -115,9 +129,6 @@ def _add_design_options(parser: argparse.ArgumentParser) -> None:
 
 def _model(args: argparse.Namespace):
     """(rig, RigCalibration, DesignSpec) of the design options."""
-    # on use: `nfal --help` stays fast
-    from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
-    from nfal.models.pid_design import DesignSpec
 
     rig = rig_from_args(args)
     model = load_rig_calibration(args.calibration, rig) if args.calibration else RigCalibration(paper_calibration())
@@ -127,11 +138,6 @@ def _model(args: argparse.Namespace):
 
 
 def run_design(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.models.pid_design import design_schedule
-    from nfal.models.plausibility import require_clearances
-    from nfal.models.stability import realizable_schedule, stability_map
-
     rig, model, spec = _model(args)
     heights = np.unique(require_clearances("--heights", args.heights))
     schedule = design_schedule(heights, rig, model.calibration, spec, damping=model.damping)
@@ -155,7 +161,7 @@ def run_design(args: argparse.Namespace) -> int:
         "realizable_from_m": realizable_from,
     }
     if args.plot:
-        # on use: `nfal --help` stays fast
+        # matplotlib only when plotting
         from nfal.apps.figures.control import plot_stability_map
 
         plot_stability_map(args.plot, grid)
@@ -191,11 +197,6 @@ def _parse_controllers(text: str) -> list[str]:
 
 
 def run_compare(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.fig7 import HARDWARE_LEAD_S
-    from nfal.models.closed_loop import Staircase
-    from nfal.orchestration.run import MAX_STEPS
-
     keys = _parse_controllers(args.controllers)
     _refuse_unused(args)
     started = time.perf_counter()
@@ -218,7 +219,7 @@ def run_compare(args: argparse.Namespace) -> int:
               **source, "sample_rate_hz": args.sample_rate, "max_excitation_m": args.max_excitation,
               "runtime_s": time.perf_counter() - started}
     if args.plot:
-        # on use: `nfal --help` stays fast
+        # matplotlib only when plotting
         from nfal.apps.figures.control import plot_comparison
 
         plot_comparison(args.plot, runs)
@@ -244,15 +245,11 @@ def _refuse_unused(args: argparse.Namespace) -> None:
 
 
 def _run_metrics(run, reference) -> dict:
-    # on use: `nfal --help` stays fast
-    from nfal.models.step_metrics import step_metrics, total_iae
-
     return {"name": run.controller, "iae": total_iae(run), "steps": [m.to_dict() for m in step_metrics(run, reference)]}
 
 
 def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     """Each controller against the simplified plant (with the calibration's damping), same noise: key -> run."""
-    from nfal.models.comparison import simulate_comparison  # on use: `nfal --help` stays fast
 
     rig, model, spec = _model(args)
     with progress_bar(len(keys), "closed-loop runs") as bar:
@@ -264,12 +261,6 @@ def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dic
 
 def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     """Each controller on the rig at ``args.port`` (fig7_hil, real time, from rest): key -> run."""
-    # on use: `nfal --help` stays fast
-    from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
-    from nfal.cli.commands.cosim import parse_parameter
-    from nfal.apps.fig7 import HARDWARE, REFERENCE, loop_run
-    from nfal.models.comparison import controller_design, controller_name
-    from nfal.orchestration import run_structure
 
     archive = build_all(args.build_dir or DEFAULT_BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
     folder = Path(args.runs_dir or Path("runs") / f"compare-{datetime.datetime.now():%Y%m%d-%H%M%S}")
@@ -294,7 +285,6 @@ def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
 
 def _rig_parameters(args: argparse.Namespace) -> dict:
     """The rig options (``--mass`` ...) as the Controller's parameters (its design model)."""
-    from nfal.fmus.base import rig_parameter_values  # on use: `nfal --help` stays fast (pythonfmu)
 
     return {f"Controller.{name}": value for name, value in rig_parameter_values(rig_from_args(args)).items()}
 

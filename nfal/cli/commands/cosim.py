@@ -8,9 +8,19 @@ import datetime
 import sys
 from pathlib import Path
 
+from nfal.apps.build import STRUCTURES, build_all
+from nfal.apps.fig7 import (HARDWARE, HARDWARE_LEAD_S, generated_reference, link_summary, loop_checks, loop_columns,
+                            loop_metrics, matched_design, reference_staircase, response_panels, step_reference)
+from nfal.apps.fig7_names import REFERENCE
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import finite_float, positive_float, print_json, print_step_table
 from nfal.errors import InvalidParameterError
-from nfal.apps.fig7_names import REFERENCE
+from nfal.fmus.windows_python import windows_python
+from nfal.hil.link import DRIVE_GAP_BUDGET_S
+from nfal.orchestration import SimulationError, read_ssp, run_structure
+from nfal.orchestration.resolve import resolve
+from nfal.orchestration.signals import csv_signal, signal_from_spec
+from nfal.orchestration.ssp import parse_boolean
 
 
 def register(commands) -> None:
@@ -20,7 +30,7 @@ def register(commands) -> None:
 
 def _register_build(commands) -> None:
     build = commands.add_parser(
-        "build", help="build the FMUs and pack the SSP archives of the Fig. 7 loop",
+        "build", help=COMMANDS["build"].summary,
         description="Build every FMU (SlowPlant, ReynoldsPlant, Controller, ResonanceTracker, SensorChain, "
         "HardwareProxy) with pythonfmu, self-contained, and pack fig7_slow.ssp, fig7_reynolds.ssp, fig7_hil.ssp and "
         "the rig emulator's rig_slow.ssp and rig_reynolds.ssp (SSP 1.0). FMUs newer than their sources are kept.")
@@ -46,7 +56,7 @@ def _register_build(commands) -> None:
 
 def _register_run(commands) -> None:
     run = commands.add_parser(
-        "run", help="run a system structure: by default the closed loop of Fig. 7 (gain-scheduled PID, slow plant)",
+        "run", help=COMMANDS["run"].summary,
         description="Run an SSP system structure with the fixed-step master over fmpy. Without STRUCTURE, builds "
         "what is missing and runs fig7_slow (gain-scheduled PID, slow plant, resonance tracker, sensor chain) on the "
         "reference of Figs. 9-10, writing runs/<name>/results.csv, summary.json and response.png, and printing the "
@@ -117,10 +127,6 @@ def _register_run(commands) -> None:
 
 
 def run_build(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.build import build_all
-    from nfal.fmus.windows_python import windows_python
-
     if args.windows_python and args.platform != "win64":
         raise InvalidParameterError("--windows-python", args.windows_python, "given with --platform win64")
     python = windows_python(args.windows_python) if args.platform == "win64" else None
@@ -147,9 +153,6 @@ def parse_input(text: str) -> tuple[str, object]:
     """``Element.var=SIGNAL`` -> (name, signal of time): a staircase as ``--reference`` takes it
     (:func:`~nfal.apps.fig7.reference_staircase`), else as :func:`~nfal.orchestration.signals.signal_from_spec`
     reads it."""
-    # on use: `nfal --help` stays fast
-    from nfal.apps.fig7 import reference_staircase
-    from nfal.orchestration.signals import signal_from_spec
 
     name, sep, spec = text.partition("=")
     if not sep or "." not in name.strip(".") or not spec:
@@ -158,9 +161,6 @@ def parse_input(text: str) -> tuple[str, object]:
 
 
 def _structure_path(args: argparse.Namespace) -> Path:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.build import STRUCTURES, build_all
-
     if args.structure in STRUCTURES:
         return build_all(args.build_dir, structures=(args.structure,))[args.structure]
     path = Path(args.structure)
@@ -171,10 +171,6 @@ def _structure_path(args: argparse.Namespace) -> Path:
 
 
 def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
-    # on use: `nfal --help` stays fast
-    from nfal.apps.fig7 import HARDWARE_LEAD_S, reference_staircase
-    from nfal.orchestration.signals import csv_signal
-
     spec = args.reference or "staircase"
     staircase = reference_staircase(spec, structure.stem, HARDWARE_LEAD_S if hardware else None)
     return csv_signal(spec) if staircase is None else staircase
@@ -183,10 +179,6 @@ def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
 def _read_structure(structure: Path, parameters: dict):
     """(element names, the DefaultExperiment's start time (0 if none) and stop time (or None), the GeneratedReference
     or None)."""
-    # on use: `nfal --help` stays fast
-    from nfal.apps.fig7 import generated_reference
-    from nfal.orchestration import read_ssp
-    from nfal.orchestration.resolve import resolve
 
     with read_ssp(structure) as read:
         names = [element.name for element in read.system.elements]
@@ -212,12 +204,6 @@ def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> t
 
 
 def run_cosimulation(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.orchestration import SimulationError, run_structure
-    from nfal.orchestration.ssp import parse_boolean
-    from nfal.apps.fig7 import (HARDWARE, loop_checks, loop_columns, loop_metrics, matched_design, response_panels,
-                           step_reference)
-
     if args.max_steps is not None and args.max_steps < 1:
         raise InvalidParameterError("--max-steps", args.max_steps, "a whole number of steps >= 1")
     parameters = matched_design(dict(parse_parameter(text) for text in args.param))
@@ -279,9 +265,6 @@ def _finish(result, columns, experiment: dict, out: Path, as_json: bool) -> None
 
 
 def _add_link_summary(result, columns) -> None:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.fig7 import HARDWARE, link_summary
-
     if columns is HARDWARE and result.csv_path.is_file() and result.summary.get("steps_completed"):
         result.update_summary(link=link_summary(result.table()))
 
@@ -334,7 +317,6 @@ def _print_summary(summary: dict, out: Path) -> None:
         if "drive_gap_max_s" in link:
             print(f"gaps between DRIVE commands: p50 {link['drive_gap_p50_s'] * 1e3:.2f} ms, p99 "
                   f"{link['drive_gap_p99_s'] * 1e3:.2f} ms, max {link['drive_gap_max_s'] * 1e3:.2f} ms")
-            from nfal.hil.link import DRIVE_GAP_BUDGET_S  # on use, as the other HIL names
 
             if link["drive_gap_max_s"] > DRIVE_GAP_BUDGET_S:
                 print(f"warning: the longest gap between DRIVE commands is beyond the {DRIVE_GAP_BUDGET_S * 1e3:g} ms "

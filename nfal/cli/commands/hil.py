@@ -8,14 +8,23 @@ import dataclasses
 import signal
 from pathlib import Path
 
+from nfal.apps.build import build_all
+from nfal.apps.rig_emulator import Disconnection, Emulator
+from nfal.apps.rig_model import open_rig
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import finite_float, output_file, positive_float, print_json
+from nfal.cli.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError
-from nfal.hil.firmware import RigTiming  # light: the firmware's defaults are the flags' defaults
+from nfal.hil.faults import FaultSettings
+from nfal.hil.firmware import RigTiming
+from nfal.hil.ports import PtyPort, UrlPort
+from nfal.orchestration.interrupts import STOP_SIGNALS
+from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
 
 
 def register(commands) -> None:
     emulator = commands.add_parser(
-        "rig-emulator", help="play the levitation rig in real time on a pty (or a port) for hardware-in-the-loop runs",
+        "rig-emulator", help=COMMANDS["rig-emulator"].summary,
         description="Play the rig on a serial port in real time, speaking the nfal rig protocol (docs/protocol.md): "
         "its firmware (session, 2 kHz measurement stream, heartbeat, drive limit, watchdog that ramps the drive down "
         "when commands stop) and its hardware, the rig structure's blocks (the simulation's own FMU code, run "
@@ -85,9 +94,6 @@ def register(commands) -> None:
 
 
 def _truth_path(truth: str, build_dir: str) -> Path:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.build import build_all
-
     if truth in ("slow", "reynolds"):
         name = f"rig_{truth}"
         return build_all(build_dir, structures=(name,))[name]
@@ -102,15 +108,6 @@ def _say(text: str) -> None:
 
 
 def run_emulator(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.cli.commands.cosim import parse_parameter
-    from nfal.hil.faults import FaultSettings
-    from nfal.hil.ports import PtyPort, UrlPort
-    from nfal.orchestration.interrupts import STOP_SIGNALS
-    from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
-    from nfal.apps.rig_emulator import Disconnection, Emulator
-    from nfal.apps.rig_model import open_rig
-
     if not 10.0 <= args.sample_rate <= 20_000.0:
         raise InvalidParameterError("--sample-rate", args.sample_rate, "from 10 to 20000 Hz")
     timing = RigTiming(sample_period_s=1.0 / args.sample_rate, watchdog_timeout_s=args.watchdog,

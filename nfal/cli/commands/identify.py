@@ -12,13 +12,25 @@ from pathlib import Path
 import numpy as np
 
 from nfal import __version__
+from nfal.apps.figures.identify import plot_identification
+from nfal.apps.rig_analysis import analyse
+from nfal.apps.rig_experiments import Experiments, move_law, recorder_capacity
+from nfal.apps.rig_io import LinkRig
+from nfal.apps.sample_recorder import FREQUENCY, SampleRecorder
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import (add_accept_long_plan, add_rig_options, duration_text, number_list, print_json,
-                                  progress_bar, rig_from_args)
+                                      progress_bar, rig_from_args)
 from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, PlanError,
                          require_duration, require_finite, require_positive)
-from nfal.hil.link import DRIVE_GAP_BUDGET_S, LONGEST_WAIT_S  # light: the link's module imports pyserial only
-from nfal.models.table2 import WORK_RANGE_M  # light: constants only
-from nfal.models.transducer import METRES_PER_VOLT  # light: the transducer's constants
+from nfal.hil.link import DRIVE_GAP_BUDGET_S, LONGEST_WAIT_S
+from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S, LONGEST_HOLD_S, IdentificationPlan
+from nfal.models.pid_design import design_schedule
+from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
+from nfal.models.stability import realizable_schedule
+from nfal.models.table2 import WORK_RANGE_M
+from nfal.models.transducer import METRES_PER_VOLT
+from nfal.orchestration.interrupts import deferred_interrupts
+from nfal.realtime import BackgroundWriter, realtime_section
 
 #: The longest --max-silence [s]: the rig's watchdog ramps the drive down after 0.1 s without DRIVE anyway.
 LONGEST_SILENCE_S = 10.0
@@ -43,7 +55,7 @@ the drive down and keep every sample on disk."""
 
 def register(commands) -> None:
     identify = commands.add_parser("identify",
-                                   help="identify the rig over its port: K(sigma) and the damping (Sec. 3.2.2, 3.3)",
+                                   help=COMMANDS["identify"].summary,
                                    description=DESCRIPTION,
                                    epilog="Examples: nfal identify --port /tmp/nfal-rig-k2x9 --dry-run; nfal identify "
                                    "--port /tmp/nfal-rig-k2x9 --out rig.json (writes rig.json, rig-raw.csv, rig.png).")
@@ -92,8 +104,6 @@ PLAN_FLAGS = {"equilibrium_heights_m": "--equilibria", "damping_heights_m": "--d
 
 
 def _plan(args: argparse.Namespace):
-    from nfal.models.identification import IdentificationPlan  # scipy: lazy as above
-
     try:
         return IdentificationPlan(tuple(np.sort(args.equilibria)), tuple(np.sort(args.damping_heights)[::-1]),
                                   step_fraction=args.step_size, steps=args.steps, max_hold_s=args.max_hold)
@@ -128,15 +138,6 @@ def _print_plan(plan, as_json: bool) -> None:
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.identify import Experiments, LinkRig, SampleRecorder, move_law, recorder_capacity
-    from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S, LONGEST_HOLD_S
-    from nfal.models.pid_design import design_schedule
-    from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
-    from nfal.models.stability import realizable_schedule
-    from nfal.orchestration.interrupts import deferred_interrupts
-    from nfal.realtime import BackgroundWriter, realtime_section
-
     require_duration("--max-hold", args.max_hold, LONGEST_HOLD_S)  # named by its flag, before the plan checks it
     plan = _plan(args)
     for name in ("metres_per_volt", "max_voltage"):
@@ -193,8 +194,6 @@ def run_identify(args: argparse.Namespace) -> int:
     result = _analyse(equilibria, steps, rig, args, lag, raw)
     provenance = _provenance(args, hello, recorder, raw, lag, timing)
     out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
-    # on use: `nfal --help` stays fast
-    from nfal.apps.figures.identify import plot_identification
 
     plot_identification(out.with_suffix(".png"), result, rig, lag)
     _report(result, recorder, out, raw, timing, args.json)
@@ -231,9 +230,6 @@ def _margin(timing: dict) -> str:
 
 
 def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
-    # on use: `nfal --help` stays fast
-    from nfal.apps.identify import analyse
-
     try:
         return analyse(equilibria, steps, rig, metres_per_volt=args.metres_per_volt, lag_s=lag)
     except (ConvergenceError, DataFormatError, InvalidParameterError) as exc:
@@ -241,8 +237,6 @@ def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
 
 
 def _provenance(args, hello, recorder, raw: Path, lag: float, timing: dict) -> dict:
-    from nfal.apps.identify import FREQUENCY  # on use, as above
-
     frequencies = recorder.column(FREQUENCY)
     return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
             "firmware_version": f"nfal rig protocol {hello.protocol_version} "

@@ -6,16 +6,23 @@ import argparse
 
 import numpy as np
 
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import (add_output_options, add_rig_options, finite_float, number_list, output_file,
-                                  print_json, progress_bar, rig_from_args)
+                                      print_json, progress_bar, rig_from_args)
 from nfal.errors import InvalidParameterError
+from nfal.models.calibration import TabulatedK, paper_calibration, perturbation_calibration
+from nfal.models.excitation import paper_shape, parse_shape
+from nfal.models.measured_calibration import EquilibriumData, VoltageAmplitudeMap, fit_calibration
+from nfal.models.perturbation import DEFAULT_NODES, perturbation_K
+from nfal.models.reynolds import time_marching_K
+from nfal.models.table1 import TABLE1, run_case
 
 SHAPE_HELP = ("excitation form: piston, plate:N (free circular plate, N nodal circles), paper (Fig. 3 stand-in) or a "
               "CSV of R,eps_hat")
 
 
 def register(commands) -> None:
-    calibrate = commands.add_parser("calibrate", help="find the calibration function K(sigma) (Sec. 3.2)",
+    calibrate = commands.add_parser("calibrate", help=COMMANDS["calibrate"].summary,
                                     description="Find K(sigma) of eq. (12), numerically from an excitation form "
                                     "or from measured equilibria (Sec. 3.2).")
     kinds = calibrate.add_subparsers(dest="kind", metavar="KIND", required=True)
@@ -58,7 +65,7 @@ def register(commands) -> None:
     add_output_options(experimental)
     experimental.set_defaults(handler=calibrate_experimental)
 
-    validate = commands.add_parser("validate", help="reproduce the paper's validation results",
+    validate = commands.add_parser("validate", help=COMMANDS["validate"].summary,
                                    description="Reproduce the paper's validation results.")
     checks = validate.add_subparsers(dest="check", metavar="CHECK", required=True)
     table1 = checks.add_parser(
@@ -75,28 +82,18 @@ def register(commands) -> None:
 
 
 def calibrate_numerical(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.models.calibration import TabulatedK, paper_calibration
-    from nfal.models.excitation import parse_shape
-
     shape = parse_shape(args.shape)
     sigma = np.sort(args.sigma)
     if args.method == "perturbation":
-        # on use: `nfal --help` stays fast
-        from nfal.models.perturbation import DEFAULT_NODES, perturbation_K
-
         K = perturbation_K(shape, sigma, DEFAULT_NODES if args.nodes is None else args.nodes)
     else:
-        # on use: `nfal --help` stays fast
-        from nfal.models.reynolds import time_marching_K
-
         with progress_bar(sigma.size, "time-marching K(sigma)") as bar:
             K = time_marching_K(shape, sigma, delta=args.delta, nodes=101 if args.nodes is None else args.nodes,
                                 steps_per_period=args.steps_per_period, progress=lambda done, total: bar.update(1))
     if args.out:
         TabulatedK(sigma, K, name=f"{args.method}, {shape.name}").save(args.out)
     if args.plot:
-        # on use: `nfal --help` stays fast
+        # matplotlib only when plotting
         from nfal.apps.figures.physics import plot_calibration
 
         plot_calibration(args.plot, sigma, K, label=f"{args.method}, {shape.name}", reference=paper_calibration())
@@ -111,10 +108,6 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
 
 
 def calibrate_experimental(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.models.calibration import paper_calibration
-    from nfal.models.measured_calibration import EquilibriumData, VoltageAmplitudeMap, fit_calibration
-
     rig = rig_from_args(args)
     voltage_map = None
     if args.metres_per_volt is not None:
@@ -125,7 +118,7 @@ def calibrate_experimental(args: argparse.Namespace) -> int:
     if args.out:
         result.fit.save(args.out)
     if args.plot:
-        # on use: `nfal --help` stays fast
+        # matplotlib only when plotting
         from nfal.apps.figures.physics import plot_experimental_fit
 
         plot_experimental_fit(args.plot, result, reference=paper_calibration())
@@ -143,11 +136,6 @@ def calibrate_experimental(args: argparse.Namespace) -> int:
 
 
 def validate_table1(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.models.calibration import perturbation_calibration
-    from nfal.models.excitation import paper_shape
-    from nfal.models.table1 import TABLE1, run_case
-
     wanted = [name.strip() for name in args.cases.split(",") if name.strip()]
     known = {case.name: case for case in TABLE1}
     unknown = [name for name in wanted if name not in known]
@@ -166,7 +154,7 @@ def validate_table1(args: argparse.Namespace) -> int:
             results.append(run_case(known[name], shape, calibration, nodes=args.nodes,
                                     steps_per_period=args.steps_per_period, progress=advance))
     if args.plot:
-        # on use: `nfal --help` stays fast
+        # matplotlib only when plotting
         from nfal.apps.figures.physics import plot_table1
 
         plot_table1(args.plot, results)

@@ -6,6 +6,9 @@ import argparse
 import datetime
 from pathlib import Path
 
+from nfal.apps.figures.reproduce import shown
+from nfal.apps.reproduce import SECTIONS, reproduce
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import print_json, progress_bar
 from nfal.errors import ResultsExistError
 
@@ -15,7 +18,7 @@ REPORT_FILES = ("report.html", "report.json")
 
 def register(commands) -> None:
     reproduce = commands.add_parser(
-        "reproduce", help="the paper's tables and figures, each number beside the paper's (an HTML report)",
+        "reproduce", help=COMMANDS["reproduce"].summary,
         description="Regenerate every table and figure of the paper that the models produce: Fig. 4 (K numerically "
         "and from measured equilibria, against eq. 17), Table 1 and Fig. 5, Fig. 6 (constant excitations on the "
         "emulated rig against eq. 13), Fig. 8, Figs. 9-10 (the paper's law simulated) and the analogue of Figs. "
@@ -37,8 +40,6 @@ def register(commands) -> None:
 
 
 def run_reproduce(args: argparse.Namespace) -> int:
-    from nfal.apps.reproduce import SECTIONS, reproduce  # on use: numerics, FMUs and matplotlib
-
     out = Path(args.out or Path("runs") / f"reproduce-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     existing = [name for name in REPORT_FILES if (out / name).exists()]
     if existing and not args.overwrite:
@@ -58,8 +59,6 @@ def run_reproduce(args: argparse.Namespace) -> int:
 
 
 def _print_summary(report) -> None:
-    from nfal.apps.figures.reproduce import shown  # on use: matplotlib
-
     for section in report.sections:
         print(section.title)
         for c in (c for c in section.comparisons if c.holds is not None):

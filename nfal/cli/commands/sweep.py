@@ -6,8 +6,12 @@ import argparse
 import logging
 from pathlib import Path
 
+from nfal.apps.build import DEFAULT_BUILD_DIR, STRUCTURES, build_all
+from nfal.apps.sweeps import load_spec
+from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import add_accept_long_plan, duration_text, print_json, refuse_given
 from nfal.errors import InvalidParameterError, PlanError
+from nfal.orchestration.sweep import run_sweep
 
 #: The longest sweep run without --accept-long-plan: this many runs, and SSP runs simulating this long in all [s]
 #: (fig7_slow takes about 2 s of a worker per simulated second: examples/sweeps/robustness.toml, 12 runs of 0.4 s).
@@ -17,7 +21,7 @@ LONG_SWEEP_SIMULATED_S = 3600.0
 
 def register(commands) -> None:
     sweep = commands.add_parser(
-        "sweep", help="run a sweep spec (grid or seeded random draws) on a local or remote Dask cluster",
+        "sweep", help=COMMANDS["sweep"].summary,
         description="Expand SPEC.toml into runs (an SSP run with parameter overrides, a K(sigma) calibration or a "
         "Table-1 case, over a [grid] and/or seeded [random] draws) and run them on Dask: a local cluster on this "
         "machine's cores, or the scheduler at --scheduler (no shared file system needed: archives are shipped once "
@@ -46,11 +50,6 @@ def register(commands) -> None:
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
-    # on use: `nfal --help` stays fast
-    from nfal.apps.build import DEFAULT_BUILD_DIR, STRUCTURES, build_all
-    from nfal.orchestration.sweep import run_sweep
-    from nfal.apps.sweeps import load_spec
-
     if args.workers is not None and args.workers < 0:
         raise InvalidParameterError("--workers", args.workers, "a whole number >= 0 (0: in this process)")
     if args.scheduler:

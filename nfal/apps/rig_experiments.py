@@ -1,8 +1,9 @@
 """``nfal identify``'s experiments, run on a rig: equilibria and drive steps (Sec. 3.2.2, 3.3), with safety.
 
-The experiments talk to the rig through a :class:`RigIO`: :class:`LinkRig` over the rig protocol
-(:class:`~nfal.hil.link.RigLink`, any pyserial URL), or any object with the same ``exchange`` (a simulated
-rig in the tests). :class:`Experiments` sequences an :class:`~nfal.models.identification.IdentificationPlan`:
+The experiments talk to the rig through a :class:`~nfal.apps.rig_io.RigIO`: :class:`~nfal.apps.rig_io.LinkRig`
+over the rig protocol (:class:`~nfal.hil.link.RigLink`, any pyserial URL), or any object with the same ``exchange``
+(a simulated rig in the tests). :class:`Experiments` sequences an
+:class:`~nfal.models.identification.IdentificationPlan`:
 
 * a **move** to a height closes the loop with the controller's own law (eqs. 21-22, the paper's design)
   from wherever the object is (at rest, the first move lifts it off), until the mean height over each half of
@@ -16,7 +17,7 @@ Safety: the drive is clamped to ``max_voltage`` (and the rig clamps to its own l
 every exchange, so the rig's watchdog trips only if the host or the link stalls; a **touchdown guard**
 stops on a landing after lift-off; every fault raises :class:`ExperimentError` with its reason, and
 :meth:`Experiments.ramp_down` lowers the drive (over ``RAMP_DOWN_S``, the object landing softly) before the
-link says STOP. Every sample goes to the :class:`SampleRecorder`'s CSV as it arrives.
+link says STOP. Every sample goes to the :class:`~nfal.apps.sample_recorder.SampleRecorder`'s CSV as it arrives.
 
 Real time (docs/hil.md, "Real time that holds"): the experiments run inside a
 :func:`~nfal.realtime.realtime_section` (the collector frozen after set-up and run only right after a DRIVE left);
@@ -27,22 +28,17 @@ fixed windows of them (searchsorted), so nothing inside the loop grows with the 
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-from typing import Callable, Protocol, TextIO
+from typing import Callable
 
 import numpy as np
 
+from nfal.apps.rig_io import RigIO, RigSample
+from nfal.apps.sample_recorder import APPLIED, COMMANDED, HEIGHT, MAX_RECORDER_BYTES, SAMPLE_BYTES, TIME, SampleRecorder
 from nfal.errors import ExperimentError, InvalidParameterError, PlanError
-from nfal.hil.link import RigLink, Sample
-from nfal.hil.protocol import StatusFlags
-from nfal.realtime import LatencyStats
-from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
+from nfal.models.calibration import paper_calibration
 from nfal.models.control_law import DiscreteControlLaw
-from nfal.models.damping import DampingCorrection
-from nfal.models.measured_calibration import FIT_DEGREE, EquilibriumData, ExperimentalCalibration, fit_calibration
-from nfal.models.identification import (AMPLITUDE_TIME_CONSTANT_S, IdentificationPlan, StepFit, damping_table, fit_step,
-                                        settled)
+from nfal.models.identification import IdentificationPlan, settled
 from nfal.models.pid_design import design_schedule
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -51,10 +47,6 @@ from nfal.models.table2 import SAMPLING_RATE_HZ
 
 #: Below this clearance after lift-off the object is taken to have touched down [m].
 TOUCHDOWN_M = 15e-6
-#: Longest silence of the rig before the link counts as lost [s] (a loaded host can pause the emulator ~0.1 s).
-MAX_SILENCE_S = 0.5
-#: Longest wait for the port between two checks of the link [s].
-SILENCE_CHECK_S = 0.01
 #: The drive's ramp to 0 V after the experiments or a fault [s].
 RAMP_DOWN_S = 0.3
 #: A move has arrived when the mean height over this time is within tolerance [s]; its drive is the mean command
@@ -70,152 +62,6 @@ RETARGET = 0.03
 PRE_STEP_S = 0.05
 #: Holds at one equilibrium at most: the first, and up to two at a corrected drive (:meth:`Experiments.equilibria`).
 HOLD_ATTEMPTS = 3
-#: Memory of one sample in the recorder's columns [bytes], and the most the columns may take: they are preallocated
-#: for the plan's longest run, and 8 GiB hold about 30 h of samples at 2 kHz.
-SAMPLE_BYTES = 5 * 8
-MAX_RECORDER_BYTES = 8 << 30
-#: The CSV's columns.
-CSV_HEADER = ("rig_time_s", "height_m", "drive_frequency_hz", "applied_voltage_v", "commanded_voltage_v", "resting",
-              "experiment")
-
-
-@dataclasses.dataclass(frozen=True)
-class RigSample:
-    """One measurement: rig time [s], height [m], drive frequency [Hz], applied voltage [V], resting, watchdog."""
-
-    time_s: float
-    height_m: float
-    drive_frequency_hz: float
-    applied_voltage_v: float
-    resting: bool
-    watchdog_tripped: bool = False
-
-
-class RigIO(Protocol):
-    """Send the drive for the next period, get the samples measured since the last call (at least one); call
-    ``safe_point`` right after the drive left; ``timing`` reports the loop's margin (:meth:`LinkRig.timing`)."""
-
-    safe_point: Callable[[], None]
-
-    def exchange(self, voltage: float) -> list[RigSample]: ...
-
-    def timing(self) -> dict: ...
-
-    def close(self) -> None: ...
-
-
-class LinkRig:
-    """:class:`RigIO` over a :class:`RigLink` (opened here; closed with STOP by :meth:`close`).
-
-    ``safe_point`` (default: nothing) is called right after each DRIVE left, where the loop has the most slack before
-    the next sample (a real-time section's collector); :attr:`lateness` holds the age of the newest sample when the
-    DRIVE answering it left, and the link's ``drive_gaps`` the gaps between DRIVE commands."""
-
-    def __init__(self, url: str, *, connect_timeout_s: float = 2.0, max_silence_s: float = MAX_SILENCE_S) -> None:
-        self._new: list[RigSample] = []
-        self._newest_arrival: float | None = None
-        self.lateness = LatencyStats()
-        self.safe_point: Callable[[], None] = lambda: None
-        self.link = RigLink(url, connect_timeout_s=connect_timeout_s, reconnect=False, reader_thread=False,
-                            on_sample=self._take)
-        self.hello = self.link.open()
-        self.max_silence_s = max_silence_s
-
-    def _take(self, sample: Sample) -> None:
-        m = sample.measurement
-        self._newest_arrival = sample.arrival_s
-        self._new.append(RigSample(m.timestamp_us * 1e-6, m.height, m.drive_frequency, m.drive_voltage,
-                                   bool(m.status & StatusFlags.RESTING), bool(m.status & StatusFlags.WATCHDOG_TRIPPED)))
-
-    def exchange(self, voltage: float) -> list[RigSample]:
-        link = self.link
-        if self._newest_arrival is not None:
-            self.lateness.add(link.clock() - self._newest_arrival)
-        link.send_drive(voltage)
-        self.safe_point()
-        deadline = link.clock() + self.max_silence_s
-        while True:
-            link.poll()
-            if self._new:
-                new, self._new = self._new, []
-                return new
-            now = link.clock()
-            if now > deadline or not link.connected:
-                reason = link.last_error or "the rig fell silent"
-                raise ExperimentError(f"link lost: no measurement from {link.url} for "
-                                      f"{self.max_silence_s * 1e3:.0f} ms ({reason})")
-            link.wait_readable(min(deadline - now, SILENCE_CHECK_S))
-
-    def timing(self) -> dict:
-        """The margin to the rig's watchdog: gaps between DRIVE commands leaving the host, and the age of the newest
-        sample when the DRIVE answering it left [s] (count, mean, p50, p99, max)."""
-        return {"drive_gaps": self.link.drive_gaps.report(), "sample_to_drive": self.lateness.report()}
-
-    def close(self) -> None:
-        self.link.close()
-
-
-#: The recorder's columns, in :attr:`SampleRecorder.columns`' rows.
-TIME, HEIGHT, FREQUENCY, APPLIED, COMMANDED = range(5)
-
-
-class SampleRecorder:
-    """Every sample in preallocated columns (rig time, height, drive frequency, applied and commanded voltage: no
-    Python object per sample, so the collector has nothing to walk) and streamed to ``stream`` as CSV (flushed
-    every 0.1 s of rig time). ``capacity``: samples held before the columns grow (a copy: give the run's bound,
-    :func:`recorder_capacity`). Make it before the first DRIVE: its pages are touched here (numpy asks the kernel for
-    huge pages for large arrays, and the first write to each cost 8 ms: 39 ms for the first samples, measured)."""
-
-    def __init__(self, stream: TextIO | None = None, capacity: int = 1 << 14) -> None:
-        self.count = 0
-        self.columns = _touched((5, max(int(capacity), 16)))
-        self._writer = None if stream is None else csv.writer(stream)
-        self._stream, self._flushed_at = stream, -np.inf
-        if self._writer is not None:
-            self._writer.writerow(CSV_HEADER)
-
-    def add(self, samples: list[RigSample], commanded: float, label: str) -> None:
-        n, count = self.count, len(samples)
-        if n + count > self.columns.shape[1]:
-            grown = _touched((5, 2 * (n + count)))
-            grown[:, :n] = self.columns[:, :n]
-            self.columns = grown
-        rows = self.columns[:, n:n + count]
-        rows[TIME] = [s.time_s for s in samples]
-        rows[HEIGHT] = [s.height_m for s in samples]
-        rows[FREQUENCY] = [s.drive_frequency_hz for s in samples]
-        rows[APPLIED] = [s.applied_voltage_v for s in samples]
-        rows[COMMANDED] = commanded
-        self.count = n + count
-        if self._writer is None:
-            return
-        self._writer.writerows((repr(s.time_s), repr(s.height_m), repr(s.drive_frequency_hz), repr(s.applied_voltage_v),
-                                repr(commanded), int(s.resting), label) for s in samples)
-        if samples and samples[-1].time_s - self._flushed_at > 0.1:
-            self._stream.flush()
-            self._flushed_at = samples[-1].time_s
-
-    def column(self, index: int, start: int = 0) -> np.ndarray:
-        """One column (TIME, HEIGHT, FREQUENCY, APPLIED or COMMANDED) from sample ``start`` on (a view: do not keep it
-        across :meth:`add`)."""
-        return self.columns[index, start:self.count]
-
-    def arrays(self, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """(times [s], heights [m]) of the samples from ``start`` on (views: do not keep them across ``add``)."""
-        return self.column(TIME, start), self.column(HEIGHT, start)
-
-    def last(self, index: int) -> float:
-        """The newest sample's value in a column."""
-        return float(self.columns[index, self.count - 1])
-
-    @property
-    def duration_s(self) -> float:
-        return self.last(TIME) - float(self.columns[TIME, 0]) if self.count else 0.0
-
-
-def _touched(shape: tuple[int, int]) -> np.ndarray:
-    """An array of NaN whose every page has been written (no page fault left for the loop)."""
-    return np.full(shape, np.nan)
 
 
 def recorder_capacity(plan: IdentificationPlan, sample_period_s: float = 1 / SAMPLING_RATE_HZ) -> int:
@@ -462,39 +308,3 @@ class Experiments:
         if not np.isfinite(excitation):
             raise InvalidParameterError("height", height, "one the design model can hold")
         return min(excitation, self.max_voltage * self.metres_per_volt)
-
-
-@dataclasses.dataclass(frozen=True)
-class Identification:
-    """What the experiments identified: K(sigma) (eqs. 16-17), the damping table, and the data behind them."""
-
-    calibration: ExperimentalCalibration
-    equilibria: list[Equilibrium]
-    damping: DampingCorrection
-    rig: RigParameters
-    step_fits: list[list[StepFit]]
-    steps: list[list[DriveStep]]
-    metres_per_volt: float
-
-    def document(self, provenance: dict) -> dict:
-        """The calibration file (:class:`RigCalibration`: K, ``damping``, the ``rig`` it was identified on and
-        ``provenance``), plus the ``equilibria`` behind K."""
-        calibration = RigCalibration(self.calibration.fit, self.damping, rig_record(self.rig), provenance)
-        return {**calibration.to_dict(),
-                "equilibria": {"voltage_v": [p.voltage for p in self.equilibria],
-                               "height_m": [p.height for p in self.equilibria],
-                               "height_spread_m": [p.spread for p in self.equilibria],
-                               "metres_per_volt": self.metres_per_volt}}
-
-
-def analyse(equilibria: list[Equilibrium], steps: list[list[DriveStep]], rig: RigParameters, *, metres_per_volt: float,
-            lag_s: float = AMPLITUDE_TIME_CONSTANT_S, degree: int = FIT_DEGREE) -> Identification:
-    """K at each equilibrium by eq. (16) with |a| = ``metres_per_volt`` V, its fit of the form of eq. (17), and
-    the damping factor over eq. (6) at each step height with its 95 % interval."""
-    data = EquilibriumData(np.array([p.height for p in equilibria]),
-                           metres_per_volt * np.array([p.voltage for p in equilibria]), np.zeros(len(equilibria)))
-    calibration = fit_calibration(rig, data, degree)
-    fits = [[fit_step(s.times, s.heights, metres_per_volt * s.voltage_before, metres_per_volt * s.voltage_after, rig,
-                      lag_s)
-             for s in at_height] for at_height in steps]
-    return Identification(calibration, equilibria, damping_table(fits), rig, fits, steps, metres_per_volt)
