@@ -25,9 +25,10 @@ thin adapter over :mod:`nfal.models`:
 * **FMU state.** ``_get_fmu_state``/``_set_fmu_state`` save every variable, the time and whatever
   :meth:`get_internal_state` returns (plant state, controller state, RNG state: JSON-ready values);
   states serialize to JSON bytes (``canGetAndSetFMUstate`` and ``canSerializeFMUstate`` are true).
-* **Shared helpers.** :meth:`add_rig_parameters`, :meth:`build_rig`, :meth:`build_calibration` and
-  :meth:`build_rig_calibration` (the contract's rig parameter list and ``calibration``), and
-  :class:`SampleClock` for sampled blocks.
+* **Sampled blocks.** :class:`SampleClock` (steps on a whole number of sample periods).
+
+What the rig's blocks share on top of this (the rig parameters, ``calibration``, the plant interface and the
+models built from them) is :class:`~nfal.fmus.rig_contract.RigSlave`'s.
 
 Writing a slave
 ---------------
@@ -74,23 +75,12 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
 from nfal import __version__
-from nfal.errors import (FmuStateError, InvalidParameterError, SlaveCallError, require_amplitude, require_positive)
-from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_rig_calibration,
-                                     paper_calibration, perturbation_calibration)
-from nfal.models.excitation import parse_shape
-from nfal.models.plant import DEFAULT_REST_GAP
-from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
-from nfal.models.rig import RigParameters
-from nfal.models.table2 import STAIRCASE_LEVELS_M
-
-#: Relative change of a plant's drive_frequency input that rebuilds its model.
-FREQUENCY_TOLERANCE = 1e-9
+from nfal.errors import (FmuStateError, InvalidParameterError, SlaveCallError, require_positive)
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "SlaveCallError", "UNITS", "RIG_PARAMETERS",
-           "CALIBRATION_CHOICES", "rig_parameter_values",
-           "DefaultExperiment", "SAMPLE_TOLERANCE"]
+__all__ = ["NfalSlave", "SampleClock", "FmuStateError", "SlaveCallError", "UNITS", "DefaultExperiment",
+           "SAMPLE_TOLERANCE"]
 
 #: SI base-unit exponents of every unit an nfal FMU declares (FMI 2.0 ``<BaseUnit>`` attributes).
 #: "1" is a dimensionless number. Add to it (before building) for a new unit.
@@ -111,26 +101,6 @@ UNITS: dict[str, dict[str, int]] = {
     "m/V": {"kg": -1, "m": -1, "s": 3, "A": 1},
 }
 
-#: The contract's rig parameters: (name, start, unit, description). SlowPlant, ReynoldsPlant and
-#: Controller carry them; :meth:`NfalSlave.build_rig` turns them into a RigParameters.
-RIG_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
-    ("mass", RigParameters.mass, "kg", "mass m of the levitated object"),
-    ("radius", RigParameters.radius, "m", "radius r0 of the object and of the driving surface"),
-    ("nominal_frequency", RigParameters.frequency, "Hz", "nominal excitation frequency f (sets sigma with the "
-     "clearance, eq. 2)"),
-    ("viscosity", RigParameters.viscosity, "Pa.s", "dynamic viscosity mu of the gas"),
-    ("ambient_pressure", RigParameters.ambient_pressure, "Pa", "ambient pressure p_a"),
-    ("gravity", RigParameters.gravity, "m/s2", "gravitational acceleration g"),
-)
-
-
-def rig_parameter_values(rig: RigParameters) -> dict[str, float]:
-    """The values of :data:`RIG_PARAMETERS` that describe ``rig`` (the inverse of :meth:`NfalSlave.build_rig`)."""
-    return {name: rig.frequency if name == "nominal_frequency" else getattr(rig, name) for name, *_ in RIG_PARAMETERS}
-
-
-#: ``calibration`` values besides a path to a calibration JSON written by ``nfal calibrate``.
-CALIBRATION_CHOICES = ("paper", "perturbation")
 #: Relative tolerance of "a whole number of sample periods from the start" (contract).
 SAMPLE_TOLERANCE = 1e-9
 
@@ -313,56 +283,6 @@ class NfalSlave(Fmi2Slave):
             self._settings_changed = True
         return setter
 
-    def add_rig_parameters(self) -> None:
-        """Declare the contract's rig parameters (:data:`RIG_PARAMETERS`) and ``calibration``."""
-        for name, start, unit, description in RIG_PARAMETERS:
-            self.add_parameter(name, start, unit=unit, description=description)
-        self.add_parameter("calibration", "paper", description="K(sigma): 'paper' = eq. (17), 'perturbation' "
-                           "(eqs. 9-11 for the paper's excitation form), 'perturbation:SHAPE' (the same for 'piston', "
-                           "'plate:N' or a shape CSV), or the path of a calibration JSON (with its damping correction "
-                           "of eq. (6), if it has one)")
-
-    def add_plant_interface(self) -> None:
-        """Declare what every plant shares (contract: SlowPlant, ReynoldsPlant, a hardware proxy): inputs
-        ``excitation_amplitude`` and ``drive_frequency``; outputs ``height``, ``velocity``, ``resting``;
-        parameters ``initial_height``, ``initial_velocity``, ``rest_gap`` and the rig."""
-        self.add_input("excitation_amplitude", 0.0, unit="m", description="excitation amplitude |a| (norm of eq. 7)")
-        self.add_input("drive_frequency", RigParameters.frequency, unit="Hz",
-                       description="drive frequency f; sigma scales with it (eq. 2)")
-        self.add_output("height", unit="m", description="clearance hbar (slow, averaged over an excitation period)")
-        self.add_output("velocity", unit="m/s", description="d hbar / dt")
-        self.add_output("resting", kind=bool, description="true while the object rests on the surface (at rest_gap)")
-        self.add_parameter("initial_height", STAIRCASE_LEVELS_M[0], unit="m", description="clearance at release")
-        self.add_parameter("initial_velocity", 0.0, unit="m/s", description="velocity at release")
-        self.add_parameter("rest_gap", DEFAULT_REST_GAP, unit="m",
-                           description="closest approach: the object lands and rests here")
-        self.add_rig_parameters()
-
-    def checked_release(self) -> tuple[float, float, float]:
-        """(rest_gap, initial_height, initial_velocity) of the plant interface, checked."""
-        rest_gap = require_plausible("rest_gap", require_positive("rest_gap", self.rest_gap), MAX_CLEARANCE_M, "m")
-        height = require_positive("initial_height", self.initial_height)
-        require_plausible("initial_height", height, MAX_CLEARANCE_M, "m")
-        if height < rest_gap:
-            raise InvalidParameterError("initial_height", height, f">= rest_gap = {rest_gap:g} m")
-        if not math.isfinite(self.initial_velocity):
-            raise InvalidParameterError("initial_velocity", self.initial_velocity, "a finite number (m/s)")
-        return rest_gap, height, float(self.initial_velocity)
-
-    def checked_excitation(self) -> float:
-        """The ``excitation_amplitude`` input [m], checked."""
-        value = require_amplitude("excitation_amplitude", self.excitation_amplitude)
-        return require_plausible("excitation_amplitude", value, MAX_EXCITATION_M, "m")
-
-    def checked_frequency(self) -> float:
-        """The ``drive_frequency`` input [Hz], checked."""
-        return require_positive("drive_frequency", self.drive_frequency)
-
-    @staticmethod
-    def frequency_changed(frequency: float, built_for: float) -> bool:
-        """True when a plant built for ``built_for`` [Hz] must be rebuilt for ``frequency``."""
-        return abs(frequency - built_for) > FREQUENCY_TOLERANCE * built_for
-
     # --- as a Python object (tests, the rig emulator) ------------------------------------------------
     def value(self, name: str) -> Any:
         """A declared variable's value as an FMI getter returns it (a computed output is computed now)."""
@@ -371,37 +291,6 @@ class NfalSlave(Fmi2Slave):
     def set_value(self, name: str, value: Any) -> None:
         """Set a declared variable as an FMI setter does (coerced and checked)."""
         self._declarations[name].variable.setter(value)
-
-    # --- shared model builders ---------------------------------------------------------------------
-    def build_rig(self, frequency: float | None = None) -> RigParameters:
-        """RigParameters from the rig parameters (the excitation at ``frequency`` [Hz], default nominal)."""
-        values = {name: require_positive(name, getattr(self, name)) for name, *_ in RIG_PARAMETERS}
-        nominal = values.pop("nominal_frequency")
-        source = "nominal_frequency" if frequency is None else "drive_frequency"
-        frequency = nominal if frequency is None else require_positive("frequency", frequency)
-        try:
-            return RigParameters(frequency=frequency, **values)
-        except InvalidParameterError as exc:  # named as this FMU's variable
-            raise InvalidParameterError(source, exc.value, exc.allowed) if exc.name == "frequency" else exc from None
-
-    def build_calibration(self) -> CalibrationFunction:
-        """K(sigma) of :meth:`build_rig_calibration` for this slave's rig."""
-        return self.build_rig_calibration(self.build_rig()).calibration
-
-    def build_rig_calibration(self, rig: RigParameters) -> RigCalibration:
-        """K(sigma) named by ``calibration`` and a calibration file's damping correction (if any): 'paper' (eq. 17),
-        'perturbation' (eqs. 9-12 for the Fig. 3 stand-in form), 'perturbation:SHAPE' (the same for an excitation
-        form as ``parse_shape`` reads it: 'piston', 'plate:N', a CSV path), or a calibration JSON path (a file
-        identified on another rig than ``rig`` is refused)."""
-        spec = str(self.calibration).strip()
-        if spec == "paper":
-            return RigCalibration(paper_calibration())
-        if spec == "perturbation" or spec.startswith("perturbation:"):
-            return RigCalibration(perturbation_calibration(parse_shape(spec.partition(":")[2] or "paper")))
-        if not spec:
-            raise InvalidParameterError("calibration", spec, f"one of {CALIBRATION_CHOICES}, 'perturbation:SHAPE' or a "
-                                        "calibration JSON path")
-        return load_rig_calibration(spec, rig)
 
     # --- the slave's part ----------------------------------------------------------------------------
     @abc.abstractmethod

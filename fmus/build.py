@@ -12,7 +12,7 @@ everything the slave imports from nfal, under the same import names as in the in
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
         nfal/errors.py, csvdata.py, realtime.py  the foundation modules every layer may import
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
-        nfal/fmus/__init__.py   nfal/fmus/base.py (the NfalSlave base class) and the slave script
+        nfal/fmus/__init__.py   base.py (the NfalSlave framework), rig_contract.py (RigSlave) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
         python.cfg              the Python that built the FMU (executable, libpython, site-packages), which
                                 the loader starts in a host without Python; override= (or NFAL_FMU_PYTHON)
@@ -87,7 +87,7 @@ FMU_SCRIPTS: dict[str, str] = {
 #: The FMUs the simulated Fig. 7 structures (fig7_slow, fig7_reynolds) use between them: all but the HardwareProxy.
 SIMULATION_FMUS = tuple(name for name in FMU_SCRIPTS if name != "HardwareProxy")
 #: What every FMU copies from fmus/ beside its script.
-FMUS_SUPPORT = ("__init__.py", "base.py", "fmi3.py")
+FMUS_SUPPORT = ("__init__.py", "base.py", "rig_contract.py", "fmi3.py")
 #: The slave module's loader (the module pythonfmu imports; fmus/bundle_loader.py).
 BUNDLE_LOADER = "bundle_loader.py"
 #: Prefix of the loader module inside the FMU (of the generated FMI 3.0 script: FMI3_PREFIX).

@@ -32,7 +32,8 @@ import numpy as np
 from pythonfmu.enums import Fmi2Status
 
 from nfal.errors import InvalidParameterError, optional_positive, require_positive, span_um
-from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
+from nfal.fmus.base import DefaultExperiment, SampleClock
+from nfal.fmus.rig_contract import RigSlave
 from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
@@ -51,7 +52,7 @@ SATURATION_GAP_S = 0.02
 
 
 
-class Controller(NfalSlave):
+class Controller(RigSlave):
     """Sampled PID of eqs. (21)-(22) with saturation and anti-windup; outputs feed through from both inputs."""
 
     description = "Gain-scheduled (or fixed) discrete PID of the levitation height, eqs. (20)-(24)"

@@ -13,7 +13,7 @@ from fmpy.validation import validate_fmu
 from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract
 
 from nfal.errors import DataFormatError, InvalidParameterError
-from nfal.fmus.base import rig_parameter_values
+from nfal.fmus.rig_contract import rig_parameter_values
 from nfal.fmus.controller import Controller
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.models.calibration import RigCalibration, paper_calibration, perturbation_calibration

@@ -20,7 +20,7 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError, SweepSpecError
 from nfal.apps.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
-from nfal.fmus.base import CALIBRATION_CHOICES
+from nfal.fmus.rig_contract import CALIBRATION_CHOICES
 from nfal.models.calibration import perturbation_calibration
 from nfal.models.closed_loop import Staircase
 from nfal.models.excitation import parse_shape
