@@ -5,7 +5,7 @@ are held (zero-order hold) and the state (clearance, velocity, resting) is advan
 :class:`~nfal.models.fixed_step_plant.FixedStepPlant` (RK4 in free flight, the event-handling
 :meth:`SimplifiedPlant.advance` near the surface). The squeeze number scales with the drive
 frequency (eq. 2): the stepping plant is rebuilt for the held ``drive_frequency`` when it differs
-from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE`` (fmus/base.py).
+from the one it was built for by more than a relative ``FREQUENCY_TOLERANCE`` (models/rig.py).
 
 Outputs come from the state alone (no feedthrough). Lift-off from rest: when the held |a| already
 pushes harder than gravity at the rest gap at the start of a step, the object leaves the surface at
@@ -26,12 +26,14 @@ from __future__ import annotations
 import math
 
 from nfal.errors import InvalidParameterError, require_finite, require_non_negative
-from nfal.fmus.base import DefaultExperiment, NfalSlave
+from nfal.fmus.base import DefaultExperiment
+from nfal.fmus.rig_contract import RigSlave
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import DampingModel, ExcessDamping, PlantState, SimplifiedPlant
+from nfal.models.rig import frequency_changed
 
 
-class SlowPlant(NfalSlave):
+class SlowPlant(RigSlave):
     """Eq. (13): m h'' = pi r0^2 p_a (|a|/h)^2 K(sigma(h)) - 3 pi mu r0^4 / (2 h^3) h' - m g, in SI."""
 
     description = ("Slow (time-averaged) levitation model, eq. (13), with touchdown and lift-off; inputs held over "
@@ -88,7 +90,7 @@ class SlowPlant(NfalSlave):
     def step(self, current_time: float, step_size: float) -> None:
         excitation = self.checked_excitation()
         frequency = self.checked_frequency()
-        if self.frequency_changed(frequency, self._plant_frequency):
+        if frequency_changed(frequency, self._plant_frequency):
             self._rebuild(frequency)
         state = self._plant.advance(PlantState(self.height, self.velocity, self.resting), excitation, step_size)
         self.height, self.velocity, self.resting = float(state.height), float(state.velocity), bool(state.resting)

@@ -13,6 +13,16 @@ from .plausibility import (FREQUENCY_RANGE_HZ, MAX_CLEARANCE_M, MAX_GRAVITY_M_S2
                            MAX_VISCOSITY_PA_S, PRESSURE_RANGE_PA, require_plausible)
 
 #: Every field's plausible range (:mod:`nfal.models.plausibility`): name -> (ceiling, unit[, floor]).
+#: Relative change of the drive frequency that rebuilds a model built for a rig (a plant's, with its state carried
+#: over).
+FREQUENCY_TOLERANCE = 1e-9
+
+
+def frequency_changed(frequency: float, built_for: float) -> bool:
+    """True when a model built for ``built_for`` [Hz] must be rebuilt for ``frequency`` [Hz]."""
+    return abs(frequency - built_for) > FREQUENCY_TOLERANCE * built_for
+
+
 _RANGES = {"mass": (MAX_MASS_KG, "kg"), "radius": (MAX_RADIUS_M, "m"),
            "frequency": (FREQUENCY_RANGE_HZ[1], "Hz", FREQUENCY_RANGE_HZ[0]), "viscosity": (MAX_VISCOSITY_PA_S, "Pa.s"),
            "ambient_pressure": (PRESSURE_RANGE_PA[1], "Pa", PRESSURE_RANGE_PA[0]),

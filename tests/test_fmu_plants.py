@@ -19,6 +19,7 @@ from nfal.models.averaged_plant import AveragedFilmPlant
 from nfal.models.calibration import paper_calibration
 from nfal.models.coupled import CoupledModel
 from nfal.models.excitation import paper_shape
+from nfal.models.film_backends import TimeMarchingFilm
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -320,8 +321,10 @@ def test_reynolds_plant_follows_the_drive_frequency():
     slave.do_step(0.0, STEP)
     slave.drive_frequency = RIG.frequency * 1.01
     slave.do_step(STEP, STEP)
-    assert slave._model.rig.frequency == slave.drive_frequency
-    assert slave._state.time_s == pytest.approx(2 * STEP)
+    film = slave._film
+    assert isinstance(film, TimeMarchingFilm)
+    assert film.internal_state()["frequency"] == slave.drive_frequency
+    assert film.internal_state()["time_s"] == pytest.approx(2 * STEP)
 
 
 def test_reynolds_plant_state_round_trip(reynolds):
@@ -346,13 +349,13 @@ def test_reynolds_plant_harmonic_balance_steps_like_the_averaged_plant():
     slave.initial_height, slave.excitation_amplitude = 80e-6, 7e-6
     slave.setup_experiment(0.0)
     slave.exit_initialization_mode()
-    plant = FixedStepPlant(AveragedFilmPlant(RIG, slave._table))
+    plant = FixedStepPlant(AveragedFilmPlant(RIG, slave._film.table))
     state = PlantState(80e-6)
     for level, frequency in ((7e-6, RIG.frequency), (6.5e-6, RIG.frequency * 1.01)):
         slave.excitation_amplitude, slave.drive_frequency = level, frequency
         slave.do_step(0.0, STEP)
         if frequency != RIG.frequency:
-            plant = FixedStepPlant(AveragedFilmPlant(RIG.replace(frequency=frequency), slave._table))
+            plant = FixedStepPlant(AveragedFilmPlant(RIG.replace(frequency=frequency), slave._film.table))
         state = plant.advance(state, level, STEP)
         assert (slave.height, slave.velocity, slave.resting) == (state.height, state.velocity, False)
         assert slave.oscillation_amplitude == plant.plant.oscillation(state.height, level) > 0
