@@ -37,11 +37,12 @@ from nfal.errors import (ConvergenceError, GapClosedError, InvalidParameterError
 from . import numba_cache
 from .excitation import ExcitationShape
 from .perturbation import radial_grid
-from .reynolds import SLOWEST_FILM_EIGENVALUE, check_grid, perturbation_film, thomas_factor, thomas_substitute
+from .film_kernel import face_fluxes, flux_jacobian, thomas_factor, thomas_substitute
+from .reynolds import SLOWEST_FILM_EIGENVALUE, check_grid, perturbation_film
 from .rig import RigParameters
 
 #: The files whose kernels these kernels call (the Thomas solver's): numba's cache of them is keyed by both sources.
-KERNEL_DEPENDENCIES = ("reynolds.py",)
+KERNEL_DEPENDENCIES = ("film_kernel.py",)
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
@@ -141,26 +142,22 @@ def _march_coupled(state, amplitudes, eps_nodes, eps_faces, conductance, volumes
                     gap_open = gap_open and hf > 0.0
                     inv_h_faces[f] = 1.0 / hf
                     c_faces[f] = conductance[f] * hf * hf * hf * inv_film
-                    flux[f] = 0.5 * c_faces[f] * (u[f + 1] - u[f]) * (2.0 + u[f + 1] + u[f])
                 if not gap_open:
                     state[2 * nodes] = z
                     return STATUS_GAP, p, j
+                face_fluxes(u, c_faces, flux, nodes - 1)
+                flux_jacobian(u, c_faces, lower, diag, upper)
                 force = 0.0
                 flux_below = 0.0
-                c_below = 0.0
                 dflux_below = 0.0
                 for n in range(m):
                     one_u = 1.0 + u[n]
                     force += volumes[n] * u[n]
                     dflux = 3.0 * flux[n] * inv_h_faces[n]
                     res[n] = (flux[n] - flux_below) - mass_rate[n] * (3.0 * one_u * h_nodes[n] + hist[n])
-                    diag[n] = 3.0 * mass_rate[n] * h_nodes[n] + (c_faces[n] + c_below) * one_u
-                    if n > 0:
-                        lower[n] = -c_below * (1.0 + u[n - 1])
-                    upper[n] = -c_faces[n] * (1.0 + u[n + 1])
+                    diag[n] += 3.0 * mass_rate[n] * h_nodes[n]
                     column[n] = 3.0 * mass_rate[n] * one_u - (dflux - dflux_below)
                     flux_below = flux[n]
-                    c_below = c_faces[n]
                     dflux_below = dflux
                 w = (3.0 * z + z_hist) * inv_2dt
                 res_z = -((3.0 * w + w_hist) * inv_2dt - 2.0 * stiffness * force + gravity)

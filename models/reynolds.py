@@ -44,11 +44,15 @@ from nfal.errors import ConvergenceError, InvalidParameterError
 
 from . import numba_cache
 from .excitation import ExcitationShape, largest_excursion
+from .film_kernel import face_fluxes, flux_jacobian, thomas_solve
 from .perturbation import as_squeeze_numbers, first_order_pressure, radial_grid
 
 numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
 
 logger = logging.getLogger(__name__)
+
+#: Files whose kernels the kernels here call (the compiled cache's key includes them: numba_cache).
+KERNEL_DEPENDENCIES = ("film_kernel.py",)
 
 #: Newton stops when the largest pressure update is below this times delta^2 (K is O(delta^2)).
 NEWTON_TOLERANCE = 1e-10
@@ -64,44 +68,13 @@ K_SCALE_FLOOR = 1e-2
 # numba kernels
 # --------------------------------------------------------------------------------------------------
 @numba.njit(cache=True)
-def thomas_factor(lower, diag, upper, work):
-    """Factor a tridiagonal matrix (``lower[i]`` multiplies x[i-1], ``upper[i]`` x[i+1]) into ``work`` (size >= 2n):
-    ``work[i]`` the modified upper diagonal, ``work[n + i]`` the reciprocal of pivot i.
-
-    No pivoting: the film Jacobians are diagonally dominant (the BDF2 mass term plus an M-matrix of conductances).
-    """
-    n = diag.shape[0]
-    work[n] = 1.0 / diag[0]
-    for i in range(1, n):
-        work[i] = upper[i - 1] * work[n + i - 1]
-        work[n + i] = 1.0 / (diag[i] - lower[i] * work[i])
-
-
-@numba.njit(cache=True)
-def thomas_substitute(lower, work, rhs, out):
-    """Solve the system :func:`thomas_factor` factored into ``work`` for ``rhs``, into ``out``."""
-    n = rhs.shape[0]
-    out[0] = rhs[0] * work[n]
-    for i in range(1, n):
-        out[i] = (rhs[i] - lower[i] * out[i - 1]) * work[n + i]
-    for i in range(n - 2, -1, -1):
-        out[i] -= work[i + 1] * out[i + 1]
-
-
-@numba.njit(cache=True)
-def thomas_solve(lower, diag, upper, rhs, out, work):
-    """Solve a tridiagonal system (the Thomas algorithm): :func:`thomas_factor`, then :func:`thomas_substitute`."""
-    thomas_factor(lower, diag, upper, work)
-    thomas_substitute(lower, work, rhs, out)
-
-
-@numba.njit(cache=True)
 def _march_fixed_film(u_now, u_prev, eps_nodes, eps_faces, conductance, volumes, sigma, delta,
                       steps, record):
     """March one excitation period of the fixed-object film with BDF2 + Newton.
 
     ``u_now`` (T = 0) and ``u_prev`` (T = -dT) are the gauge pressures P - 1 on all nodes; both are
-    overwritten with the levels at T = 2 pi and 2 pi - dT. ``conductance[f]`` = R_f / dR for face f.
+    overwritten with the levels at T = 2 pi and 2 pi - dT. ``conductance[f]`` = R_f / dR for face f (the film's
+    kernels: :mod:`nfal.models.film_kernel`).
     ``record`` (steps x nodes) receives u after every step. Returns (sum over steps of
     sum_n V_n u_n, status): status 0 = fine, 1 = Newton failed, 2 = gap closed.
     """
@@ -140,26 +113,19 @@ def _march_fixed_film(u_now, u_prev, eps_nodes, eps_faces, conductance, volumes,
             hf = 1.0 - delta * eps_faces[f] * s
             if hf <= 0.0:
                 return force_sum, 2
-            c_faces[f] = conductance[f] * hf * hf * hf
+            c_faces[f] = conductance[f] * hf * hf * hf / sigma
         for n in range(nodes):
             u[n] = 2.0 * u_now[n] - u_prev[n]
         u[nodes - 1] = 0.0
         converged = False
         for _ in range(NEWTON_MAX_ITERATIONS):
-            for f in range(nodes - 1):
-                flux[f] = 0.5 * c_faces[f] * (u[f + 1] - u[f]) * (2.0 + u[f + 1] + u[f])
+            face_fluxes(u, c_faces, flux, nodes - 1)
+            flux_jacobian(u, c_faces, lower, diag, upper)
             for n in range(m):
                 mass = u[n] * h_nodes[n] + (h_nodes[n] - 1.0)
                 net = flux[n] - (flux[n - 1] if n > 0 else 0.0)
-                res[n] = -(volumes[n] * (3.0 * mass + hist[n]) / (2.0 * dt) - net / sigma)
-                d = 3.0 * volumes[n] * h_nodes[n] / (2.0 * dt) + c_faces[n] * (1.0 + u[n]) / sigma
-                if n > 0:
-                    d += c_faces[n - 1] * (1.0 + u[n]) / sigma
-                    lower[n] = -c_faces[n - 1] * (1.0 + u[n - 1]) / sigma
-                else:
-                    lower[n] = 0.0
-                diag[n] = d
-                upper[n] = -c_faces[n] * (1.0 + u[n + 1]) / sigma
+                res[n] = -(volumes[n] * (3.0 * mass + hist[n]) / (2.0 * dt) - net)
+                diag[n] += 3.0 * volumes[n] * h_nodes[n] / (2.0 * dt)
             thomas_solve(lower, diag, upper, res, du, work)
             largest = 0.0
             for n in range(m):

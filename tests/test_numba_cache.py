@@ -37,14 +37,15 @@ def test_only_this_package_s_sources_are_located(tmp_path):
 
 
 def test_a_kernel_s_cache_follows_the_kernels_it_calls_in_other_files(tmp_path, monkeypatch):
-    """coupled.py's kernels call reynolds.py's Thomas solver: numba checks only the caller's file, so the key does."""
+    """coupled.py's kernels call film_kernel.py's fluxes and Thomas solver: numba checks only the caller's file, so the
+    key does."""
     from nfal.models import coupled
 
     monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path / "cache"))
     kernel, folder = coupled._march_coupled.py_func, tmp_path / "nfal" / "models"
     folder.mkdir(parents=True)
-    for name in ("coupled.py", "reynolds.py"):
+    for name in ("coupled.py", "film_kernel.py"):
         shutil.copy(Path(coupled.__file__).with_name(name), folder / name)
     before = ContentKeyedCacheLocator(kernel, str(folder / "coupled.py")).get_cache_path()
-    (folder / "reynolds.py").write_text((folder / "reynolds.py").read_text() + "\n# the solver edited\n")
+    (folder / "film_kernel.py").write_text((folder / "film_kernel.py").read_text() + "\n# the solver edited\n")
     assert ContentKeyedCacheLocator(kernel, str(folder / "coupled.py")).get_cache_path() != before
