@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from nfal.errors import RuntimeBuildError
+from nfal.fmus.runtime_upstream import tree_files
 from nfal.fmus.windows_python import check_windows_python
 from nfal.models.disk_cache import cache_root
 
@@ -67,7 +68,7 @@ class Runtime:
 
     def source_files(self) -> list[Path]:
         """The runtime's sources and the loader's (the FMU's binaries are built from both)."""
-        return sorted(p for p in self.sources.rglob("*") if p.is_file()) + [LOADER_SOURCE]
+        return [self.sources / name for name in tree_files(self.sources)] + [LOADER_SOURCE]  # not the patch series
 
     @property
     def function_types(self) -> Path:
