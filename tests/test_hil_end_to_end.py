@@ -54,6 +54,25 @@ def test_hil_tracks_a_step_like_the_simulation_of_the_truth(fig7_archives, emula
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("firmware", ["c", "qemu"])
+def test_fig7_hil_runs_unchanged_against_the_c_firmware(fig7_archives, emulator, tmp_path, firmware):
+    """The C reference firmware (its host build, and its Cortex-M4F build in QEMU) runs fig7_hil's loop as the Python
+    firmware does: in lockstep (the emulator holds the host's bytes until a DRIVE and hands them to the firmware with
+    the tick they release), noise off, the measured heights are the Python firmware's to the last bit (1 400 steps
+    from rest through lift-off and a step)."""
+    reference = Staircase((100e-6, 140e-6), hold_s=0.3, lead_s=0.4)
+    heights = {}
+    for kind in ("python", firmware):
+        rig = emulator("--lockstep", "--firmware", kind, "--param", "SensorChain.noise_peak=0")
+        heights[kind] = np.asarray(run_hil(fig7_archives, rig.port, tmp_path / kind, reference=reference,
+                                           lockstep=True)[HARDWARE.measured])
+        assert f"({round(reference.duration_s * 2000)} on the host's DRIVE)" in rig.stop()
+    assert heights[firmware].shape == heights["python"].shape
+    np.testing.assert_array_equal(heights[firmware], heights["python"])
+    assert heights["python"].max() > 130e-6  # the loop lifted the object and stepped it
+
+
+@pytest.mark.slow
 @pytest.mark.realtime
 def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7_archives, emulator, tmp_path, capsys):
     """Through the CLI: the run completes; every (rig time, height) in results.csv is one the rig measured."""

@@ -6,13 +6,16 @@ from __future__ import annotations
 
 import threading
 import time
+import types
 
 import pytest
 from helpers.rig import StillRig
 
-from nfal.cli import main
+from nfal.apps import rig_emulator
+from nfal.errors import InvalidParameterError
 from nfal.hil.link import RigLink
 from nfal.hil.ports import PtyPort
+from nfal.hil.protocol import Drive, FrameEncoder, Hello, HostHeartbeat
 
 PERIOD_US = 500
 
@@ -80,9 +83,21 @@ def test_wait_applied_gives_up_when_no_answer_comes(rig, host):
     assert 0.19 < time.monotonic() - started < 2.0
 
 
-def test_lockstep_needs_the_python_firmware(capsys):
-    assert main(["rig-emulator", "--lockstep", "--firmware", "c"]) == 2
-    assert "--lockstep" in capsys.readouterr().err
+def test_lockstep_refuses_a_firmware_on_its_own_serial_line(tmp_path):
+    """The emulator cannot see the host's DRIVEs on a line it does not read (the C firmware's own pty, QEMU's UART0):
+    lockstep takes the firmware's tunnel mode (the CLI starts it so: tests/test_hil_end_to_end.py)."""
+    own_line = types.SimpleNamespace(tunnel=False, on_event=None)
+    with pytest.raises(InvalidParameterError, match="own serial line"):
+        rig_emulator.Emulator(PtyPort(tmp_path / "rig"), StillRig(), firmware=own_line, lockstep=True)
+
+
+def test_held_host_bytes_release_a_tick_on_a_command_and_reach_the_firmware_whole():
+    held, encoder = rig_emulator.HostCommands(), FrameEncoder()
+    hello, heartbeat, drive = encoder(Hello()), encoder(HostHeartbeat()), encoder(Drive(3.0))
+    assert held.take(hello[:4]) is False and held.take(hello[4:]) is True  # a HELLO releases a tick (for its answer)
+    assert held.take(heartbeat) is False  # not a command: the rig waits on
+    assert held.take(drive) is True and held.drives == 1
+    assert held.release() == hello + heartbeat + drive and held.release() == b""
 
 
 def test_a_lockstep_proxy_counts_missed_samples_in_rig_time_so_a_paused_host_is_no_silent_rig(rig):

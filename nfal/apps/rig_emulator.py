@@ -19,7 +19,10 @@ the drive down when the host stops commanding.
 With ``lockstep`` the host's DRIVE commands are the rig's clock: once a session's first DRIVE has come,
 each tick waits for the next one (up to ``LOCKSTEP_WAIT_S`` of wall time, then the rig ticks on the wall
 clock again until the next DRIVE). A host whose HardwareProxy waits for each answer (``proxy.lockstep``)
-then runs the same loop whatever the machine's load: for tests and debugging, not for timing.
+then runs the same loop whatever the machine's load: for tests and debugging, not for timing. With the C firmware
+(an :class:`~nfal.hil.plant_channel.ExternalFirmware` in tunnel mode, whose every tick takes the host's bytes) the
+emulator holds the host's bytes until a DRIVE is among them (:class:`HostCommands` reads them as the rig will) and
+hands them over with the tick they release.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from typing import TextIO
 from nfal.errors import InvalidParameterError, LinkError
 from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.firmware import Firmware, RigTiming
+from nfal.hil.protocol import HOST_TO_RIG, Drive, FrameDecoder, Hello, Stop
 from nfal.orchestration.pacing import RealTimePacer
 from nfal.realtime import realtime_section
 
@@ -48,6 +52,28 @@ LOCKSTEP_WAIT_S = 5.0
 STOP_CHECK_S = 0.1
 #: Rig time between attempts to reopen a port that failed under the emulator (an unplugged device) [s].
 REOPEN_INTERVAL_S = 0.5
+
+
+class HostCommands:
+    """The host's bytes held for a firmware that takes them only with a tick, read as the rig will read them: the
+    DRIVE commands among them are counted (:attr:`drives`), a DRIVE, STOP or HELLO releases a tick, and
+    :meth:`release` hands the bytes over."""
+
+    def __init__(self) -> None:
+        self.decoder = FrameDecoder(HOST_TO_RIG)
+        self.drives = 0
+        self._held = bytearray()
+
+    def take(self, data: bytes) -> bool:
+        """Hold ``data``; True if a DRIVE, a STOP or a HELLO came in it."""
+        self._held += data
+        commands = [r.message for r in self.decoder.feed(data) if isinstance(r.message, (Drive, Stop, Hello))]
+        self.drives += sum(isinstance(m, Drive) for m in commands)
+        return bool(commands)
+
+    def release(self) -> bytes:
+        held, self._held = bytes(self._held), bytearray()
+        return held
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,15 +126,18 @@ class Emulator:
         The rig's firmware, if not the Python one: an :class:`~nfal.hil.plant_channel.ExternalFirmware` (the C
         reference firmware, on the host or in QEMU), whose events go to ``on_event`` too.
     lockstep : bool
-        Tick on the host's DRIVE commands (see the module docstring); the Python firmware only.
+        Tick on the host's DRIVE commands (see the module docstring); an external firmware must then take the host's
+        bytes through the emulator (tunnel mode).
     """
 
     def __init__(self, port, model, *, timing: RigTiming = RigTiming(), faults: FaultSettings = FaultSettings(),
                  disconnection: Disconnection | None = None, on_event: Callable[[str], None] | None = None,
                  record: TextIO | None = None, firmware=None, lockstep: bool = False) -> None:
-        if lockstep and firmware is not None:
-            raise InvalidParameterError("lockstep", lockstep, "False with an external firmware (it keeps its own "
-                                        "clock)")
+        if lockstep and firmware is not None and not firmware.tunnel:
+            raise InvalidParameterError("lockstep", lockstep, "False with an external firmware on its own serial line "
+                                        "(the emulator does not see the host's DRIVE commands): use tunnel mode")
+        #: an external firmware's host bytes, held until a tick takes them (lockstep)
+        self._held = HostCommands() if lockstep and firmware is not None else None
         self.port, self.model, self.timing, self.lockstep = port, model, timing, lockstep
         self.on_event = on_event or (lambda text: logger.info("%s", text))
         firmware_event = lambda t, text: self.on_event(f"t = {t:.4f} s: {text}")  # noqa: E731
@@ -140,7 +169,11 @@ class Emulator:
         came in while the tick waited for it (lockstep)."""
         firmware, port = self.firmware, self.port
         now = k * self.timing.sample_period_s
-        out = firmware.receive(port.read(), k)
+        data = port.read()
+        if self._held is not None:  # what the lockstep wait held, first
+            self._held.take(data)
+            data = self._held.release()
+        out = firmware.receive(data, k)
         if received:
             out = [*received, *out]
         if firmware.armed and self._driven_at is None:
@@ -163,18 +196,23 @@ class Emulator:
     def _ticks_on_drives(self) -> bool:
         """Lockstep, in a session the host drives: unless the host went silent (until its next DRIVE)."""
         firmware = self.firmware
-        return self.lockstep and firmware.armed and firmware.session and firmware.drives != self._silent_after
+        drives = firmware.drives if self._held is None else self._held.drives
+        return self.lockstep and firmware.armed and firmware.session and drives != self._silent_after
 
     def _await_drive(self, k: int) -> tuple[list[bytes], bool]:
         """Lockstep: take in what the host sends until a DRIVE (or a STOP) has come for tick ``k``. Returns the
         firmware's answers and whether one came within LOCKSTEP_WAIT_S."""
-        firmware, port = self.firmware, self.port
-        drives, out = firmware.drives, []
+        firmware, port, held = self.firmware, self.port, self._held
+        drives, out = firmware.drives if held is None else held.drives, []
         deadline = time.perf_counter() + LOCKSTEP_WAIT_S
         while not self._stop:
-            out += firmware.receive(port.read(), k)
-            if firmware.drives != drives or not firmware.session:
-                return out, True
+            if held is not None:  # the C firmware takes the host's bytes with its tick: hold them until a command
+                if held.take(port.read()):
+                    return out, True
+            else:
+                out += firmware.receive(port.read(), k)
+                if firmware.drives != drives or not firmware.session:
+                    return out, True
             remaining = deadline - time.perf_counter()
             if remaining <= 0:
                 self._silent_after = drives  # the wall clock until the next DRIVE

@@ -88,7 +88,8 @@ def register(commands) -> None:
                           "waits for the host's next DRIVE (up to 5 s of wall time): the rig runs on the host's steps, "
                           "not the wall clock. With a HardwareProxy that waits for each answer (proxy.lockstep=true), "
                           "the loop is the same whatever the machine's load: for tests and debugging, not timing. "
-                          "Python firmware only")
+                          "With c or qemu the host's bytes then pass through the emulator, which holds them until a "
+                          "DRIVE (the firmware's tunnel mode)")
     emulator.add_argument("--json", action="store_true", help="print the exit summary as JSON")
     emulator.set_defaults(handler=run_emulator)
 
@@ -124,9 +125,6 @@ def run_emulator(args: argparse.Namespace) -> int:
         parameters.setdefault("ResonanceTracker.pll_rate", str(args.sample_rate))
     if args.firmware != "python":
         _require_plain_link(args, faults, disconnection)
-        if args.lockstep:
-            raise InvalidParameterError("--lockstep", True, "used with --firmware python only (the C firmware keeps "
-                                        "its own clock)")
     require_realtime_priority(args.rt_priority)  # refused now, before anything is built or opened
     with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model, \
             contextlib.ExitStack() as stack:
@@ -137,9 +135,11 @@ def run_emulator(args: argparse.Namespace) -> int:
             # on use: C firmware only
             from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess
 
-            process = stack.enter_context(FirmwareProcess(args.firmware, serial=True))
-            firmware = ExternalFirmware(process, timing, tunnel=False)
-            port = FirmwarePort(process, args.link)
+            # lockstep: the host's bytes through the emulator (which holds them until a DRIVE), else the firmware's
+            # own serial line
+            process = stack.enter_context(FirmwareProcess(args.firmware, serial=not args.lockstep))
+            firmware = ExternalFirmware(process, timing, tunnel=args.lockstep)
+            port = PtyPort(args.link) if args.lockstep else FirmwarePort(process, args.link)
         record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
         try:
             emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
