@@ -6,9 +6,10 @@ A C loop (bench/c/machine_floor.c) that does nothing but ``--work-us`` of busy w
 as nfal's RealTimePacer releases steps (absolute release times; a late step is not skipped), waiting in nanosleep
 (``sleep``) or spinning on the clock (``spin``, work 0 only: the vCPU never idles; under SCHED_FIFO the kernel's
 real-time throttling then stops it 50 ms a second). It runs at normal priority and under SCHED_FIFO 50 (as root),
-idle and with a CPU-bound process beside it (``python -c "while True: pass"``). Its overruns (steps that finish after the next one's release, RealTimePacer's count) and its longest gap
-between two step starts are the least a host can show on this machine: a number in docs/hil.md below this floor is
-the machine's, not the code's. Writes bench/results/machine-floor.json.
+idle and with a CPU-bound process beside it (``python -c "while True: pass"``). Its overruns (steps that finish
+after the next one's release, RealTimePacer's count) and its longest gap between two step starts are the least a
+host can show on this machine: a number in docs/hil.md below this floor is the machine's, not the code's. Writes
+bench/results/machine-floor.json.
 """
 
 from __future__ import annotations
