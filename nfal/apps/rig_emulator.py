@@ -196,8 +196,9 @@ class Emulator:
     def _ticks_on_drives(self) -> bool:
         """Lockstep, in a session the host drives: unless the host went silent (until its next DRIVE)."""
         firmware = self.firmware
-        drives = firmware.drives if self._held is None else self._held.drives
-        return self.lockstep and firmware.armed and firmware.session and drives != self._silent_after
+        if not (self.lockstep and firmware.armed and firmware.session):
+            return False
+        return (firmware.drives if self._held is None else self._held.drives) != self._silent_after
 
     def _await_drive(self, k: int) -> tuple[list[bytes], bool]:
         """Lockstep: take in what the host sends until a DRIVE (or a STOP) has come for tick ``k``. Returns the
