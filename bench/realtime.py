@@ -144,7 +144,8 @@ def run_tests(args, folder: Path) -> list[dict]:
                                   cwd=HERE.parent, capture_output=True, text=True)
         last = done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr[-300:]
         row = {"run": run, "neighbour": busy, "exit": done.returncode, "summary": last,
-               "wall_s": round(time.perf_counter() - started, 1)}
+               "wall_s": round(time.perf_counter() - started, 1),
+               "failed": [line[:300] for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]}
         print(json.dumps(row), flush=True)
         rows.append(row)
         save(args, rows)
