@@ -126,6 +126,10 @@ def run_hil(args, folder: Path) -> list[dict]:
            "jitter_max_ms": round(realtime.get("jitter_max_s", 0) * 1e3, 2),
            **{f"drive_gap_{q}_ms": round(link.get(f"drive_gap_{q}_s", 0) * 1e3, 2) for q in ("p50", "p99", "max")},
            "gc_pause_max_ms": round((realtime.get("gc_pauses") or {}).get("max_s", 0) * 1e3, 3),
+           "step_mean_us": round(realtime.get("step_duration_mean_s", 0) * 1e6),
+           "do_step_mean_us": {name: round(fmu["do_step_mean_us"])
+                               for name, fmu in (summary.get("timing") or {}).items()},
+           "emulator_pacing": next((line for line in events.splitlines() if line.startswith("pacing:")), None),
            "watchdog_trips": events.count("watchdog: no DRIVE"), "missed_sample_stop": "no measurement" in errors,
            "rss_mb_first_last_max": [round(memory[0]), round(memory[-1]), round(max(memory))] if memory else None,
            "error": summary.get("error")}
