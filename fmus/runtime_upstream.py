@@ -83,7 +83,7 @@ def refresh(folder: Path, checkout: Path) -> None:
     patches = folder / "patches"
     shutil.rmtree(patches, ignore_errors=True)
     patches.mkdir()
-    files = {}
+    files, written = {}, 0
     for name in tree_files(folder):
         original = (checkout if name == "LICENSE" else base) / name
         files[name] = blob_id(original.read_bytes())
@@ -95,8 +95,8 @@ def refresh(folder: Path, checkout: Path) -> None:
                                   capture_output=True)
         if diff.returncode == 1:  # the files differ
             header = f"nfal's changes to upstream's {name}: each hunk says why in its nfal: comment.\n\n"
-            number = len(series(folder)) + 1
-            (patches / f"{number:04d}-{name.replace('/', '-')}.patch").write_bytes(header.encode() + diff.stdout)
+            written += 1
+            (patches / f"{written:04d}-{name.replace('/', '-')}.patch").write_bytes(header.encode() + diff.stdout)
         elif diff.returncode != 0:
             raise RuntimeError(diff.stderr.decode())
     info["files"] = files

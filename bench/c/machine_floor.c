@@ -30,11 +30,10 @@ int main(int argc, char **argv) {
     const double t0 = now() + 0.01;
     double last_start = t0;
     for (long k = 0; k < steps; k++) {
-        const double release = t0 + (double)k * PERIOD_S, remaining = release - now();
-        if (spin) {
-            while (now() < release) {
-            }
-        } else if (remaining > 0.0) {
+        const double release = t0 + (double)k * PERIOD_S, remaining = spin ? 0.0 : release - now();
+        while (spin && now() < release) {
+        }
+        if (remaining > 0.0) {
             struct timespec sleep_for = {(time_t)remaining, 0};
             sleep_for.tv_nsec = (long)((remaining - (double)sleep_for.tv_sec) * 1e9);
             nanosleep(&sleep_for, NULL);
