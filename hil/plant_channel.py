@@ -301,10 +301,17 @@ class ExternalFirmware:
         self.on_event = lambda t, text: None  # on_event(rig_time_s, text), as Firmware's (set by the Emulator)
         self._period_us = round(timing.sample_period_s * 1e6)
         self._status = 0
+        self.host_bytes_dropped = 0  #: host bytes beyond what a tick carries (tunnel mode)
 
     def receive(self, data: bytes, tick: int) -> list[bytes]:
         if data and not self.tunnel:
             raise InvalidParameterError("host bytes", len(data), "none: this firmware reads its own serial line")
+        if len(data) > TUNNEL_BYTES:  # more than a tick's line carries (a host's flood): the oldest are lost, as in
+            lost = len(data) - TUNNEL_BYTES  # a UART's overrun, and the firmware resynchronises at the next frame
+            self.host_bytes_dropped += lost
+            self.on_event(tick * self._period_us * 1e-6, f"{lost} bytes from the host lost: more than the "
+                          f"{TUNNEL_BYTES} a tick carries")
+            data = data[-TUNNEL_BYTES:]
         self.applied = self.channel.begin(bytes(data))
         return []
 

@@ -20,7 +20,7 @@ from cobs import cobs
 
 from nfal.errors import InvalidParameterError
 from nfal.hil.firmware import Firmware, RigReading, RigTiming
-from nfal.hil.plant_channel import FIRMWARES, ExternalFirmware, FirmwareProcess
+from nfal.hil.plant_channel import FIRMWARES, TUNNEL_BYTES, ExternalFirmware, FirmwareProcess
 from nfal.hil.protocol import (PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, FaultCode, FrameDecoder, FrameEncoder,
                                Hello, HelloAck, HostHeartbeat, Measurement, Message, RigHeartbeat, StatusFlags, Stop,
                                encode)
@@ -445,3 +445,15 @@ def test_an_invalid_drive_is_dropped_and_has_no_effect(session, voltage):
 def test_timing_below_two_sample_periods_is_rejected():
     with pytest.raises(InvalidParameterError, match="watchdog_timeout_s"):
         RigTiming(sample_period_s=1e-3, watchdog_timeout_s=1.5e-3)
+
+
+def test_a_flood_of_host_bytes_in_one_tick_is_survived(session):
+    """More bytes in one tick than a line carries (the C firmware's tunnel: 2048): the oldest are lost, as in a UART's
+    overrun, and the session goes on: the second DRIVE after it is applied (the Cortex-M4F build's 256-byte queue loses
+    the flood's last delimiter, and with it the first frame after it; a host's flood once ended the emulator)."""
+    session.tick(raw=b"\x01" * 5000 + b"\x00")
+    session.tick(Drive(42.5))
+    driven = session.tick(Drive(42.5))
+    assert driven.voltage == 42.5 and driven.measurement.drive_voltage == 42.5  # the session went on
+    if isinstance(session.firmware, ExternalFirmware):
+        assert session.firmware.host_bytes_dropped == 5001 - TUNNEL_BYTES
