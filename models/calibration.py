@@ -23,7 +23,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from scipy import interpolate
+import scipy
 
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.csvdata import read_user_text
@@ -146,7 +146,7 @@ class TabulatedK(CalibrationFunction):
             raise DataFormatError("sigma must increase strictly down a K table")
         super().__init__((sigma[0], sigma[-1]), name)
         self.sigma, self.values = sigma, values
-        self._spline = interpolate.CubicSpline(np.log(sigma), values)
+        self._spline = scipy.interpolate.CubicSpline(np.log(sigma), values)
         self._spline_slope = self._spline.derivative()
         self._scalar_spline = ScalarSpline(self._spline)
 

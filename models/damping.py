@@ -14,7 +14,7 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy import interpolate
+import scipy
 
 from nfal.errors import DataFormatError, InvalidParameterError, shown
 
@@ -64,7 +64,7 @@ class DampingCorrection:
         for name, value in (("heights_m", heights), ("factors", factors), ("factors_low", low), ("factors_high", high)):
             value.flags.writeable = False
             object.__setattr__(self, name, value)
-        spline = interpolate.PchipInterpolator(heights, np.log(factors))
+        spline = scipy.interpolate.PchipInterpolator(heights, np.log(factors))
         object.__setattr__(self, "_log_factor", spline)
         object.__setattr__(self, "_scalar_log_factor", ScalarSpline(spline))  # for factor_scalar
 
@@ -83,7 +83,7 @@ class DampingCorrection:
     def factor_band(self, height) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) ends of the confidence band at ``height`` [m], interpolated like the factor."""
         clipped = np.clip(np.asarray(height, dtype=float), *self.height_range_m)
-        return tuple(np.exp(interpolate.PchipInterpolator(self.heights_m, np.log(band))(clipped))
+        return tuple(np.exp(scipy.interpolate.PchipInterpolator(self.heights_m, np.log(band))(clipped))
                      for band in (self.factors_low, self.factors_high))
 
     def factor_scalar(self, height: float) -> float:

@@ -10,7 +10,7 @@ import os
 from importlib import resources
 
 import numpy as np
-from scipy import integrate, interpolate, optimize, special
+import scipy
 
 from nfal.csvdata import read_numeric_csv
 from nfal.errors import DataFormatError, InvalidParameterError
@@ -44,7 +44,7 @@ class ExcitationShape(abc.ABC):
     @property
     def _scale(self) -> float:
         if not hasattr(self, "_cached_scale"):
-            norm_sq, _ = integrate.quad(lambda r: float(self._raw(np.array(r))) ** 2, 0.0, 1.0, limit=400)
+            norm_sq, _ = scipy.integrate.quad(lambda r: float(self._raw(np.array(r))) ** 2, 0.0, 1.0, limit=400)
             sign = 1.0 if float(self._raw(np.array(0.0))) >= 0 else -1.0
             self._cached_scale = sign / np.sqrt(norm_sq)
         return self._cached_scale
@@ -96,27 +96,27 @@ class PlateModeShape(ExcitationShape):
         self.n, self.poisson_ratio = int(n), float(poisson_ratio)
         self.name = f"plate:{self.n}"
         self.wavenumber = self._root(self.n, self.poisson_ratio)
-        self._bessel_ratio = special.j1(self.wavenumber) / special.i1(self.wavenumber)
+        self._bessel_ratio = scipy.special.j1(self.wavenumber) / scipy.special.i1(self.wavenumber)
 
     @staticmethod
     def _root(n: int, nu: float) -> float:
         def moment(lam):
-            return (-special.j0(lam) - special.j1(lam) * special.i0(lam) / special.i1(lam)
-                    + 2 * (1 - nu) * special.j1(lam) / lam)
+            return (-scipy.special.j0(lam) - scipy.special.j1(lam) * scipy.special.i0(lam) / scipy.special.i1(lam)
+                    + 2 * (1 - nu) * scipy.special.j1(lam) / lam)
 
         grid = np.linspace(0.5, 4.0 * n + 6.0, 400 * n + 400)
         values = moment(grid)
-        roots = [optimize.brentq(moment, a, b)
+        roots = [scipy.optimize.brentq(moment, a, b)
                  for a, b, fa, fb in zip(grid, grid[1:], values, values[1:]) if fa * fb < 0]
         return float(roots[n - 1])
 
     def _raw(self, R):
         lam = self.wavenumber
-        return special.j0(lam * R) - self._bessel_ratio * special.i0(lam * R)
+        return scipy.special.j0(lam * R) - self._bessel_ratio * scipy.special.i0(lam * R)
 
     def _raw_slope(self, R):
         lam = self.wavenumber
-        return -lam * special.j1(lam * R) - self._bessel_ratio * lam * special.i1(lam * R)
+        return -lam * scipy.special.j1(lam * R) - self._bessel_ratio * lam * scipy.special.i1(lam * R)
 
 
 class TabulatedShape(ExcitationShape):
@@ -141,7 +141,7 @@ class TabulatedShape(ExcitationShape):
         if not np.any(values):
             raise DataFormatError("a tabulated shape cannot be zero everywhere")
         self.name = name
-        self._spline = interpolate.CubicSpline(radius, values, bc_type=((1, 0.0), "not-a-knot"))
+        self._spline = scipy.interpolate.CubicSpline(radius, values, bc_type=((1, 0.0), "not-a-knot"))
         self._derivative = self._spline.derivative()
 
     @classmethod

@@ -24,7 +24,7 @@ import math
 import os
 
 import numpy as np
-from scipy import interpolate
+import scipy
 
 from nfal.errors import InvalidParameterError
 
@@ -97,7 +97,7 @@ class FilmForceTable:
         chebyshev = np.cos((2 * np.arange(DELTA_POINTS) + 1) * np.pi / (2 * DELTA_POINTS))
         self.deltas = self.delta_max * np.sqrt((1.0 - chebyshev[::-1]) / 2.0)
         self.rig = rig
-        self._harmonic_spline = interpolate.CubicSpline(np.log(self.sigmas), self._first_harmonics())
+        self._harmonic_spline = scipy.interpolate.CubicSpline(np.log(self.sigmas), self._first_harmonics())
         if values is None:
             values = self._solve_all(self.film)
             if self.fine_film is not None:
@@ -107,7 +107,7 @@ class FilmForceTable:
         self.values = np.asarray(values, dtype=float)
         powers = np.vander(self.deltas**2, self.deltas.size, increasing=True)
         coefficients = np.linalg.solve(powers, self.values.T).T  # K = sum_p c_p delta^(2p)
-        self._spline = interpolate.CubicSpline(np.log(self.sigmas), coefficients)
+        self._spline = scipy.interpolate.CubicSpline(np.log(self.sigmas), coefficients)
         #: the same spline as arrays for compiled code (:mod:`nfal.models.piecewise`): breaks in log sigma, and per
         #: interval, power of delta^2 and cubic coefficient (highest first)
         self.breaks = np.ascontiguousarray(self._spline.x)

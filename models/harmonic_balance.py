@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import linalg
+import scipy
 
 from nfal.errors import ConvergenceError, InvalidParameterError
 
@@ -153,7 +153,7 @@ class HarmonicBalanceFilm:
         tolerance = NEWTON_TOLERANCE * delta**2 + 1e-15  # the floor: round-off in the residual
         for iteration in range(1, NEWTON_MAX_ITERATIONS + 1):
             residual, jacobian = self._residual_jacobian(u, h_nodes, c_faces)
-            step = linalg.solve_banded((self.points, self.points), jacobian, -residual.ravel(),
+            step = scipy.linalg.solve_banded((self.points, self.points), jacobian, -residual.ravel(),
                                        overwrite_ab=True, check_finite=False).reshape(residual.shape)
             u[:-1] += step
             if not np.all(np.isfinite(u)):

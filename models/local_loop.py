@@ -22,7 +22,7 @@ Both are affine in the gains (k_p, k_i, k_d), and so are their characteristic po
 from __future__ import annotations
 
 import numpy as np
-from scipy import linalg
+import scipy
 
 from nfal.errors import InvalidParameterError
 
@@ -47,7 +47,7 @@ def held_plant(plant: LPVCoefficients, step: float) -> tuple[np.ndarray, np.ndar
     augmented = np.zeros((3, 3))
     augmented[:2, :2] = [[0.0, 1.0], [-float(plant.alpha0), -float(plant.alpha1)]]
     augmented[1, 2] = float(plant.beta0)
-    exact = linalg.expm(augmented * step)
+    exact = scipy.linalg.expm(augmented * step)
     return exact[:2, :2], exact[:2, 2]
 
 

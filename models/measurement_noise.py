@@ -24,7 +24,7 @@ import copy
 import math
 
 import numpy as np
-from scipy import signal
+import scipy
 
 from nfal.errors import InvalidParameterError, require_amplitude, require_positive
 
@@ -76,21 +76,21 @@ class ColouredNoise:
         if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0):
             raise InvalidParameterError("seed", seed, "a whole number >= 0 or None")
         self.seed = None if seed is None else int(seed)
-        self._sos = signal.butter(2, self.cutoff_hz, fs=self.sample_rate_hz, output="sos")
-        pole_radius = float(np.max(np.abs(signal.sos2zpk(self._sos)[1])))
+        self._sos = scipy.signal.butter(2, self.cutoff_hz, fs=self.sample_rate_hz, output="sos")
+        pole_radius = float(np.max(np.abs(scipy.signal.sos2zpk(self._sos)[1])))
         #: Samples discarded at the start: the transient (pole radius ** n) falls below 1e-12.
         self.burn_in = max(BURN_IN, int(math.ceil(math.log(1e-12) / math.log(pole_radius))))
         impulse = np.zeros(max(4 * self.burn_in, 1000))
         impulse[0] = 1.0
         #: Standard deviation of the filtered unit white noise: sqrt(sum h_j^2), the impulse response h.
-        self.filter_gain = float(np.sqrt(np.sum(signal.sosfilt(self._sos, impulse) ** 2)))
+        self.filter_gain = float(np.sqrt(np.sum(scipy.signal.sosfilt(self._sos, impulse) ** 2)))
         self._scale = self.peak_m / PEAK_SIGMAS / self.filter_gain
         self._rng = np.random.default_rng(self.seed)
         self._zi = np.zeros((self._sos.shape[0], 2))
         self._buffer = np.empty(0)
         self._position = 0
         if self.peak_m > 0:
-            _, self._zi = signal.sosfilt(self._sos, self._rng.standard_normal(self.burn_in), zi=self._zi)
+            _, self._zi = scipy.signal.sosfilt(self._sos, self._rng.standard_normal(self.burn_in), zi=self._zi)
 
     @property
     def std_m(self) -> float:
@@ -99,7 +99,7 @@ class ColouredNoise:
 
     def _refill(self) -> None:
         white = self._rng.standard_normal(BLOCK)
-        filtered, self._zi = signal.sosfilt(self._sos, white, zi=self._zi)
+        filtered, self._zi = scipy.signal.sosfilt(self._sos, white, zi=self._zi)
         self._buffer = np.clip(filtered * self._scale, -self.peak_m, self.peak_m)
         self._position = 0
 

@@ -18,7 +18,7 @@ Both are discretised by the same conservative finite volumes as the time-marchin
 from __future__ import annotations
 
 import numpy as np
-from scipy import integrate, linalg, special
+import scipy
 
 from nfal.errors import InvalidParameterError
 
@@ -73,7 +73,7 @@ def first_order_pressure(shape: ExcitationShape, sigma: float,
                  - 1j * sigma * volumes[:unknown])
     rhs = -sigma * volumes[:unknown] * shape(R[:unknown])
     amplitude = np.zeros(nodes, dtype=complex)
-    amplitude[:unknown] = linalg.solve_banded((1, 1), banded, rhs.astype(complex))
+    amplitude[:unknown] = scipy.linalg.solve_banded((1, 1), banded, rhs.astype(complex))
     return R, amplitude
 
 
@@ -96,7 +96,7 @@ def trapped_gas_K(shape: ExcitationShape) -> float:
     In that limit P H is constant in time away from the rim (Pi_2 = eps_hat, Pi_1 = 0), and the
     rim's boundary layer carries the jump of Pi_2 from eps_hat(1) to 0.
     """
-    second_moment, _ = integrate.quad(lambda r: r * float(shape(r)) ** 2, 0.0, 1.0, limit=400)
+    second_moment, _ = scipy.integrate.quad(lambda r: r * float(shape(r)) ** 2, 0.0, 1.0, limit=400)
     return second_moment + 0.75 * shape.edge_value() ** 2
 
 
@@ -109,5 +109,5 @@ def piston_K_exact(sigma) -> np.ndarray:
     """
     sigmas = as_squeeze_numbers(sigma)
     k = np.sqrt(1j * sigmas)
-    ratio = special.ive(1, k) / special.ive(0, k)  # the exponential scalings cancel
+    ratio = scipy.special.ive(1, k) / scipy.special.ive(0, k)  # the exponential scalings cancel
     return 1.25 - 2.0 * np.real(ratio / k) - np.imag(k * ratio) / (2.0 * sigmas)

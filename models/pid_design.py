@@ -29,7 +29,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import interpolate, optimize
+import scipy
 
 from nfal.errors import ConvergenceError, InvalidParameterError, require_positive
 
@@ -234,7 +234,7 @@ def closed_loop_bandwidth(lpv: LPVCoefficients, slow_pole: float, omega_lpf: flo
     if below.size == 0 or below[0] == 0:
         raise ConvergenceError(f"no -3 dB crossing of eq. (23) found for p1 = {slow_pole:.4g}")
     i = below[0]
-    return float(optimize.brentq(lambda w: _closed_loop_gain(lpv, slow_pole, omega_lpf, w) - _HALF_POWER,
+    return float(scipy.optimize.brentq(lambda w: _closed_loop_gain(lpv, slow_pole, omega_lpf, w) - _HALF_POWER,
                                  grid[i - 1], grid[i], xtol=1e-14, rtol=1e-12))
 
 
@@ -281,7 +281,7 @@ def _slow_pole_for_cutoff(kp_of, bandwidth_of, grid: np.ndarray, cutoff: float, 
     if rising.size == 0:
         raise ConvergenceError(f"no slow pole gives k_p >= 0 at {height_um:.1f} um")
     i = rising[0]
-    slow_min = optimize.brentq(lambda p: float(kp_of(p)), grid[i], grid[i + 1], xtol=1e-16, rtol=1e-13)
+    slow_min = scipy.optimize.brentq(lambda p: float(kp_of(p)), grid[i], grid[i + 1], xtol=1e-16, rtol=1e-13)
     candidates = np.concatenate([[slow_min * (1 + 1e-9)], grid[i + 1:]])
     for lower, upper in zip(candidates[:-1], candidates[1:]):
         if bandwidth_of(upper) >= cutoff:
@@ -293,7 +293,7 @@ def _slow_pole_for_cutoff(kp_of, bandwidth_of, grid: np.ndarray, cutoff: float, 
         reachable = bandwidth_of(lower) * rig.omega / (2 * math.pi)
         raise InvalidParameterError("closed_loop_cutoff_hz", spec.closed_loop_cutoff_hz,
                                     f">= {reachable:.3g} Hz at {height_um:.1f} um (the k_p = 0 design)")
-    return float(optimize.brentq(lambda p: bandwidth_of(p) - cutoff, lower, upper, xtol=1e-16, rtol=1e-12))
+    return float(scipy.optimize.brentq(lambda p: bandwidth_of(p) - cutoff, lower, upper, xtol=1e-16, rtol=1e-12))
 
 
 def design_pid(height_m: float, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,
@@ -349,7 +349,7 @@ class GainSchedule:
         self.omega_lpf = designs[0].omega_lpf
         H = heights / self.reference_clearance
         table = np.array([[d.kp, d.ki, d.kd] for d in designs])
-        self._spline = interpolate.CubicSpline(H, table, axis=0)
+        self._spline = scipy.interpolate.CubicSpline(H, table, axis=0)
         self._slope = self._spline.derivative()
         self._scalar_gains = ScalarSpline(self._spline)  # for law_terms
         self._slow_times_s = [1.0 / (d.slow_pole * d.lpv.omega) for d in designs]

@@ -18,7 +18,7 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy import integrate, optimize
+import scipy
 
 from nfal.errors import (ConvergenceError, InvalidParameterError, require_amplitude, require_finite,
                          require_positive)
@@ -236,8 +236,8 @@ class SimplifiedPlant:
                 "excitation", excitation,
                 f"one whose equilibrium lies in the calibrated range {heights[0] * 1e6:.1f}-{heights[-1] * 1e6:.1f} um")
         i = falling[0]
-        return float(optimize.brentq(lambda h: self.levitation_force(h, excitation) - self.weight, heights[i],
-                                     heights[i + 1], xtol=1e-15, rtol=1e-13))
+        return float(scipy.optimize.brentq(lambda h: self.levitation_force(h, excitation) - self.weight, heights[i],
+                                           heights[i + 1], xtol=1e-15, rtol=1e-13))
 
     # --- time response ----------------------------------------------------------------------------
     def simulate(self, duration: float, excitation: Excitation, initial: PlantState | float,
@@ -299,14 +299,14 @@ class SimplifiedPlant:
                 y = np.array([self.rest_gap / scale, 0.0])
                 event = lambda t, _y: self._net_resting_force(t, excitation)  # noqa: E731
                 event.direction, event.terminal = 1.0, True
-                solution = integrate.solve_ivp(lambda t, _y: np.zeros(2), (t0, t_end), y, events=event, t_eval=pending,
-                                               rtol=rtol)
+                solution = scipy.integrate.solve_ivp(lambda t, _y: np.zeros(2), (t0, t_end), y, events=event,
+                                                     t_eval=pending, rtol=rtol)
             else:
                 # touchdown: at rest_gap moving down. Zero where the height reaches it (v < 0), and positive
                 # while rising, so that a lift-off from rest_gap (v = 0, film beats gravity) is no touchdown
                 event = lambda t, y_: max(y_[0] - self.rest_gap / scale, y_[1])  # noqa: E731
                 event.direction, event.terminal = -1.0, True
-                solution = integrate.solve_ivp(lambda t, y_: self._free_rhs(t, y_, excitation), (t0, t_end), y,
+                solution = scipy.integrate.solve_ivp(lambda t, y_: self._free_rhs(t, y_, excitation), (t0, t_end), y,
                                                method="LSODA", events=event, t_eval=pending, rtol=rtol,
                                                atol=(1e-9, 1e-9))
             if solution.status < 0:

@@ -38,7 +38,7 @@ from typing import Callable
 
 import numba
 import numpy as np
-from scipy.linalg import eigvalsh_tridiagonal
+import scipy
 
 from nfal.errors import ConvergenceError, InvalidParameterError
 
@@ -378,7 +378,7 @@ def slowest_period_ratio(R: np.ndarray, faces: np.ndarray, volumes: np.ndarray, 
     scale = 1.0 / np.sqrt(volumes[:unknown])
     main = diag * scale**2
     off = -conductance[: unknown - 1] * scale[:-1] * scale[1:]
-    smallest = float(eigvalsh_tridiagonal(main, off, select="i", select_range=(0, 0))[0])
+    smallest = float(scipy.linalg.eigvalsh_tridiagonal(main, off, select="i", select_range=(0, 0))[0])
     return float(np.exp(-2.0 * np.pi * smallest * (1.0 - gap_swing) ** 3 / sigma))
 
 

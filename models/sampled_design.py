@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize
+import scipy
 
 from nfal.errors import ConvergenceError
 
@@ -130,7 +130,7 @@ class SampledLoop:
         if below.size == 0 or below[0] == 0:
             raise ConvergenceError(f"no -3 dB crossing of the sampled loop for p1 = {slow_pole:.4g}")
         i = below[0]
-        return float(optimize.brentq(lambda w: float(excess(w)[0]), grid[i - 1], grid[i], xtol=1e-14, rtol=1e-12))
+        return float(scipy.optimize.brentq(lambda w: float(excess(w)[0]), grid[i - 1], grid[i], xtol=1e-14, rtol=1e-12))
 
 
 def _gain(numerator: np.ndarray, denominator: np.ndarray, frequency, step: float) -> np.ndarray:

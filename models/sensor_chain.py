@@ -26,7 +26,7 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy import linalg
+import scipy
 
 from nfal.errors import InvalidParameterError, require_finite, require_positive
 
@@ -126,7 +126,7 @@ class SensorChain:
         # Reused for steps equal within STEP_TOLERANCE: hosts that subtract time points (libcosim) pass
         # 0.0005000000000000004 for 0.5 ms, and recomputing expm every step would cost 10-100x.
         if self._cache is None or abs(self._cache[0] - dt_s) > STEP_TOLERANCE * dt_s:
-            exact = linalg.expm(self._dynamics * dt_s)
+            exact = scipy.linalg.expm(self._dynamics * dt_s)
             self._cache = (dt_s, exact[:2, :2], exact[:2, 2])
         return self._cache[1], self._cache[2]
 
