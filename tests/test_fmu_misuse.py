@@ -134,12 +134,13 @@ def test_the_fmus_libraries_touch_no_freed_memory_from_load_to_exit(version, twi
     """Under valgrind, in the C host (what a non-Python tool does: load, step, free, unload, exit): no invalid
     read, write or free in the loader or the runtime. The FMI 3.0 runtime's state holder was destroyed by the
     exit handlers and then assigned by its unload hook: a double free that aborted 1 in 10-40 processes
-    ("corrupted double-linked list"), and valgrind shows in every run."""
+    ("corrupted double-linked list"), and valgrind shows in every run. Uninitialised values are not tracked
+    (``--undef-value-errors=no``: 64 -> 51 s here); reads, writes and frees of freed memory still are."""
     valgrind = shutil.which("valgrind")
     assert valgrind, "this test needs valgrind: apt-get install valgrind"
     host = host_check.compile_c_host(tmp_path, version)
     runs = host_check.run_in_c_host(host, twins[version], tmp_path, runs=1, stop_time=5e-4,
-                                    wrapper=(valgrind, "--num-callers=40"))
+                                    wrapper=(valgrind, "--num-callers=40", "--undef-value-errors=no"))
     assert runs.exit_codes == [0], runs.first_failure[-3000:]
     stderr = runs.texts[0][1]
     assert "ERROR SUMMARY" in stderr, stderr[-2000:]

@@ -6,7 +6,9 @@ the FMU's loader (fmus/loader/loader.c) finds the Python the FMU was built with,
 another Python active; an override naming a Python that is not there is one logged line and an error.
 pythonfmu 0.7.0's runtime crashed such hosts at exit in about 4 runs of 10 (docs/cosimulation.md,
 "Crash at exit"); the runtime our FMUs ship (fmus/runtime/) must not. The suite runs each case
-RUNS times; ``python bench/host_compat.py`` makes the 50-run measurement the doc quotes.
+RUNS times (5 runs miss a crash of 4 in 10 with probability 0.08; the double free behind it is shown in every run
+by tests/test_fmu_misuse.py's valgrind test); ``python bench/host_compat.py`` makes the 50-run measurement the doc
+quotes.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the loader is built for Linux only")]
 
 FIG7_FMUS = list(build.SIMULATION_FMUS)
-RUNS = 10
+RUNS = 5
 STOP_S, STEP_S = 0.01, 5e-4
 ECOS_STOP_S = 0.2
 
@@ -210,7 +212,7 @@ def test_the_fig7_archive_runs_in_ecos_without_a_crash(environment, fmus, ecos, 
 
     archive = pack(structure_sources() / "fig7_slow.ssd", fmus["SlowPlant"].parent, tmp_path / "fig7_slow.ssp")
     env = bare_environment() if environment == "nothing set up" else another_python_active(other_python)
-    runs = run_in_ecos(ecos, archive, tmp_path, runs=RUNS // 2 if environment == "nothing set up" else 2,
+    runs = run_in_ecos(ecos, archive, tmp_path, runs=3 if environment == "nothing set up" else 2,
                        stop_time=ECOS_STOP_S, env=env)
     assert runs.crashes == 0, f"exit codes {runs.exit_codes}:\n{runs.first_failure[-3000:]}"
     ours = run_structure(archive, stop_time=ECOS_STOP_S, algorithm="jacobi",
