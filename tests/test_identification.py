@@ -10,7 +10,7 @@ import pytest
 from simulated_rig import SimulatedRig
 
 from nfal.cli import main
-from nfal.cli.commands.identify import _run
+from nfal.apps.rig_identification import _run
 from nfal.errors import ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError
 from nfal.apps.rig_analysis import analyse
 from nfal.apps.rig_experiments import Experiments
@@ -203,13 +203,13 @@ def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, ma
 
 
 @pytest.mark.slow  # identifications against a simulated rig
-def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path, capsys):
+def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path):
     rig = SimulatedRig(TRUTH, interrupt_at_s=1.0)
     recorder = SampleRecorder(io.StringIO())
     experiments = Experiments(rig, SHORT_PLAN, recorder, metres_per_volt=1e-7, max_voltage=100.0)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt, match="^interrupted; the drive ramped down; STOP sent; every sample so far "
+                       "is in"):
         _run(experiments, rig, tmp_path / "raw.csv")
-    assert "interrupted; the drive ramped down; STOP sent; every sample so far is in" in capsys.readouterr().err
     assert recorder.last(APPLIED) == 0.0 and recorder.last(TIME) > 1.0
 
 

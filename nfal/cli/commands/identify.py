@@ -1,43 +1,29 @@
-"""``nfal identify``: identify the rig over its port (K from equilibria, the damping from drive steps)."""
+"""``nfal identify``: identify the rig over its port (K from equilibria, the damping from drive steps); the run is
+:func:`nfal.apps.rig_identification.identify_rig`, this module checks the flags and prints."""
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import datetime
-import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from nfal import __version__
-from nfal.apps.figures.identify import plot_identification
-from nfal.apps.rig_analysis import analyse
-from nfal.apps.rig_experiments import Experiments, move_law, recorder_capacity
-from nfal.apps.rig_io import LinkRig
-from nfal.apps.sample_recorder import FREQUENCY, SampleRecorder
+from nfal.apps.rig_experiments import recorder_capacity
+from nfal.apps.rig_identification import IdentifiedRig, IdentifySettings, drive_gap_margin, identify_rig, output_paths
 from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import (add_accept_long_plan, add_rig_options, duration_text, number_list, print_json,
                                       progress_bar, rig_from_args)
-from nfal.errors import (ConvergenceError, DataFormatError, ExperimentError, InvalidParameterError, PlanError,
-                         require_duration, require_finite, require_positive)
+from nfal.errors import InvalidParameterError, PlanError, require_duration, require_finite, require_positive
 from nfal.hil.link import DRIVE_GAP_BUDGET_S, LONGEST_WAIT_S
 from nfal.models.identification import AMPLITUDE_TIME_CONSTANT_S, LONGEST_HOLD_S, IdentificationPlan
-from nfal.models.pid_design import design_schedule
 from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_plausible
-from nfal.models.stability import realizable_schedule
 from nfal.models.table2 import WORK_RANGE_M
 from nfal.models.transducer import METRES_PER_VOLT
-from nfal.orchestration.interrupts import deferred_interrupts
-from nfal.realtime import BackgroundWriter, realtime_section
 
 #: The longest --max-silence [s]: the rig's watchdog ramps the drive down after 0.1 s without DRIVE anyway.
 LONGEST_SILENCE_S = 10.0
 #: The longest plan run without --accept-long-plan [s of typical rig time]: an hour, about 90 times the default plan.
 LONG_PLAN_S = 3600.0
-
-# The experiments, the fits and the figure are imported where used: `nfal --help` stays fast (as the other groups).
 
 DESCRIPTION = """Identify a rig over the nfal rig protocol (a rig, or `nfal rig-emulator` on a pty), automatically:
 (1) equilibria: for each height, a closed-loop move with the controller's own law, then the drive it found held
@@ -152,121 +138,41 @@ def run_identify(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".json":
         raise InvalidParameterError("--out", args.out, "a calibration file name ending in .json")
     _check_length(plan, args.accept_long_plan)
-    capacity = recorder_capacity(plan)  # a plan whose samples cannot be held is refused, even accepted
+    recorder_capacity(plan)  # a plan whose samples cannot be held is refused, even accepted, and by --dry-run
     if args.dry_run:
         _print_plan(plan, args.json)
         return 0
     if not args.port:
         raise InvalidParameterError("--port", args.port, "the rig's port URL (or --dry-run)")
-    raw = out.with_name(out.stem + "-raw.csv")
-    previous = [path.name for path in (out, raw, out.with_suffix(".png")) if path.exists()]
+    previous = [path.name for path in output_paths(out) if path.exists()]
     if previous and not args.overwrite:  # a previous identification's measurements are not ours to replace
         raise InvalidParameterError("--out", args.out, f"a name of no previous identification ({', '.join(previous)} "
                                     "exist); give another --out, or --overwrite to replace them")
-    schedule = realizable_schedule(design_schedule())  # before the port opens: the rig streams from HELLO_ACK on
-    try:
-        stream = open(raw, "w", encoding="utf-8", newline="")  # noqa: SIM115 - closed below, after the experiments
-    except OSError as exc:
-        raise InvalidParameterError("--out", args.out, f"a writable place for {raw.name}: {exc}") from None
-    # the real-time section (nfal.realtime) starts before the port opens: its set-up (a full collection, 0.05-0.2 s)
-    # must not leave a backlog of the rig's stream; SIGINT, SIGTERM and SIGHUP are taken at the next exchange
-    # the samples reach the disk through a thread (nfal.realtime.BackgroundWriter): the loop never waits for it
-    with (contextlib.closing(BackgroundWriter(stream)) as writer, deferred_interrupts() as stop_request,
-          realtime_section() as collector):
-        recorder = SampleRecorder(writer, capacity)  # at 2 kHz (it grows for a faster rig)
-        try:
-            link = LinkRig(args.port, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
-        except BaseException:
-            writer.close()
-            raw.unlink(missing_ok=True)  # nothing measured: no empty file left behind
-            raise
-        link.safe_point = collector.safe_point
-        hello, max_voltage = link.hello, min(args.max_voltage, link.hello.max_drive_voltage)
-        with progress_bar(plan.holds(), "identify") as bar:
-            experiments = Experiments(link, plan, recorder, metres_per_volt=args.metres_per_volt,
-                                      max_voltage=max_voltage,
-                                      law=move_law(plan, metres_per_volt=args.metres_per_volt, max_voltage=max_voltage,
-                                                   schedule=schedule), on_hold=lambda: bar.update(1),
-                                      stop_request=stop_request)
-            collector.settle()  # the set-up's objects frozen too, before the first DRIVE
-            equilibria, steps = _run(experiments, link, raw)
-        timing = {**link.timing(), **collector.report(), "rig_watchdog_s": hello.watchdog_timeout_us * 1e-6}
-    result = _analyse(equilibria, steps, rig, args, lag, raw)
-    provenance = _provenance(args, hello, recorder, raw, lag, timing)
-    out.write_text(json.dumps(result.document(provenance), indent=2) + "\n", encoding="utf-8")
-
-    plot_identification(out.with_suffix(".png"), result, rig, lag)
-    _report(result, recorder, out, raw, timing, args.json)
+    settings = IdentifySettings(args.port, out, rig, metres_per_volt=args.metres_per_volt, max_voltage=args.max_voltage,
+                                lag_s=lag, connect_timeout_s=args.connect_timeout, max_silence_s=args.max_silence)
+    with progress_bar(plan.holds(), "identify") as bar:
+        identified = identify_rig(plan, settings, on_hold=lambda: bar.update(1))
+    _report(identified, args.json)
     return 0
 
 
-def _run(experiments, link, raw: Path):
-    """The experiments; on any fault or stop signal the drive ramps down, STOP goes out and the message says where the
-    data are and what margin the loop kept to the rig's watchdog."""
-    try:
-        equilibria = experiments.equilibria()
-        steps = experiments.damping_steps()
-    except (ExperimentError, KeyboardInterrupt) as exc:
-        ramped = experiments.ramp_down()
-        link.close()
-        stopped = ("the drive ramped down; STOP sent" if ramped
-                   else "no link to ramp the drive down: the rig's watchdog does")
-        kept = f"every sample so far is in {raw} ({experiments.recorder.count} samples)"
-        margin = _margin(link.timing())
-        if isinstance(exc, KeyboardInterrupt):
-            print(f"nfal identify: {str(exc) or 'interrupted'}; {stopped}; {kept}; {margin}", file=sys.stderr)
-            raise
-        raise ExperimentError(f"{exc}; {stopped}; {kept}; {margin}") from None
-    experiments.ramp_down()
-    link.close()
-    return equilibria, steps
-
-
-def _margin(timing: dict) -> str:
-    """One line: the gaps between DRIVE commands against the rig's watchdog."""
-    gaps = timing["drive_gaps"]
-    return (f"gaps between DRIVE commands: p50 {gaps['p50_s'] * 1e3:.2f} ms, p99 {gaps['p99_s'] * 1e3:.2f} ms, "
-            f"max {gaps['max_s'] * 1e3:.2f} ms")
-
-
-def _analyse(equilibria, steps, rig, args, lag: float, raw: Path):
-    try:
-        return analyse(equilibria, steps, rig, metres_per_volt=args.metres_per_volt, lag_s=lag)
-    except (ConvergenceError, DataFormatError, InvalidParameterError) as exc:
-        raise ExperimentError(f"the measurements cannot be fitted: {exc}; the data are in {raw}") from None
-
-
-def _provenance(args, hello, recorder, raw: Path, lag: float, timing: dict) -> dict:
-    frequencies = recorder.column(FREQUENCY)
-    return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "port": args.port,
-            "firmware_version": f"nfal rig protocol {hello.protocol_version} "
-                                "(the protocol reports no firmware version)",
-            "raw_data": raw.name, "nfal_version": __version__, "rig_time_s": recorder.duration_s,
-            "sample_period_s": hello.sample_period_us * 1e-6, "watchdog_s": hello.watchdog_timeout_us * 1e-6,
-            "rig_max_drive_voltage_v": hello.max_drive_voltage, "max_voltage_v": args.max_voltage,
-            "metres_per_volt": args.metres_per_volt, "amplitude_time_constant_s": lag,
-            "drive_frequency_hz_median": float(np.median(frequencies)),
-            "rig": {"mass_kg": rig_from_args(args).mass, "radius_m": rig_from_args(args).radius},
-            "step_fraction": args.step_size, "steps_per_height": args.steps, "realtime": timing}
-
-
-def _report(result, recorder, out: Path, raw: Path, timing: dict, as_json: bool) -> None:
-    table = result.damping
-    summary = {"calibration": str(out), "raw_data": str(raw), "figure": str(out.with_suffix(".png")),
-               "rig_time_s": recorder.duration_s, "samples": recorder.count,
-               "K": result.calibration.report(), "damping": table.to_dict(), "realtime": timing}
+def _report(identified: IdentifiedRig, as_json: bool) -> None:
+    table, timing = identified.result.damping, identified.timing
+    summary = {"calibration": str(identified.calibration), "raw_data": str(identified.raw),
+               "figure": str(identified.figure), "rig_time_s": identified.rig_time_s, "samples": identified.samples,
+               "K": identified.result.calibration.report(), "damping": table.to_dict(), "realtime": timing}
     if as_json:
         print_json(summary)
         return
     report = summary["K"]
-    print(f"identified in {recorder.duration_s:.1f} s of rig time ({recorder.count} samples): {out}, {raw}, "
-          f"{out.with_suffix('.png')}")
-    print(f"real time: {_margin(timing)} (the rig's watchdog: {timing['rig_watchdog_s'] * 1e3:g} ms)")
+    print(f"identified in {identified.rig_time_s:.1f} s of rig time ({identified.samples} samples): "
+          f"{identified.calibration}, {identified.raw}, {identified.figure}")
+    print(f"real time: {drive_gap_margin(timing)} (the rig's watchdog: {timing['rig_watchdog_s'] * 1e3:g} ms)")
     if timing["drive_gaps"]["max_s"] > DRIVE_GAP_BUDGET_S:
         print(f"warning: the longest gap between DRIVE commands, {timing['drive_gaps']['max_s'] * 1e3:.1f} ms, is "
               f"beyond the {DRIVE_GAP_BUDGET_S * 1e3:g} ms a held drive costs nothing in (docs/hil.md, \"Real time "
               "that holds\"): the machine paused the host; a step that was under way then may have overshot")
-    print(f"K(sigma) from {len(result.equilibria)} equilibria (eq. 16), quartic as eq. (17): coefficients "
+    print(f"K(sigma) from {len(identified.result.equilibria)} equilibria (eq. 16), quartic as eq. (17): coefficients "
           f"{', '.join(f'{c:.6g}' for c in report['coefficients'])}; residual rms {report['residual_rms']:.3g}")
     print("damping over eq. (6), mean and 95 % interval:")
     for h, f, low, high in zip(table.heights_m, table.factors, table.factors_low, table.factors_high):
