@@ -1,25 +1,22 @@
-"""``nfal rig-emulator``: the rig, played in real time on a pty or a port, for hardware-in-the-loop runs."""
+"""``nfal rig-emulator``: the rig, played in real time on a pty or a port, for hardware-in-the-loop runs (the session
+is :func:`nfal.apps.rig_emulator_session.serve_rig`; this module checks the flags and prints)."""
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
-import signal
 from pathlib import Path
 
 from nfal.apps.build import build_all
-from nfal.apps.rig_emulator import Disconnection, Emulator
-from nfal.apps.rig_model import open_rig
+from nfal.apps.rig_emulator import Disconnection
+from nfal.apps.rig_emulator_session import EmulatorSettings, serve_rig
 from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import finite_float, output_file, positive_float, print_json
 from nfal.cli.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError
 from nfal.hil.faults import FaultSettings
 from nfal.hil.firmware import RigTiming
-from nfal.hil.ports import PtyPort, UrlPort
-from nfal.orchestration.interrupts import STOP_SIGNALS
-from nfal.orchestration.pacing import realtime_priority, require_realtime_priority
+from nfal.orchestration.pacing import require_realtime_priority
 
 
 def register(commands) -> None:
@@ -126,50 +123,12 @@ def run_emulator(args: argparse.Namespace) -> int:
     if args.firmware != "python":
         _require_plain_link(args, faults, disconnection)
     require_realtime_priority(args.rt_priority)  # refused now, before anything is built or opened
-    with open_rig(_truth_path(args.truth, args.build_dir), timing.sample_period_s, parameters) as model, \
-            contextlib.ExitStack() as stack:
-        firmware = None
-        if args.firmware == "python":
-            port = PtyPort(args.link) if args.port == "pty" else UrlPort(args.port)
-        else:
-            # on use: C firmware only
-            from nfal.hil.plant_channel import ExternalFirmware, FirmwarePort, FirmwareProcess
-
-            # lockstep: the host's bytes through the emulator (which holds them until a DRIVE), else the firmware's
-            # own serial line
-            process = stack.enter_context(FirmwareProcess(args.firmware, serial=not args.lockstep))
-            firmware = ExternalFirmware(process, timing, tunnel=args.lockstep)
-            port = PtyPort(args.link) if args.lockstep else FirmwarePort(process, args.link)
-        record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115 - closed below
-        try:
-            emulator = Emulator(port, model, timing=timing, faults=faults, disconnection=disconnection, on_event=_say,
-                                record=record, firmware=firmware, lockstep=args.lockstep)
-            # Ctrl-C, SIGTERM and SIGHUP (a closed terminal) end the run after the current tick, so the report is
-            # complete and the link removed (from the moment the port is announced: whoever reads it may signal at once)
-            previous = {number: signal.signal(number, lambda *_: emulator.stop()) for number in STOP_SIGNALS}
-            try:
-                _say(str(port.path))
-                _say(f"rig emulator: truth {args.truth}, {_firmware_name(args.firmware)}, "
-                     f"{1 / timing.sample_period_s:g} Hz{', lockstep' if args.lockstep else ''}, "
-                     f"watchdog {timing.watchdog_timeout_s * 1e3:g} ms"
-                     f"{_scheduling(args.rt_priority)}; Ctrl-C to stop")
-                with realtime_priority(args.rt_priority):  # the paced ticks only
-                    report = emulator.run(args.duration)
-                if firmware is not None:  # its frames went out on its own line: it counted them
-                    report.frames_sent = firmware.channel.counters()["tx_frames"]
-            finally:
-                for number, handler in previous.items():
-                    signal.signal(number, handler)
-        finally:
-            port.close()
-            if record is not None:
-                record.close()
-    _print_report(report, args.json)
+    settings = EmulatorSettings(_truth_path(args.truth, args.build_dir), parameters, timing, port=args.port,
+                                link=args.link, firmware=args.firmware, lockstep=args.lockstep, faults=faults,
+                                disconnection=disconnection, record=Path(args.record) if args.record else None,
+                                duration_s=args.duration, rt_priority=args.rt_priority)
+    _print_report(serve_rig(settings, args.truth, _say), args.json)
     return 0
-
-
-def _firmware_name(kind: str) -> str:
-    return {"python": "Python firmware", "c": "C firmware (host build)", "qemu": "C firmware in QEMU mps2-an386"}[kind]
 
 
 def _require_plain_link(args: argparse.Namespace, faults, disconnection) -> None:
@@ -182,10 +141,6 @@ def _require_plain_link(args: argparse.Namespace, faults, disconnection) -> None
     if faults.active or disconnection is not None:
         raise InvalidParameterError("--firmware", args.firmware, "python when faults are injected (--drop, --corrupt, "
                                     "--duplicate, --delay, --disconnect-at): the C firmware writes its own line")
-
-
-def _scheduling(priority: int | None) -> str:
-    return "" if priority is None else f", SCHED_FIFO priority {priority}"
 
 
 def _seconds(text: str) -> float:
