@@ -144,12 +144,15 @@ def run_tests(args, folder: Path) -> list[dict]:
         busy = run % 2 == 1
         with neighbour(busy):
             started = time.perf_counter()
+            # CI=true: pytest's summary line keeps a failure's message whole (cut to the terminal's width otherwise,
+            # which left no room for it); each failure's "E" lines are kept too
             done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "realtime", "-p", "no:cacheprovider"],
-                                  cwd=HERE.parent, capture_output=True, text=True)
+                                  cwd=HERE.parent, capture_output=True, text=True, env={**os.environ, "CI": "true"})
         last = done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr[-300:]
         row = {"run": run, "neighbour": busy, "exit": done.returncode, "summary": last,
                "wall_s": round(time.perf_counter() - started, 1),
-               "failed": [line[:300] for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]}
+               "failed": [line[:600] for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))],
+               "errors": [line[:300] for line in done.stdout.splitlines() if line.startswith("E ")][:40]}
         print(json.dumps(row), flush=True)
         rows.append(row)
         save(args, rows)
