@@ -273,7 +273,8 @@ class Experiments:
                 samples = self._exchange(self.voltage, "ramp down", guard=False)
                 self.voltage = max(0.0, level * (1 - (samples[-1].time_s - start) / RAMP_DOWN_S))
             # the samples that answer the first 0 V may have been measured before it arrived (a loaded host reads
-            # them late): 2 of 10 real-time test loops ended a session with the rig's last sample at 0.16-1.2 V
+            # them late): 2 of 6 runs of bench/realtime.py tests ended a session with the rig's last sample at
+            # 0.16-1.24 V
             samples = self._exchange(0.0, "ramp down", guard=False)
             until = samples[-1].time_s + RAMP_DOWN_S
             while samples[-1].applied_voltage_v > 0 and samples[-1].time_s < until:
