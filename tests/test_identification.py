@@ -202,6 +202,28 @@ def test_a_fault_stops_with_its_reason_keeps_the_data_and_ramps_down(options, ma
         assert recorder.last(APPLIED) == 0.0 and recorder.count > kept
 
 
+class LateRig(SimulatedRig):
+    """A host that reads late: each exchange returns the samples measured before its DRIVE arrived."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._pending: list = []
+
+    def exchange(self, voltage: float):
+        answered, self._pending = self._pending, super().exchange(voltage)
+        return answered or self._pending
+
+
+def test_the_ramp_holds_0_v_until_the_rig_says_it_applies_it():
+    """A caller's STOP comes after the rig has measured at 0 V, even when the samples come one DRIVE late."""
+    rig = LateRig(TRUTH, noise_peak_m=0.0)
+    experiments = Experiments(rig, SHORT_PLAN, SampleRecorder(io.StringIO()), metres_per_volt=1e-7, max_voltage=100.0)
+    experiments.voltage = 40.0
+    assert experiments.ramp_down()
+    assert rig.exchange(0.0)[-1].applied_voltage_v == 0.0  # what the rig measured last before a STOP
+    assert experiments.recorder.last(APPLIED) == 0.0
+
+
 @pytest.mark.slow  # identifications against a simulated rig
 def test_ctrl_c_ramps_the_drive_down_keeps_the_data_and_says_where(tmp_path):
     rig = SimulatedRig(TRUTH, interrupt_at_s=1.0)
