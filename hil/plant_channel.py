@@ -381,7 +381,7 @@ class FirmwarePort:
     def read(self) -> bytes:
         return b""
 
-    def write(self, data: bytes) -> None:
+    def write(self, data: bytes, *, wait_s: float = 0.0) -> None:
         if data:
             raise InvalidParameterError("bytes for the host", len(data), "none: the firmware writes its own line")
 

@@ -1,7 +1,8 @@
 """The emulator's end of the wire: a pseudo-terminal (:class:`PtyPort`) or any pyserial URL (:class:`UrlPort`).
 
 Both read and write without blocking (a byte the host has no room for is dropped and counted: a rig
-does not wait for its host) and can be disconnected and reconnected, as a USB cable is pulled and
+does not wait for its host; the next write starts with a frame delimiter, so that only the cut frame is lost, not the
+next one glued to its head) and can be disconnected and reconnected, as a USB cable is pulled and
 plugged back. A pty is reached through a stable symlink (like ``/dev/serial/by-id/...``) that points
 at a new pty after each reconnection, so the host reopens the same path.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import time
 import tty
 from pathlib import Path
 
@@ -18,9 +20,12 @@ import serial
 from nfal.errors import LinkError
 
 from .link import READ_ERRORS, open_port, serial_descriptor, wait_readable
+from .protocol import DELIMITER
 
 #: Most bytes one read takes.
 READ_CHUNK = 65536
+#: How often a write that waits for room tries again [s] (a pty master selects writable when full too).
+ROOM_POLL_S = 0.0005
 
 
 def _require_free_link_path(path: Path) -> None:
@@ -32,7 +37,35 @@ def _require_free_link_path(path: Path) -> None:
                     "puts a symlink there and removes it at exit)")
 
 
-class PtyPort:
+class _Writer:
+    """The ports' write: what the host has room for, the rest dropped and counted."""
+
+    bytes_dropped: int  # including a delimiter put before the next frame after a cut
+    connected: bool
+    _cut = False  # the last write cut a frame: the host's decoder holds its head
+
+    def write(self, data: bytes, *, wait_s: float = 0.0) -> None:
+        """Write what the host has room for; with ``wait_s``, wait up to that long for room for the rest (a rig in
+        lockstep, whose host waits for every answer); drop and count what is left."""
+        if not self.connected or not data:
+            return
+        # after a cut frame, a delimiter first: the host then drops that frame alone (back-to-back delimiters are
+        # idle fill), where it would glue the next one to its head and drop both
+        data = (DELIMITER if self._cut else b"") + data
+        written, deadline = self._write_some(data), time.monotonic() + wait_s
+        while written < len(data) and self.connected and time.monotonic() < deadline:
+            time.sleep(ROOM_POLL_S)
+            written += self._write_some(data[written:])
+        if written:
+            self._cut = written < len(data)
+        self.bytes_dropped += len(data) - written
+
+    def _write_some(self, data: bytes) -> int:
+        """Write what fits now, without waiting; the number of bytes written."""
+        raise NotImplementedError
+
+
+class PtyPort(_Writer):
     """A pty whose other end the host opens at :attr:`path` (a symlink to the current ``/dev/pts/N``).
 
     Parameters
@@ -97,20 +130,17 @@ class PtyPort:
         """Return when the host has sent something or after ``timeout_s``."""
         wait_readable(self._master, timeout_s)
 
-    def write(self, data: bytes) -> None:
-        if self._master is None or not data:
-            return
+    def _write_some(self, data: bytes) -> int:
         try:
-            written = os.write(self._master, data)
+            return os.write(self._master, data)
         except (BlockingIOError, InterruptedError):
-            written = 0
-        self.bytes_dropped += len(data) - written
+            return 0
 
     def close(self) -> None:
         self.disconnect()
 
 
-class UrlPort:
+class UrlPort(_Writer):
     """Any ``serial.serial_for_url`` URL (a device wired to the host's, ``socket://host:port``, ...)."""
 
     def __init__(self, url: str, baudrate: int = 2_000_000) -> None:
@@ -147,17 +177,14 @@ class UrlPort:
         """Return when the host has sent something or after ``timeout_s``."""
         wait_readable(serial_descriptor(self._port), timeout_s)
 
-    def write(self, data: bytes) -> None:
-        if self._port is None or not data:
-            return
+    def _write_some(self, data: bytes) -> int:
         try:
-            written = self._port.write(data) or 0
+            return self._port.write(data) or 0
         except serial.SerialTimeoutException:
-            written = 0
+            return 0
         except (serial.SerialException, OSError) as exc:
             self._failed(exc)
-            written = 0
-        self.bytes_dropped += len(data) - written
+            return 0
 
     def _failed(self, exc: Exception) -> None:
         """The far end went away (a socket closed, a device unplugged): the port is down until :meth:`connect`."""

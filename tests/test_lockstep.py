@@ -60,6 +60,23 @@ def test_each_drive_is_answered_by_one_tick_and_the_rig_waits_for_the_next(rig, 
     assert emulator.report.lockstep_ticks == 49  # the first DRIVE arms the rig in a tick on the wall clock
 
 
+def test_a_host_that_let_the_port_fill_still_gets_the_answer_to_its_first_drive(rig, host, monkeypatch):
+    """Before the first DRIVE the rig streams on its own clock; a host busy setting up (or descheduled between taking
+    in that backlog and sending its DRIVE) finds the port full, the last frame in it cut. The answer must still come,
+    whole: the rig waits for room for it and starts it with a delimiter. (A CI run under load lost it: the proxy
+    waited its 2 s for an answer the rig had dropped, while the rig waited for the next DRIVE.)"""
+    emulator, _ = rig
+    deadline = time.monotonic() + 30
+    while emulator.port.bytes_dropped == 0 and time.monotonic() < deadline:  # the port full, nothing read
+        time.sleep(0.01)
+    assert emulator.port.bytes_dropped > 0
+    monkeypatch.setattr(host, "_drain", lambda: None)  # the DRIVE goes with the backlog unread
+    assert host.send_drive(33.0)
+    assert host.wait_applied(3.0)  # without the fix: only after the rig's LOCKSTEP_WAIT_S (5 s) on the wall clock
+    assert host.latest().measurement.drive_voltage == 33.0
+    assert host.decoder.counters.crc_errors <= 1  # the cut frame alone
+
+
 def test_a_host_gone_silent_hands_the_rig_back_to_the_wall_clock_and_its_watchdog(rig, host, monkeypatch):
     import nfal.apps.rig_emulator
 

@@ -188,7 +188,9 @@ class Emulator:
                                f"{reading.drive_frequency!r},{voltage!r},{self.model.true_height!r}\n")
         frames = self.inject(out, now)
         if frames:
-            port.write(b"".join(frames))
+            # lockstep: the host waits for this answer, so the rig waits for room for it (a host that set up for a
+            # while finds the port full of what was streamed meanwhile; a dropped answer would stall both ends)
+            port.write(b"".join(frames), wait_s=LOCKSTEP_WAIT_S if self._ticks_on_drives() else 0.0)
             self.report.frames_sent += len(frames)
         self.model.advance()
         self._link_events(now)
