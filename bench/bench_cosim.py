@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import record
 from machine import describe
 
 from nfal.models.closed_loop import Staircase
@@ -430,32 +431,52 @@ def main() -> None:
          f"the run's own wall_time_s {e2e_run:.2f} s; interpreter start, imports, FMU build, plot, metrics "
          f"{e2e_wall - e2e_run:.2f} s"),
     ]
-    print(f"fig7_slow, {stop:g} s simulated at {STEP * 1e3:g} ms ({steps} communication steps x 4 FMUs), best of "
-          f"{args.repeats}; {end_load} at the end\n")
-    print("| case | wall time [s] | ratio | notes |")
-    print("|---|---:|---:|---|")
-    for name, seconds, ratio, notes in rows:
-        print(f"| {name} | {seconds:.2f} | {ratio} | {notes} |")
-    print("\nratio: wall time / libcosim's (run_ssp) in this run; goal for ours: <= 1.2.\n")
-    print("Where the time goes: one more run of each, every FMU call timed in place (adds ~1 us per call). "
-          "\"In the FMUs\": their Python slave methods; \"FMI call layers\": fmpy, ctypes and pythonfmu's C wrapper "
-          "(our call-site time minus the FMUs' own); \"host\": the rest of the loop, libcosim's includes its FMI "
-          "layers.\n")
-    print("| host | wall [s] | before the first doStep [s] | of it in the FMUs [s] | loop [s] | in the FMUs [s] "
-          "| FMI call layers [s] | host [s] | host per FMU step [us] | after the last doStep [s] |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    names = {"causal": "ours, `causal`", "jacobi": "ours, `jacobi`", "libcosim": "libcosim, run_ssp",
-             "libcosim_patched": "libcosim, run_ssp, SensorChain cache patched (what-if)",
-             "libcosim_bare": "libcosim alone (no observer, step(n))"}
+    hosts = []
     for key, t in split.items():
-        if key in ("causal", "jacobi"):
-            calls = t["result"].summary["do_step_wall_time_s"] + t["exchange"]
-            layers, host = f"{calls - t['fmu_loop']:.2f}", t["loop"] - calls
+        calls = t["result"].summary["do_step_wall_time_s"] + t["exchange"] if key in ("causal", "jacobi") else None
+        hosts.append({"host": key, **{k: t[k] for k in ("wall", "before", "fmu_setup", "loop", "fmu_loop", "after")},
+                      "calls": calls})
+    result = {"stop_s": stop, "steps": steps, "fmu_steps": fmu_steps, "repeats": args.repeats, "load_at_end": end_load,
+              "cases": [{"case": name, "wall_s": seconds, "ratio": ratio, "notes": notes}
+                        for name, seconds, ratio, notes in rows], "where_time_goes": hosts}
+    print(record.save("cosim", result))
+    record.show(tables(result))
+    holder.cleanup()
+
+
+
+HOST_NAMES = {"causal": "ours, `causal`", "jacobi": "ours, `jacobi`", "libcosim": "libcosim, run_ssp",
+              "libcosim_patched": "libcosim, run_ssp, SensorChain cache patched (what-if)",
+              "libcosim_bare": "libcosim alone (no observer, step(n))"}
+
+
+def title(result: dict) -> str:
+    return "Co-simulation: the Fig. 7 loop as FMUs, ours against OSP libcosim"
+
+
+def tables(result: dict) -> list[record.Table]:
+    cases = record.Table(f"fig7_slow, {result['stop_s']:g} s simulated at {STEP * 1e3:g} ms ({result['steps']} "
+                         f"communication steps x 4 FMUs), best of {result['repeats']}; ratio: wall time / libcosim's "
+                         "(run_ssp, the baseline) in this run; goal for ours: <= 1.2:",
+                         ["case", "wall time [s]", "ratio", "notes"],
+                         [[c["case"], f"{c['wall_s']:.2f}", c["ratio"], c["notes"]] for c in result["cases"]])
+    rows = []
+    for t in result["where_time_goes"]:
+        if t["calls"] is not None:
+            layers, host = f"{t['calls'] - t['fmu_loop']:.2f}", t["loop"] - t["calls"]
         else:
             layers, host = "(in host)", t["loop"] - t["fmu_loop"]
-        print(f"| {names[key]} | {t['wall']:.2f} | {t['before']:.2f} | {t['fmu_setup']:.2f} | {t['loop']:.2f} | "
-              f"{t['fmu_loop']:.2f} | {layers} | {host:.2f} | {host / fmu_steps * 1e6:.1f} | {t['after']:.2f} |")
-    holder.cleanup()
+        rows.append([HOST_NAMES[t["host"]], f"{t['wall']:.2f}", f"{t['before']:.2f}", f"{t['fmu_setup']:.2f}",
+                     f"{t['loop']:.2f}", f"{t['fmu_loop']:.2f}", layers, f"{host:.2f}",
+                     f"{host / result['fmu_steps'] * 1e6:.1f}", f"{t['after']:.2f}"])
+    split = record.Table("Where the time goes: one more run of each, every FMU call timed in place (adds ~1 us per "
+                         "call). \"In the FMUs\": their Python slave methods; \"FMI call layers\": fmpy, ctypes and "
+                         "pythonfmu's C wrapper (our call-site time minus the FMUs' own); \"host\": the rest of the "
+                         "loop, libcosim's includes its FMI layers.",
+                         ["host", "wall [s]", "before the first doStep [s]", "of it in the FMUs [s]", "loop [s]",
+                          "in the FMUs [s]", "FMI call layers [s]", "host [s]", "host per FMU step [us]",
+                          "after the last doStep [s]"], rows)
+    return [cases, split]
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import argparse  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-from machine import describe  # noqa: E402
+import record  # noqa: E402
 
 from nfal.models.calibration import perturbation_calibration  # noqa: E402
 from nfal.models.coupled import CoupledModel  # noqa: E402
@@ -94,13 +94,23 @@ def main() -> None:
     args = parser.parse_args()
     shape = paper_shape()
     rows = bench_K(shape) + bench_coupled(shape, args.quick)
-    print(f"Machine: {describe()}, NUMBA_NUM_THREADS = {os.environ['NUMBA_NUM_THREADS']}\n")
-    print("| case | wall time [s] | ratio | notes |")
-    print("|---|---:|---:|---|")
-    for name, seconds, ratio, notes in rows:
-        print(f"| {name} | {seconds:.3f} | {'-' if np.isnan(ratio) else f'{ratio:.2f}'} | {notes} |")
-    print("\nratio: K rows, to the perturbation route; coupled rows, wall time / rig time (1 = real time).")
+    result = {"numba_threads": os.environ["NUMBA_NUM_THREADS"],
+              "rows": [{"case": name, "wall_s": seconds, "ratio": None if np.isnan(ratio) else ratio, "notes": notes}
+                       for name, seconds, ratio, notes in rows]}
+    print(record.save("film", result))
+    record.show(tables(result))
 
+
+def title(result: dict) -> str:
+    return "Film solvers: K(σ) and the coupled model"
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table(f"NUMBA_NUM_THREADS = {result['numba_threads']}. Ratio: K rows, wall time / the perturbation "
+                         "route's (the baseline, same run); coupled rows, wall time / rig time (1 = real time).",
+                         ["case", "wall time [s]", "ratio", "notes"],
+                         [[row["case"], f"{row['wall_s']:.3f}", "-" if row["ratio"] is None else f"{row['ratio']:.2f}",
+                           row["notes"]] for row in result["rows"]])]
 
 if __name__ == "__main__":
     main()

@@ -20,13 +20,12 @@
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from machine import describe
+import record
 
 from nfal.apps.build import build_all
 from nfal.apps.fig7 import DEFAULT_STAIRCASES
@@ -103,28 +102,45 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="1 s of loop, 0.15 s of accuracy run")
     args = parser.parse_args()
     stop, duration = (1.0, 0.15) if args.quick else (3.7, 0.15)
-    print(f"machine: {describe()}; load average {os.getloadavg()[0]:.2f}\n")
     with tempfile.TemporaryDirectory() as folder:
         archive = build_all(Path(folder) / "build", structures=("fig7_reynolds",))["fig7_reynolds"]
-        rows = {}
+        loops = {}
         for solver in SOLVERS:
             loop_wall_time(archive, solver, 0.01, Path(folder) / f"warm-{solver}")  # imports, numba caches
-            rows[solver] = loop_wall_time(archive, solver, stop, Path(folder) / solver)
-    print(f"## fig7_reynolds, {stop:g} s simulated, whole run (set-up included)\n")
-    print("| film solver | wall [s] | wall / simulated | set-up [s] | Plant doStep mean [us] |")
-    print("|---|---|---|---|---|")
-    for solver, (wall, summary) in rows.items():
-        print(f"| {solver} | {wall:.2f} | {wall / stop:.2f} | {summary['initialization_wall_time_s']:.2f} | "
-              f"{summary['timing']['Plant']['do_step_mean_us']:.0f} |")
-    ratio = rows["time_marching"][0] / rows["harmonic_balance"][0]
-    print(f"\nharmonic balance is {ratio:.1f}x faster than time marching (same run)\n")
-    errors = accuracy(duration)
-    print(f"## plant accuracy, open-loop |a| staircase, {duration:g} s: largest relative height error after 30 ms "
-          "against Richardson(81x128, 161x256) time marching (target 5e-4 for the default table)\n")
-    print("| compared | error |")
-    print("|---|---|")
-    for name, error in errors.items():
-        print(f"| {name} | {error:.2e} |")
+            wall, summary = loop_wall_time(archive, solver, stop, Path(folder) / solver)
+            loops[solver] = {"wall_s": wall, "setup_s": summary["initialization_wall_time_s"],
+                             "plant_do_step_mean_us": summary["timing"]["Plant"]["do_step_mean_us"]}
+            print(solver, loops[solver], flush=True)
+    result = {"simulated_s": stop, "accuracy_run_s": duration, "loops": loops, "errors": accuracy(duration)}
+    print(record.save("reynolds", result))
+    record.show(tables(result), findings(result))
+
+
+def title(result: dict) -> str:
+    return "The Reynolds loop: harmonic balance against time marching"
+
+
+def tables(result: dict) -> list[record.Table]:
+    stop = result["simulated_s"]
+    return [record.Table(f"fig7_reynolds, {stop:g} s of its staircase, the whole run as FMUs (set-up included), each "
+                         "solver after a warm-up run:",
+                         ["film solver", "wall [s]", "wall / simulated", "set-up [s]", "Plant doStep mean [µs]"],
+                         [[solver, f"{loop['wall_s']:.2f}", f"{loop['wall_s'] / stop:.2f}", f"{loop['setup_s']:.2f}",
+                           f"{loop['plant_do_step_mean_us']:.0f}"] for solver, loop in result["loops"].items()]),
+            record.Table(f"The plant's accuracy: open-loop |a| staircase, {result['accuracy_run_s']:g} s, the largest "
+                         "relative height error after 30 ms against time marching converged by Richardson "
+                         "extrapolation of 81 x 128 and 161 x 256 (target: 5e-4 for the default table):",
+                         ["compared", "error"], [[name, f"{error:.2e}"] for name, error in result["errors"].items()])]
+
+
+def findings(result: dict) -> list[str]:
+    loops, stop = result["loops"], result["simulated_s"]
+    default = loops["harmonic_balance"]["wall_s"]
+    return [f"Harmonic balance is {loops['time_marching']['wall_s'] / default:.1f}x faster than time marching (the "
+            f"baseline, same run); the loop runs at {default / stop:.2f} x real time (wall / simulated), "
+            f"{stop / default:.1f}x faster than real time.",
+            f"The default table's worst error is {result['errors']['plant, default table']:.2e} (target 5e-4)."]
+
 
 if __name__ == "__main__":
     main()

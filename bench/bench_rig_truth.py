@@ -14,13 +14,12 @@ the rig model's own overrun; the plant's share is timed on its own (its ``do_ste
 
 from __future__ import annotations
 
-import os
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from machine import describe
+import record
 
 from nfal.apps.build import build_all
 from nfal.apps.rig_model import StructureRig, open_rig
@@ -52,19 +51,20 @@ def tick_costs(rig) -> tuple[np.ndarray, np.ndarray]:
     return costs * 1e6, cpu * 1e6
 
 
-def print_row(name: str, run: int, setup: float, costs: np.ndarray, cpu: np.ndarray, plant: np.ndarray | None) -> None:
-    plant_columns = ("- | - | -" if plant is None
-                     else f"{plant.mean():.0f} | {plant.max():.0f} | {int(np.sum(plant > 500))}")
-    print(f"| {name} | {run} | {setup:.2f} | {costs.mean():.0f} | {np.percentile(costs, 99):.0f} | {costs.max():.0f} | "
-          f"{int(np.sum(costs > 500))} | {cpu.mean():.0f} | {cpu.max():.0f} | {int(np.sum(cpu > 500))} | "
-          f"{plant_columns} |", flush=True)
+def summary(name: str, run: int, setup: float, costs: np.ndarray, cpu: np.ndarray, plant: np.ndarray | None) -> dict:
+    """One row: set-up [s], and of the ticks' wall and CPU times and the plant's doStep CPU time [us]: mean, p99,
+    max and how many exceed the 500 us tick."""
+    def stats(values: np.ndarray | None) -> dict | None:
+        if values is None:
+            return None
+        return {"mean_us": round(float(values.mean()), 1), "p99_us": round(float(np.percentile(values, 99)), 1),
+                "max_us": round(float(values.max()), 1), "over_500_us": int(np.sum(values > 500))}
+    return {"truth": name, "run": run, "setup_s": round(setup, 3), "tick": stats(costs), "tick_cpu": stats(cpu),
+            "plant_cpu": stats(plant)}
 
 
 def main() -> None:
-    print(f"machine: {describe()}; load average {os.getloadavg()[0]:.2f}\n")
-    print("| truth | run | set-up [s] | tick mean [us] | p99 [us] | max [us] | ticks > 500 us | CPU per tick: mean "
-          "[us] | max [us] | ticks > 500 us of CPU | Plant doStep CPU: mean [us] | max [us] | > 500 us |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = []
     with tempfile.TemporaryDirectory() as folder:
         paths = build_all(Path(folder), structures=("rig_slow", "rig_reynolds"))
         for run in (1, 2):
@@ -75,13 +75,40 @@ def main() -> None:
                     plant = []
                     rig.plant.do_step = timed(rig.plant.do_step, plant)  # the in-process rig's Plant slave
                     costs, cpu = tick_costs(rig)
-                print_row(name, run, setup, costs, cpu, np.array(plant) * 1e6)
+                rows.append(summary(name, run, setup, costs, cpu, np.array(plant) * 1e6))
+                print(rows[-1], flush=True)
         started = time.perf_counter()  # the same rig through the co-simulation master (a user's structure's path)
         with StructureRig(paths["rig_slow"], TICK_S) as rig:
             setup = time.perf_counter() - started
             costs, cpu = tick_costs(rig)
-        print_row("rig_slow through the master", 2, setup, costs, cpu, None)
+        rows.append(summary("rig_slow through the master", 2, setup, costs, cpu, None))
+    result = {"ticks": TICKS, "rows": rows}
+    print(record.save("rig-truth", result))
+    record.show(tables(result), findings(result))
 
+
+def tables(result: dict) -> list[record.Table]:
+    def cells(stats: dict | None, p99: bool = True) -> list:
+        if stats is None:
+            return ["-"] * (4 if p99 else 3)
+        return [f"{stats['mean_us']:.0f}", *([f"{stats['p99_us']:.0f}"] if p99 else []), f"{stats['max_us']:.0f}",
+                stats["over_500_us"]]
+    return [record.Table(f"{result['ticks']} ticks of 0.5 ms each (10 s of rig time):",
+                         ["truth", "run", "set-up [s]", "tick mean [µs]", "p99 [µs]", "max [µs]", "ticks > 500 µs",
+                          "CPU per tick: mean [µs]", "max [µs]", "ticks > 500 µs of CPU",
+                          "Plant doStep CPU: mean [µs]", "max [µs]", "> 500 µs"],
+                         [[row["truth"], row["run"], f"{row['setup_s']:.2f}", *cells(row["tick"]),
+                           *cells(row["tick_cpu"], p99=False), *cells(row["plant_cpu"], p99=False)]
+                          for row in result["rows"]])]
+
+
+def findings(result: dict) -> list[str]:
+    warm = {row["truth"]: row for row in result["rows"] if row["run"] == 2}
+    slow, reynolds = warm["rig_slow"], warm["rig_reynolds"]
+    return [f"Warm (run 2), the slow truth's tick costs {slow['tick']['mean_us'] / reynolds['tick']['mean_us']:.2f}x "
+            f"the Reynolds truth's (the baseline, same run) and its plant "
+            f"{slow['plant_cpu']['mean_us'] / reynolds['plant_cpu']['mean_us']:.2f}x; a tick over 500 µs of wall "
+            "time whose CPU time is not was the machine's, not the model's."]
 
 if __name__ == "__main__":
     main()

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine import describe
+import record
 
 from nfal.apps.build import build_all
 from nfal.orchestration.sweep import read_table, run_sweep
@@ -71,17 +71,33 @@ def main() -> None:
     sweep = spec(args.stop_time)
     with tempfile.TemporaryDirectory() as tmp:
         archives = build_all(Path(tmp) / "build", structures=("fig7_slow",))
-        results = [measure(sweep, archives, n, Path(tmp) / f"w{n}") for n in (1, 2)]
-    one, two = results
+        one, two = (measure(sweep, archives, n, Path(tmp) / f"w{n}") for n in (1, 2))
     same = all(a["iae_m_s"] == b["iae_m_s"] for a, b in zip(one["rows"], two["rows"]))
-    print(f"{describe()}; "
-          f"{len(one['rows'])} runs of {args.stop_time:g} s (0.5 ms steps); tables identical: {same}\n")
-    print("| workers | startup [s] | warm-up [s] | sweep wall [s] | task mean [s] | overhead per task [ms] | ok |")
-    print("|---|---|---|---|---|---|---|")
-    for r in results:
-        print(f"| {r['workers']} | {r['startup']:.2f} | {r['warmup']:.2f} | {r['wall']:.2f} | {r['task_mean']:.3f} | "
-              f"{r['overhead'] * 1e3:.1f} | {r['ok']}/{len(r['rows'])} |")
-    print(f"\nspeed-up 2 vs 1 workers: {one['wall'] / two['wall']:.2f}x (goal >= 1.8x)")
+    keep = ("workers", "startup", "warmup", "wall", "task_total", "task_mean", "overhead", "ok")
+    result = {"stop_time_s": args.stop_time, "runs": len(one["rows"]), "tables_identical": same,
+              "measurements": [{key: measured[key] for key in keep} for measured in (one, two)]}
+    print(record.save("sweep", result))
+    record.show(tables(result), findings(result))
+
+
+def title(result: dict) -> str:
+    return "Sweeps: a 32-run robustness sweep on 1 and 2 Dask workers"
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table(f"{result['runs']} runs of {result['stop_time_s']:g} s (0.5 ms steps) of fig7_slow; the "
+                         "cluster's start and a warm-up sweep are not in the sweep's wall time:",
+                         ["workers", "startup [s]", "warm-up [s]", "sweep wall [s]", "task mean [s]",
+                          "overhead per task [ms]", "ok"],
+                         [[m["workers"], f"{m['startup']:.2f}", f"{m['warmup']:.2f}", f"{m['wall']:.2f}",
+                           f"{m['task_mean']:.3f}", f"{m['overhead'] * 1e3:.1f}", f"{m['ok']}/{result['runs']}"]
+                          for m in result["measurements"]])]
+
+
+def findings(result: dict) -> list[str]:
+    one, two = result["measurements"]
+    return [f"Speed-up of 2 workers over 1 (the baseline, same run): {one['wall'] / two['wall']:.2f}x (goal >= 1.8x); "
+            f"the two sweeps' tables are {'identical' if result['tables_identical'] else 'NOT identical'}."]
 
 
 if __name__ == "__main__":

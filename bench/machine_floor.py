@@ -21,9 +21,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
+import record
 from machine import describe
 from realtime import neighbour
 
@@ -68,14 +68,29 @@ def main() -> None:
                                "work_us": work, **measure(binary, args.seconds, work, fifo, wait)}
                         print(json.dumps(row), flush=True)
                         rows.append(row)
-    result = {"bench": "machine-floor", "machine": describe(),
-              "command": "python bench/machine_floor.py " + " ".join(sys.argv[1:]),
-              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_average": os.getloadavg(),
-              "seconds": args.seconds, "runs": rows}
-    path = HERE / "results" / "machine-floor.json"
-    path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    path = record.save("machine-floor", {"seconds": args.seconds, "runs": rows})
     print(path, flush=True)
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table(f"Each run {result['seconds']:g} s of 0.5 ms steps:",
+                         ["CPU-bound process beside", "priority", "wait", "work a step [µs]", "overruns [%]",
+                          "longest gap between step starts [ms]", "gaps > 5 ms", "gaps > 10 ms"],
+                         [["yes" if run["neighbour"] else "no", run["priority"], run["wait"], f"{run['work_us']:g}",
+                           f"{run['overrun_share_percent']:.2f}", f"{run['gap_max_ms']:.1f}", run["gaps_over_5ms"],
+                           run["gaps_over_10ms"]] for run in result["runs"]])]
+
+
+def findings(result: dict) -> list[str]:
+    runs = result["runs"]
+    best = min(runs, key=lambda run: run["overrun_share_percent"])
+    return [f"Overruns {min(r['overrun_share_percent'] for r in runs):.2f}-"
+            f"{max(r['overrun_share_percent'] for r in runs):.1f} % of steps, the longest gap "
+            f"{min(r['gap_max_ms'] for r in runs):.1f}-{max(r['gap_max_ms'] for r in runs):.1f} ms over the runs; "
+            f"the best: {best['wait']}, {best['priority']}, {'beside' if best['neighbour'] else 'without'} the "
+            f"CPU-bound process ({best['overrun_share_percent']:.2f} %, {best['gap_max_ms']:.1f} ms). A host of the "
+            "rig on this machine cannot do better than this loop, which does nothing: docs/hil.md, \"This machine's "
+            "floor\"."]
 
 
 if __name__ == "__main__":

@@ -23,10 +23,10 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import record
 from machine import describe
 
 HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "results"
 #: The emulator's truths for the identification runs: the design model's and two it was not designed for.
 TRUTHS = {"default": [], "mass": ["--param", "Plant.mass=0.18"],
           "damping": ["--param", "Plant.excess_damping_height=115e-6", "--param", "Plant.excess_damping_exponent=8"]}
@@ -162,13 +162,61 @@ def run_tests(args, folder: Path) -> list[dict]:
 def save(args, rows: list[dict]) -> Path:
     """bench/results/realtime-<kind>[-neighbour].json: the machine, the command and every run so far."""
     name = f"realtime-{args.kind}" + ("-neighbour" if args.neighbour and args.kind != "tests" else "")
-    RESULTS.mkdir(exist_ok=True)
-    result = {"bench": name, "machine": describe(), "command": "python bench/realtime.py " + " ".join(sys.argv[1:]),
-              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_average": os.getloadavg(),
-              "runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)}
-    path = RESULTS / f"{name}.json"
-    path.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
-    return path
+    return record.save(name, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)})
+
+
+def title(result: dict) -> str:
+    kind = result["bench"].removeprefix("realtime-")
+    return {"identify": "Real time: `nfal identify` against the emulator, full length",
+            "identify-neighbour": "Real time: `nfal identify` beside a CPU-bound process",
+            "hil": "Real time: a long `nfal run fig7_hil --realtime` against the emulator",
+            "tests": "Real time: the suite's real-time tests in a loop"}[kind]
+
+
+def _ms_range(values: list[float]) -> str:
+    return f"{min(values):.1f}-{max(values):.1f}" if values else "-"
+
+
+def tables(result: dict) -> list[record.Table]:
+    runs, kind = result["runs"], result["bench"].removeprefix("realtime-")
+    if kind.startswith("identify"):
+        rows = []
+        for truth in dict.fromkeys(run["truth"] for run in runs):
+            mine = [run for run in runs if run["truth"] == truth]
+            done = [run for run in mine if run["exit"] == 0]
+            p99 = sorted(run["drive_gap_p99_ms"] for run in done)
+            rows.append([truth, f"{len(done)} of {len(mine)}",
+                         f"{p99[len(p99) // 2]:.2f}, {p99[-1]:.2f}" if p99 else "-",
+                         _ms_range([run["drive_gap_max_ms"] for run in done]),
+                         f"{max(run['gc_pause_max_ms'] for run in done) * 1e3:.0f}" if done else "-",
+                         _ms_range([run["rig_time_s"] for run in done])])
+        return [record.Table("Per truth (the runs that completed):",
+                             ["truth", "completed", "DRIVE gaps p99 [ms] (median of runs, worst)",
+                              "longest DRIVE gap [ms] (range)", "collector's longest pause [µs]", "rig time [s]"],
+                             rows)]
+    if kind == "hil":
+        return [record.Table("", ["status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
+                                  "watchdog trips", "stopped on missed samples", "resident memory first / last / max "
+                                  "[MB]"],
+                             [[run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
+                               f"{run['drive_gap_p50_ms']} / {run['drive_gap_p99_ms']} / {run['drive_gap_max_ms']}",
+                               run["watchdog_trips"], "yes" if run["missed_sample_stop"] else "no",
+                               " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"]))] for run in runs])]
+    return [record.Table("", ["run", "CPU-bound process beside", "result", "failed"],
+                         [[run["run"], "yes" if run["neighbour"] else "no", run["summary"],
+                           "; ".join(line.removeprefix("FAILED ").split(" - ")[0] for line in run["failed"]) or "-"]
+                          for run in runs])]
+
+
+def findings(result: dict) -> list[str]:
+    out = [f"{result['completed']} of {result['of']} runs completed (exit status 0)."]
+    for run in result["runs"]:
+        if run.get("error"):
+            out.append(f"Run {run.get('run', 0)}{' (' + run['truth'] + ')' if 'truth' in run else ''}: "
+                       f"{run['error']}")
+        for line in run.get("errors", [])[:2]:
+            out.append(f"Run {run['run']}: `{line.strip()}`")
+    return out
 
 
 def main() -> None:

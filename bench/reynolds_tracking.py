@@ -13,12 +13,11 @@ same steps, for the stand-in form and the piston.
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
 
-from machine import describe
+import record
 
 from nfal.apps.build import build_all
 from nfal.apps.fig7 import DEFAULT_STAIRCASES, loop_metrics, matched_design, reynolds_law
@@ -68,18 +67,28 @@ def main() -> None:
     slow = {"stand-in": rows[CASES[1][0]]["worst_percent"], "piston": rows[CASES[3][0]]["worst_percent"]}
     criterion = {"stand-in form": rows[CASES[4][0]]["worst_percent"] <= slow["stand-in"] + 2.0,
                  "piston": rows[CASES[6][0]]["worst_percent"] <= slow["piston"] + 2.0}
-    result = {"machine": describe(), "command": "python bench/reynolds_tracking.py"
-              + (" --noise-off" if args.noise_off else ""), "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-              "rows": rows, "criterion_met": criterion}
-    output = Path(__file__).parent / "results" / f"reynolds-tracking{'-noise-off' if args.noise_off else ''}.json"
-    output.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    print(f"{result['machine']}; {result['date']}; noise {'off' if args.noise_off else 'on'}\n")
-    print("| loop | overshoot per step [%] | worst [%] | IAE [µm·s] |\n|---|---|---|---|")
-    for name, row in rows.items():
-        steps = ", ".join(f"{value:.2f}" for value in row["overshoot_percent"])
-        print(f"| {name} | {steps} | {row['worst_percent']:.2f} | {row['iae_m_s'] * 1e6:.3f} |")
-    print(f"\nworst overshoot <= fig7_slow's (the same law) + 2 points: {criterion}; {output}")
+    result = {"bench": "reynolds-tracking" + ("-noise-off" if args.noise_off else ""), "rows": rows,
+              "criterion_met": criterion}
+    print(record.save(result["bench"], result))
+    record.show(tables(result), findings(result))
 
+
+def title(result: dict) -> str:
+    return "The Reynolds loop against the slow loop, step by step" + (
+        " (the sensor's noise off)" if result["bench"].endswith("noise-off") else "")
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table("", ["loop", "overshoot per step [%]", "worst [%]", "IAE [µm·s]"],
+                         [[name, ", ".join(f"{value:.2f}" for value in row["overshoot_percent"]),
+                           f"{row['worst_percent']:.2f}", f"{row['iae_m_s'] * 1e6:.3f}"]
+                          for name, row in result["rows"].items()])]
+
+
+def findings(result: dict) -> list[str]:
+    return ["Worst overshoot of fig7_reynolds at most fig7_slow's (the same law) + 2 points: "
+            + ", ".join(f"{case}: {'met' if met else 'not met'}" for case, met in result["criterion_met"].items())
+            + "."]
 
 if __name__ == "__main__":
     main()

@@ -17,12 +17,10 @@ from __future__ import annotations
 
 import json
 import math
-import time
-from pathlib import Path
 
 import numpy as np
 
-from machine import describe
+import record
 from nfal.models.calibration import paper_calibration
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.fixed_step_plant import FixedStepPlant
@@ -92,13 +90,21 @@ def main() -> None:
     dead = {"time_to_20_um_s": round(float(below[0] - 240) * PERIOD_S, 3) if below.size else None,
             "fall_speed_max_mm_s": round(float(np.max(-np.diff(landing)) / PERIOD_S) * 1e3, 3)}
     print(json.dumps({"dead_host_at_100_um": dead}), flush=True)
-    result = {"bench": "watchdog-hold", "machine": describe(), "command": "python bench/watchdog_hold.py",
-              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "rows": rows,
-              "dead_host_at_100_um": dead}
-    out = Path(__file__).resolve().parent / "results" / "watchdog-hold.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    print(record.save("watchdog-hold", {"rows": rows, "dead_host_at_100_um": dead}), flush=True)
 
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table("The worst over the hold's start (every 5 ms over the step's first 100 ms):",
+                         ["step [µm]", "hold [ms]", "worst overshoot [% of the step]", "lowest clearance [µm]"],
+                         [[" -> ".join(map(str, row["step_um"])), row["hold_ms"], row["worst_overshoot_percent"],
+                           row["lowest_clearance_um"]] for row in result["rows"]])]
+
+
+def findings(result: dict) -> list[str]:
+    dead = result["dead_host_at_100_um"]
+    return [f"A dead host at 100 µm (the watchdog trips after 20 ms, the drive ramps to 0 V over 50 ms): the object "
+            f"reaches 20 µm after {dead['time_to_20_um_s']:g} s, falling at most {dead['fall_speed_max_mm_s']:g} "
+            "mm/s."]
 
 if __name__ == "__main__":
     main()

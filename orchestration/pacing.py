@@ -65,7 +65,7 @@ def realtime_priority(priority: int | None) -> Iterator[None]:
     restore its policy; None: leave the scheduling alone.
 
     A SCHED_FIFO thread is not preempted by ordinary processes, so a paced loop's release is not delayed by
-    whatever else the machine runs (measured in docs/benchmarks.md, "Hardware in the loop"). The kernel's
+    whatever else the machine runs (measured in docs/benchmark-notes.md, "Hardware in the loop"). The kernel's
     real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % of a CPU by default) keeps a
     runaway loop from freezing the machine. Raises :class:`RealtimePriorityError` if the process may not
     have it (it needs root, CAP_SYS_NICE or an ``rtprio`` limit), before anything runs.
@@ -119,7 +119,7 @@ class RealTimePacer:
     spin_s : float
         How long before a release to stop sleeping and busy-wait [s] (0: sleep only). Default 100 us: with
         the 1 ns timer slack, sleeps overshoot by 34 us median, 79 us p99 here; a longer busy wait costs a
-        2-core machine the CPU a second real-time process needs (docs/benchmarks.md, "Hardware in the loop").
+        2-core machine the CPU a second real-time process needs (docs/benchmark-notes.md, "Hardware in the loop").
     clock, sleep : callables
         Injected for tests; default ``time.perf_counter`` and ``time.sleep``.
     resync_after_s : float, optional
