@@ -17,7 +17,7 @@ import subprocess
 import time
 
 import numpy as np
-from machine import describe
+import record
 
 from nfal.hil.firmware import RigReading, RigTiming
 from nfal.hil.plant_channel import ExternalFirmware, FirmwareProcess, build
@@ -41,25 +41,49 @@ def session(process: FirmwareProcess) -> tuple[np.ndarray, np.ndarray]:
     return np.array([process.cost_ns(c) for c in firmware.costs[1:]]), np.array(walls[1:])
 
 
-def stats(values: np.ndarray, scale: float, unit: str) -> str:
+def stats(values: np.ndarray, scale: float) -> dict:
     p50, p99 = np.percentile(values, [50, 99])
-    return f"median {p50 * scale:.1f} {unit}, p99 {p99 * scale:.1f} {unit}, max {values.max() * scale:.1f} {unit}"
+    return {"median": round(float(p50 * scale), 2), "p99": round(float(p99 * scale), 2),
+            "max": round(float(values.max() * scale), 2)}
 
 
 def main() -> None:
-    print(describe())
     elf = build("mps2")
-    print(subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True).stdout)
+    size = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True).stdout
+    names, values = (line.split() for line in size.strip().splitlines()[:2])
     with FirmwareProcess("qemu", icount_shift=3) as process:
-        cost, _ = session(process)
-    print(f"QEMU -icount shift=3 tick: {stats(cost, 1e-3, 'us')}; instructions {stats(cost / 8, 1, '')}")
+        qemu_cost, _ = session(process)
     with FirmwareProcess("c") as process:
-        cost, wall = session(process)
-    print(f"host build tick: {stats(cost, 1e-3, 'us')}; through the plant channel (pipes): {stats(wall, 1e6, 'us')}")
+        host_cost, host_wall = session(process)
     with FirmwareProcess("qemu") as process:
-        _, wall = session(process)
-    print(f"QEMU through the plant channel (UART1, no -icount): {stats(wall, 1e6, 'us')}")
+        _, qemu_wall = session(process)
+    result = {"ticks": TICKS, "size": dict(zip(names[:4], map(int, values[:4]))),
+              "rows": [{"case": "Cortex-M4F in QEMU mps2-an386, -icount shift=3: the tick [µs]",
+                        **stats(qemu_cost, 1e-3)},
+                       {"case": "the same, instructions a tick", **stats(qemu_cost / 8, 1)},
+                       {"case": "host build: the tick [µs]", **stats(host_cost, 1e-3)},
+                       {"case": "host build through the plant channel (pipes): the round trip [µs]",
+                        **stats(host_wall, 1e6)},
+                       {"case": "QEMU through the plant channel (UART1, no -icount): the round trip [µs]",
+                        **stats(qemu_wall, 1e6)}]}
+    print(record.save("firmware", result))
+    record.show(tables(result), findings(result))
 
+
+def title(result: dict) -> str:
+    return "The C reference firmware: size, tick cost and the plant channel's round trip"
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table(f"{result['ticks']} ticks of a session at 2 kHz, a DRIVE every tick:",
+                         ["case", "median", "p99", "max"],
+                         [[row["case"], row["median"], row["p99"], row["max"]] for row in result["rows"]])]
+
+
+def findings(result: dict) -> list[str]:
+    size = result["size"]
+    return [f"The Cortex-M4F build (arm-none-eabi-size): text {size['text']} B, data {size['data']} B, bss "
+            f"{size['bss']} B: flash {size['text'] + size['data']} B, static RAM {size['data'] + size['bss']} B."]
 
 if __name__ == "__main__":
     main()

@@ -29,8 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import record
 import timed_emulator
-from machine import describe
 
 from nfal.apps.build import build_all
 from nfal.models.closed_loop import Staircase
@@ -211,7 +211,6 @@ def main() -> int:
     if refusal:
         print(f"no SCHED_FIFO comparison: {refusal}\n")
         fifo = None
-    print(f"machine: {describe()}; load average {os.getloadavg()[0]:.2f}\n")
     with tempfile.TemporaryDirectory(prefix="nfal-bench-hil-") as temp:
         folder = Path(temp)
         archives = build_all(folder / "build", structures=("fig7_slow", "fig7_hil", "rig_slow", "rig_reynolds"))
@@ -223,36 +222,55 @@ def main() -> int:
         else:
             cases = ((args.truth, None), (args.truth, fifo)) if fifo else ()
         ab = ab_rounds(archives, args.rounds, args.round_seconds, cases, folder) if cases else []
-    print(f"{args.seconds:g} s paced at 2 kHz (`python bench/bench_hil.py --seconds {args.seconds:g}`); jitter = "
-          "step-start lateness; ratio = p99 jitter / the baseline's; steal = CPU time the hypervisor took, share of "
-          "both CPUs\n")
-    print("| case | steps | overruns | jitter p50 [µs] | p99 [µs] | max [µs] | p99 ratio | step mean / max [µs] | "
-          "doStep mean per FMU [µs] | host CPU | steal |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
-    print(row("fig7_slow paced, no hardware (**baseline**)", baseline, baseline))
-    print(row("empty paced loop: what the machine itself gives", empty, baseline))
-    print(row(f"fig7_hil against the emulator on a pty (truth {args.truth})", hardware, baseline))
-    print("\n" + hil_details("fig7_hil", hardware))
-    if ab and args.ab == "truth":
-        print(f"\nThe emulator's truth, rig_slow against rig_reynolds (fig7_hil, scheduling "
-              f"{f'SCHED_FIFO {fifo}' if fifo else 'normal'}), {args.rounds} rounds of {args.round_seconds:g} s each, "
-              "alternating; the last two columns of each, the emulator's late ticks and its Plant's longest doStep in "
-              "CPU time:\n")
-        print("| round | overruns, slow | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] "
-              "| overruns, Reynolds | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
-        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-        print("\n".join(ab))
-    elif ab:
-        print(f"\nSCHED_FIFO {fifo} (`--rt-priority {fifo}` on both `nfal run` and `nfal rig-emulator`) against normal "
-              f"scheduling, fig7_hil (truth {args.truth}), {args.rounds} rounds of {args.round_seconds:g} s each, the "
-              "two alternating so that both see the machine alike; the last two columns of each, the emulator's late "
-              "ticks and its Plant's longest doStep in CPU time:\n")
-        print("| round | overruns, normal | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] "
-              "| overruns, SCHED_FIFO | p99 [µs] | max [µs] | rig late ticks | Plant CPU max [µs] |")
-        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-        print("\n".join(ab))
-    print(f"\nload average after: {os.getloadavg()[0]:.2f}")
+    result = {"seconds": args.seconds, "truth": args.truth, "ab": args.ab, "fifo": fifo, "rounds": args.rounds,
+              "round_seconds": args.round_seconds, "refusal": refusal or None, "baseline": baseline, "empty": empty,
+              "hardware": hardware, "ab_rows": ab}
+    print(record.save("hil", result))
+    record.show(tables(result), findings(result))
     return 0
+
+
+def title(result: dict) -> str:
+    return "Hardware in the loop: fig7_hil paced at 2 kHz against the emulator"
+
+
+def _cells(line: str) -> list[str]:
+    return [cell.strip() for cell in line.strip().strip("|").split("|")]
+
+
+def tables(result: dict) -> list[record.Table]:
+    baseline = result["baseline"]
+    main = record.Table(f"{result['seconds']:g} s paced at 2 kHz; jitter = step-start lateness; ratio = p99 jitter / "
+                        "the baseline's (same run); steal = CPU time the hypervisor took, share of both CPUs:",
+                        ["case", "steps", "overruns", "jitter p50 [µs]", "p99 [µs]", "max [µs]", "p99 ratio",
+                         "step mean / max [µs]", "doStep mean per FMU [µs]", "host CPU", "steal"],
+                        [_cells(row("fig7_slow paced, no hardware (**baseline**)", baseline, baseline)),
+                         _cells(row("empty paced loop: what the machine itself gives", result["empty"], baseline)),
+                         _cells(row(f"fig7_hil against the emulator on a pty (truth {result['truth']})",
+                                    result["hardware"], baseline))])
+    if not result["ab_rows"]:
+        return [main]
+    fifo = result["fifo"]
+    a, b = ("slow", "Reynolds") if result["ab"] == "truth" else ("normal", "SCHED_FIFO")
+    scheduling = f"SCHED_FIFO {fifo}" if fifo else "normal"
+    what = (f"The emulator's truth, rig_slow against rig_reynolds (scheduling {scheduling})"
+            if result["ab"] == "truth" else
+            f"SCHED_FIFO {fifo} (on both `nfal run` and `nfal rig-emulator`) against normal scheduling (truth "
+            f"{result['truth']})")
+    ab = record.Table(f"{what}, fig7_hil, {result['rounds']} rounds of {result['round_seconds']:g} s each, "
+                      "alternating; the last two columns of each, the emulator's late ticks and its Plant's longest "
+                      "doStep in CPU time:",
+                      ["round", f"overruns, {a}", "p99 [µs]", "max [µs]", "rig late ticks", "Plant CPU max [µs]",
+                       f"overruns, {b}", "p99 [µs]", "max [µs]", "rig late ticks", "Plant CPU max [µs]"],
+                      [_cells(line) for line in result["ab_rows"]])
+    return [main, ab]
+
+
+def findings(result: dict) -> list[str]:
+    out = [hil_details("fig7_hil", result["hardware"])]
+    if result["refusal"]:
+        out.append(f"No SCHED_FIFO comparison: {result['refusal']}")
+    return out
 
 
 if __name__ == "__main__":

@@ -16,6 +16,8 @@ import collections
 import tempfile
 from pathlib import Path
 
+import record
+
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
 from nfal.apps.host_check import ecos_executable, run_in_ecos
 
@@ -33,18 +35,29 @@ def main() -> None:
     parser.add_argument("--fmi", type=int, nargs="+", choices=(2, 3), default=[2, 3], help="FMI versions (default 2 3)")
     parser.add_argument("--out", type=Path, help="build folder (default: a temporary one)")
     args = parser.parse_args()
+    rows = []
     with tempfile.TemporaryDirectory() as temp:
         out = args.out or Path(temp)
         ecos = ecos_executable(Path(temp))
-        print("| FMU | FMI | runs | clean exits | crashes at exit (SIGSEGV) | other |")
-        print("|---|---|---|---|---|---|")
         for version in args.fmi:
             built = build_fmus(out / f"fmi{version}", FMUS, fmi_version=version)
             for name, fmu in built.items():
                 codes = exit_codes(ecos, fmu, args.runs)
-                other = sum(n for code, n in codes.items() if code not in (0, -11))
-                print(f"| {name} | {version}.0 | {args.runs} | {codes[0]} | {codes[-11]} | {other} |", flush=True)
+                rows.append({"fmu": name, "fmi": version, "runs": args.runs,
+                             "exit_codes": {str(code): n for code, n in sorted(codes.items())}})
+                print(rows[-1], flush=True)
+    result = {"rows": rows}
+    print(record.save("ecos-exit-codes", result))
+    record.show(tables(result))
 
+
+def tables(result: dict) -> list[record.Table]:
+    def cells(row: dict) -> list:
+        codes = {int(code): n for code, n in row["exit_codes"].items()}
+        other = sum(n for code, n in codes.items() if code not in (0, -11))
+        return [row["fmu"], f"{row['fmi']}.0", row["runs"], codes.get(0, 0), codes.get(-11, 0), other]
+    return [record.Table("", ["FMU", "FMI", "runs", "clean exits", "crashes at exit (SIGSEGV)", "other"],
+                         [cells(row) for row in result["rows"]])]
 
 if __name__ == "__main__":
     main()

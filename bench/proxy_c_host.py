@@ -17,6 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import record
+
 from nfal.fmus.build import build_fmus
 from nfal.apps.host_check import compile_c_host, run_in_c_host
 
@@ -40,13 +42,31 @@ def main() -> None:
             emulator.terminate()
             output, _ = emulator.communicate(timeout=30)
     heights = [outputs["measured_height"] for outputs in runs.outputs]
-    print(f"HardwareProxy in the C host against nfal rig-emulator: runs {args.runs}  exit codes "
-          f"{dict(collections.Counter(runs.exit_codes))}  measured heights {min(heights, default=0):.3g}.."
-          f"{max(heights, default=0):.3g} m  sessions opened {output.count('HELLO: session open')}, ended "
-          f"{output.count('STOP: session ended')} (the emulator's log)")
-    if runs.first_failure:
-        print(f"first failure:\n{runs.first_failure[-3000:]}")
+    result = {"runs": args.runs, "watchdog_s": float(args.watchdog),
+              "exit_codes": {str(code): n for code, n in sorted(collections.Counter(runs.exit_codes).items())},
+              "heights_m": [min(heights, default=0.0), max(heights, default=0.0)],
+              "sessions_opened": output.count("HELLO: session open"),
+              "sessions_ended": output.count("STOP: session ended"), "first_failure": runs.first_failure[-3000:]
+              if runs.first_failure else None}
+    print(record.save("proxy-c-host", result))
+    record.show(tables(result), findings(result))
 
+
+def title(result: dict) -> str:
+    return "The HardwareProxy FMU in a C host against the emulator"
+
+
+def tables(result: dict) -> list[record.Table]:
+    low, high = result["heights_m"]
+    return [record.Table(f"{result['runs']} C-host processes one after the other (the emulator's watchdog "
+                         f"{result['watchdog_s']:g} s):",
+                         ["exit codes (code: count)", "measured heights [m]", "sessions opened / ended (rig log)"],
+                         [[", ".join(f"{code}: {n}" for code, n in result["exit_codes"].items()),
+                           f"{low:.3g} .. {high:.3g}", f"{result['sessions_opened']} / {result['sessions_ended']}"]])]
+
+
+def findings(result: dict) -> list[str]:
+    return [f"First failure: {result['first_failure']}"] if result["first_failure"] else []
 
 if __name__ == "__main__":
     main()
