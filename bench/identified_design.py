@@ -20,11 +20,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from loop_agreement import AS_PURE_LOOP, run
+from loop_agreement import run
 
 from nfal.apps.build import build_all
+from nfal.apps.fig7 import PURE_LOOP_PARAMETERS, loop_metrics
 from nfal.cli.commands.cosim import parse_parameter
-from nfal.apps.fig7 import loop_metrics
 from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
 from nfal.models.closed_loop import Staircase
@@ -64,7 +64,7 @@ def main() -> None:
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
         noise = ({} if args.noise_seed is None
                  else {"SensorChain.noise_peak": NOISE_PEAK_M, "SensorChain.seed": args.noise_seed})
-        truth = {**TRUTH, **(AS_PURE_LOOP if args.no_lag else {}), **noise}
+        truth = {**TRUTH, **(PURE_LOOP_PARAMETERS if args.no_lag else {}), **noise}
         rows = [("continuous", "eq. (6)", "paper's", PAPERS_LAW)]
         for placement in ("continuous", "sampled"):
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):

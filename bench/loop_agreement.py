@@ -9,18 +9,14 @@ Prints: the FMU loop (transducer quasi-static, no analog filter) against the pur
 
 from __future__ import annotations
 
-import sys
 import tempfile
 
 import numpy as np
 
 from nfal.apps.build import build_all
-from nfal.apps.fig7 import SIMULATED
+from nfal.apps.fig7 import PURE_LOOP_PARAMETERS, SIMULATED, pure_python_loop
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
-
-sys.path.insert(0, "tests")
-from test_fig7_loop import AS_PURE_LOOP, pure_loop  # the reference loop and settings the tests use
 
 HEIGHT = SIMULATED.height
 
@@ -34,8 +30,8 @@ def main() -> None:
     reference = Staircase()
     with tempfile.TemporaryDirectory() as tmp:
         archive = build_all(f"{tmp}/build", structures=("fig7_slow",))["fig7_slow"]
-        transparent = run(archive, f"{tmp}/pure", reference, parameters=AS_PURE_LOOP)
-        pure = pure_loop(reference)
+        transparent = run(archive, f"{tmp}/pure", reference, parameters=PURE_LOOP_PARAMETERS)
+        pure = pure_python_loop(reference)
         gap = np.max(np.abs(transparent[HEIGHT][: pure.height_m.size] - pure.height_m))
         print(f"FMU loop vs pure-Python loop (seed 0, 3.7 s): max |height difference| {gap:.2e} m")
         runs = {name: run(archive, f"{tmp}/{name}", reference, algorithm=name) for name in ("causal", "jacobi")}

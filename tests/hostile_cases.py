@@ -1,7 +1,7 @@
 """Hostile and careless inputs as cases: set-up, the command a new user would type, and how its outcome is judged.
 
 Shared by tests/test_hostile_inputs.py (one case per class of issue 18, in the suite) and
-bench/hostile_census.py (every case, by hand, counted in docs/hostile_inputs.md). Each case runs as a new
+tests/hostile_census.py (every case, by hand, counted in docs/hostile_inputs.md). Each case runs as a new
 user would: the real ``nfal`` command line in a fresh folder (``python -m nfal``, its own process, a
 timeout), or an FMU through fmpy in its own process (so a crash is seen as one). An outcome is one of
 

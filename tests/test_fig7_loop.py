@@ -6,36 +6,14 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
-from nfal.apps.fig7 import (DEFAULT_STAIRCASES, SIMULATED, loop_metrics, matched_design, reference_staircase,
-                            reynolds_law)
-from nfal.models.calibration import paper_calibration
-from nfal.models.closed_loop import Staircase, simulate_closed_loop
-from nfal.models.control_law import DiscreteControlLaw
-from nfal.models.measurement_noise import coloured_noise
-from nfal.models.pid_design import DesignSpec, design_schedule
-from nfal.models.plant import SimplifiedPlant
-from nfal.models.rig import RigParameters
-from nfal.models.table2 import REFERENCE_ZERO_RATIO
+from nfal.apps.fig7 import (DEFAULT_STAIRCASES, PURE_LOOP_PARAMETERS, SIMULATED, loop_metrics, matched_design,
+                            pure_python_loop, reference_staircase, reynolds_law)
+from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 
 pytestmark = pytest.mark.slow  # closed loops of FMUs
 
 ONE_STEP = Staircase((60e-6, 100e-6), hold_s=0.6, lead_s=0.1)
-#: The FMU loop with the blocks the pure-Python loop leaves out made transparent.
-AS_PURE_LOOP = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.analog_cutoff": 0.0,
-                "SensorChain.resolution": 0.0, "Controller.actuator_lag": 0.0, "Controller.reference_filter_time": 0.0}
-
-
-def pure_loop(reference: Staircase, seed: int = 0):
-    rig, calibration = RigParameters(), paper_calibration()
-    schedule = design_schedule(None, rig, calibration,
-                               DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATIO))
-    law = DiscreteControlLaw(schedule, sample_rate_hz=2000.0, max_excitation_m=10e-6,
-                             reference_zero_ratio=REFERENCE_ZERO_RATIO)
-    noise = coloured_noise(reference.samples(2000.0), seed=seed)
-    return simulate_closed_loop(law, SimplifiedPlant(rig, calibration), reference, noise)
-
-
 def run_fig7(archive, tmp_path, reference=ONE_STEP, **kwargs):
     return run_structure(archive, stop_time=reference.duration_s, step_size=5e-4,
                          inputs={"Controller.reference": reference}, out_dir=tmp_path, plot=False, progress=False,
@@ -45,9 +23,9 @@ def run_fig7(archive, tmp_path, reference=ONE_STEP, **kwargs):
 @pytest.mark.parametrize("seed", [0, 5])
 def test_fmu_loop_reproduces_the_pure_python_loop(fig7_archives, tmp_path, seed):
     """Same seed, causal master: the FMU loop and closed_loop.py agree within 1e-12 m at every sample."""
-    parameters = {**AS_PURE_LOOP, "SensorChain.seed": seed}
+    parameters = {**PURE_LOOP_PARAMETERS, "SensorChain.seed": seed}
     result = run_fig7(fig7_archives["fig7_slow"], tmp_path, parameters=parameters)
-    reference = pure_loop(ONE_STEP, seed)
+    reference = pure_python_loop(ONE_STEP, seed)
     fmu = result[SIMULATED.height][: reference.height_m.size]
     assert np.max(np.abs(fmu - reference.height_m)) < 1e-12
 

@@ -1,7 +1,7 @@
 """Hostile and careless input (issue 18): at least one case of each class the census found, run as a user would.
 
 Each case is the real command line (or an FMU through fmpy) on a hostile input, taken from
-tests/hostile_cases.py, the list bench/hostile_census.py runs in full. A case fails on a Python traceback
+tests/hostile_cases.py, the list tests/hostile_census.py runs in full. A case fails on a Python traceback
 (or the CLI's "internal error"), a hang (its timeout), a crash (killed by a signal), a file that existed
 before it changed or gone, or an input accepted that should be refused (or a valid one refused). Cases
 refused before anything is loaded run in this process (fast); the others in their own, with a timeout.

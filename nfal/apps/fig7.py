@@ -29,10 +29,16 @@ from nfal.apps.fig7_names import (  # noqa: F401
     SIMULATED,
     LoopColumns,
 )
-from nfal.models.closed_loop import ClosedLoopRun, Staircase
-from nfal.models.control_law import SATURATION_WARNING_S
+from nfal.models.calibration import paper_calibration
+from nfal.models.closed_loop import ClosedLoopRun, Staircase, simulate_closed_loop
+from nfal.models.control_law import SATURATION_WARNING_S, DiscreteControlLaw
+from nfal.models.measurement_noise import coloured_noise
+from nfal.models.pid_design import DesignSpec, design_schedule
+from nfal.models.plant import SimplifiedPlant
 from nfal.models.reference import StepSequence
+from nfal.models.rig import RigParameters
 from nfal.models.step_metrics import REACHED_BAND, level_reach, step_metrics, total_iae
+from nfal.models.table2 import REFERENCE_ZERO_RATIO
 from nfal.orchestration import Finding, PiecewiseConstant, PlotPanel
 from nfal.orchestration.signals import steps_of
 from nfal.orchestration.ssp import read_parameter_set
@@ -119,6 +125,25 @@ def reynolds_law() -> dict:
     path = Path(str(importlib.resources.files("nfal.ssp") / "reynolds_design.ssv"))
     values = read_parameter_set(etree.parse(str(path)).getroot(), source=path).values
     return {f"Controller.{v.name}": v.value for v in values if v.name in REYNOLDS_LAW_PARAMETERS}
+
+
+#: The fig7_slow parameters that make the FMU loop the pure-Python loop of ``nfal compare``
+#: (:func:`pure_python_loop`): the blocks it leaves out made transparent.
+PURE_LOOP_PARAMETERS = {"ResonanceTracker.transducer_dynamics": False, "SensorChain.analog_cutoff": 0.0,
+                        "SensorChain.resolution": 0.0, "Controller.actuator_lag": 0.0,
+                        "Controller.reference_filter_time": 0.0}
+
+
+def pure_python_loop(reference: Staircase, seed: int = 0) -> ClosedLoopRun:
+    """The pure-Python loop (the default gain schedule at 2 kHz, eq. 13 with eq. 17, coloured noise of ``seed``)
+    that fig7_slow with :data:`PURE_LOOP_PARAMETERS` reproduces to rounding."""
+    rig, calibration = RigParameters(), paper_calibration()
+    schedule = design_schedule(None, rig, calibration,
+                               DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATIO))
+    law = DiscreteControlLaw(schedule, sample_rate_hz=2000.0, max_excitation_m=10e-6,
+                             reference_zero_ratio=REFERENCE_ZERO_RATIO)
+    noise = coloured_noise(reference.samples(2000.0), seed=seed)
+    return simulate_closed_loop(law, SimplifiedPlant(rig, calibration), reference, noise)
 
 
 def loop_columns(element_names) -> LoopColumns:

@@ -5,9 +5,9 @@ class of issue 18 from the same list, tests/test_hostile_inputs.py); this runs a
 each, and prints the counts that docs/hostile_inputs.md quotes. Run from the repository (about 15 minutes
 on 2 cores)::
 
-    python bench/hostile_census.py                  # every case; the counts and the cases not clear/handled
-    python bench/hostile_census.py --only fmu --list
-    python bench/hostile_census.py --json census.json
+    python tests/hostile_census.py                  # every case; the counts and the cases not clear/handled
+    python tests/hostile_census.py --only fmu --list
+    python tests/hostile_census.py --json census.json
 """
 
 from __future__ import annotations
@@ -25,8 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from hostile_cases import CLEAR, CRASH, HANDLED, OUTCOMES, REFUSED, TRACEBACK, WRONG, all_cases, run_case  # noqa: E402
+from hostile_cases import CLEAR, CRASH, HANDLED, OUTCOMES, REFUSED, TRACEBACK, WRONG, all_cases, run_case
 
 
 def main(argv: list[str] | None = None) -> int:
