@@ -325,9 +325,9 @@ def dask_cluster(tmp_path):
                 time.sleep(0.3)
         yield address
     finally:
+        # the workers first: a worker whose scheduler went first waits to reconnect (15 s of every teardown here)
         for process in reversed(processes):
             process.terminate()
-        for process in processes:
             try:
                 process.wait(timeout=15)
             except subprocess.TimeoutExpired:
