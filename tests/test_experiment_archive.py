@@ -12,7 +12,6 @@ to end.
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import subprocess
@@ -31,7 +30,7 @@ from nfal.orchestration import read_results, read_ssp, resolve
 from nfal.orchestration.signals import as_signal
 
 from nfal.cli import main
-from nfal.cli.commands.cosim import _stop_time
+from nfal.apps.structure_run import _stop_time
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.apps.fig7 import DEFAULT_STAIRCASES, generated_reference
 
@@ -133,15 +132,12 @@ def test_bad_parameters_fail_initialisation_by_name(tmp_path, parameters, named)
 
 
 def test_stop_time_the_ssd_governs_and_the_run_says_where_the_reference_differs():
-    def args(stop=None):
-        return argparse.Namespace(stop_time=stop)
-
-    assert _stop_time(args(), 3.7, Staircase()) == (3.7, None)
-    stop, note = _stop_time(args(), 0.25, Staircase())
+    assert _stop_time(None, 3.7, Staircase()) == (3.7, None)
+    stop, note = _stop_time(None, 0.25, Staircase())
     assert stop == 0.25 and "stopTime (0.25 s) governs, before the reference's end" in note and "3.7 s" in note
-    assert _stop_time(args(), None, Staircase()) == (Staircase().duration_s, None)  # the SSD says nothing: its length
-    assert _stop_time(args(0.5), 3.7, Staircase()) == (0.5, None)  # asked for
-    assert "after the reference's last change" in _stop_time(args(), 5.0, Staircase())[1]
+    assert _stop_time(None, None, Staircase()) == (Staircase().duration_s, None)  # the SSD says nothing: its length
+    assert _stop_time(0.5, 3.7, Staircase()) == (0.5, None)  # asked for
+    assert "after the reference's last change" in _stop_time(None, 5.0, Staircase())[1]
 
 
 # --- the FMU, the structures and nfal run ------------------------------------------------------------------------

@@ -3,24 +3,20 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import datetime
 import sys
 from pathlib import Path
 
-from nfal.apps.build import STRUCTURES, build_all
-from nfal.apps.fig7 import (HARDWARE, HARDWARE_LEAD_S, generated_reference, link_summary, loop_checks, loop_columns,
-                            loop_metrics, matched_design, reference_staircase, response_panels, step_reference)
+from nfal.apps.build import build_all
+from nfal.apps.fig7 import reference_staircase
 from nfal.apps.fig7_names import REFERENCE
+from nfal.apps.structure_run import RunRequest, run_request
 from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import finite_float, positive_float, print_json, print_step_table
 from nfal.errors import InvalidParameterError
 from nfal.fmus.windows_python import windows_python
 from nfal.hil.link import DRIVE_GAP_BUDGET_S
-from nfal.orchestration import SimulationError, read_ssp, run_structure
-from nfal.orchestration.resolve import resolve
-from nfal.orchestration.signals import csv_signal, signal_from_spec
-from nfal.orchestration.ssp import parse_boolean
+from nfal.orchestration import SimulationError
+from nfal.orchestration.signals import signal_from_spec
 
 
 def register(commands) -> None:
@@ -160,113 +156,21 @@ def parse_input(text: str) -> tuple[str, object]:
     return name.strip(), reference_staircase(spec.strip(), "") or signal_from_spec(spec.strip())
 
 
-def _structure_path(args: argparse.Namespace) -> Path:
-    if args.structure in STRUCTURES:
-        return build_all(args.build_dir, structures=(args.structure,))[args.structure]
-    path = Path(args.structure)
-    if not path.exists():
-        raise InvalidParameterError("structure", args.structure,
-                                    f"one of {', '.join(STRUCTURES)} or an existing .ssp/.ssd/folder")
-    return path
-
-
-def _reference(args: argparse.Namespace, hardware: bool, structure: Path):
-    spec = args.reference or "staircase"
-    staircase = reference_staircase(spec, structure.stem, HARDWARE_LEAD_S if hardware else None)
-    return csv_signal(spec) if staircase is None else staircase
-
-
-def _read_structure(structure: Path, parameters: dict):
-    """(element names, the DefaultExperiment's start time (0 if none) and stop time (or None), the GeneratedReference
-    or None)."""
-
-    with read_ssp(structure) as read:
-        names = [element.name for element in read.system.elements]
-        start, stop = read.default_experiment.start_time or 0.0, read.default_experiment.stop_time
-        generated = generated_reference(resolve(read, parameters)) if "Controller" in names else None
-    return names, start, stop, generated
-
-
-def _stop_time(args: argparse.Namespace, ssd_stop: float | None, reference) -> tuple[float | None, str | None]:
-    """The run's stop time and a note where the structure's and the reference's differ: --stop-time, else the
-    SSD's DefaultExperiment stopTime, else the reference's length (the staircase is a default only where the
-    SSD says nothing)."""
-    length = getattr(reference, "duration_s", None) if reference is not None else None
-    if args.stop_time is not None:
-        return args.stop_time, None
-    if ssd_stop is None:
-        return length, None
-    if length is not None and abs(length - ssd_stop) > 1e-9 * max(1.0, length):
-        where = "before the reference's end" if ssd_stop < length else "after the reference's last change"
-        return ssd_stop, (f"the structure's DefaultExperiment stopTime ({ssd_stop:g} s) governs, {where}: "
-                          f"the reference lasts {length:g} s (--stop-time {length:g} runs all of it)")
-    return ssd_stop, None
-
-
 def run_cosimulation(args: argparse.Namespace) -> int:
-    if args.max_steps is not None and args.max_steps < 1:
-        raise InvalidParameterError("--max-steps", args.max_steps, "a whole number of steps >= 1")
-    parameters = matched_design(dict(parse_parameter(text) for text in args.param))
-    structure = _structure_path(args)
-    names, ssd_start, ssd_stop, generated = _read_structure(structure, parameters)
-    columns = loop_columns(names)
-    if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
-        raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a "
-                                    "device path or socket://host:port); no rig? start `nfal rig-emulator` and give "
-                                    "the path it prints first")
-    # in lockstep the rig's answers pace the loop (a value that is no Boolean is refused when the structure resolves)
-    lockstep = parse_boolean(str(parameters.get("proxy.lockstep", "false"))) is True
-    if columns is HARDWARE and not args.realtime and not lockstep:
-        print("nfal run: the structure has the hardware proxy: pacing it on the wall clock (--realtime)",
-              file=sys.stderr)
-        args.realtime = True
-    if args.rt_priority is not None and not args.realtime:
-        raise InvalidParameterError("--rt-priority", args.rt_priority, "used with --realtime (a paced run)")
-    reference_input = args.reference_input or (REFERENCE if "Controller" in names else "none")
-    from_structure = args.reference is None and reference_input == REFERENCE and generated is not None
-    if from_structure:  # the experiment in the archive: its ReferenceGenerator drives the reference
-        reference, inputs = generated.reference, {}
-        columns = dataclasses.replace(columns, reference=generated.source)
-    else:
-        reference = _reference(args, columns is HARDWARE, structure)
-        inputs = {} if reference_input == "none" else {reference_input: reference}
-    inputs.update(parse_input(text) for text in args.input)
-    stop_time, note = _stop_time(args, ssd_stop, reference if reference_input != "none" else None)
-    if note:
-        print(f"nfal run: {note}", file=sys.stderr)
-    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out) if args.out else Path("runs") / f"{structure.stem}-{stamp}"
-    fig7 = reference_input == REFERENCE
-    start = args.start_time if args.start_time is not None else ssd_start
-    steps, no_steps = step_reference(reference, start, stop_time) if fig7 and stop_time is not None else (None, None)
-    metrics = (lambda table: loop_metrics(table, steps, columns, no_steps=no_steps)) if fig7 else None
-    experiment = {"reference": generated.source if from_structure else (reference_input if fig7 else None),
-                  "stop_time_note": note}
+    request = RunRequest(structure=args.structure, parameters=dict(parse_parameter(text) for text in args.param),
+                         inputs=dict(parse_input(text) for text in args.input), reference=args.reference,
+                         reference_input=args.reference_input, start_time=args.start_time, stop_time=args.stop_time,
+                         step=args.step, algorithm=args.algorithm, realtime=args.realtime, rt_priority=args.rt_priority,
+                         out=Path(args.out) if args.out else None, overwrite=args.overwrite, max_steps=args.max_steps,
+                         build_dir=Path(args.build_dir))
     try:
-        result = run_structure(structure, start_time=args.start_time, stop_time=stop_time, step_size=args.step,
-                               inputs=inputs, parameters=parameters,
-                               algorithm=args.algorithm, out_dir=out, realtime=args.realtime,
-                               rt_priority=args.rt_priority, overwrite=args.overwrite, max_steps=args.max_steps,
-                               plot=response_panels(columns) if fig7 else None, metrics=metrics,
-                               checks=lambda table: loop_checks(table, steps, columns))
+        result = run_request(request, notice=lambda text: print(f"nfal run: {text}", file=sys.stderr))
     except SimulationError as exc:
         if exc.result is not None:
-            _finish(exc.result, columns, experiment, out, args.json)
+            _report(exc.result.summary, exc.result.out_dir, args.json)
         raise
-    _finish(result, columns, experiment, out, args.json)
+    _report(result.summary, result.out_dir, args.json)
     return 0
-
-
-def _finish(result, columns, experiment: dict, out: Path, as_json: bool) -> None:
-    """The summary's last entries (the link's health, the experiment), written and reported."""
-    _add_link_summary(result, columns)
-    result.update_summary(experiment=experiment)
-    _report(result.summary, out, as_json)
-
-
-def _add_link_summary(result, columns) -> None:
-    if columns is HARDWARE and result.csv_path.is_file() and result.summary.get("steps_completed"):
-        result.update_summary(link=link_summary(result.table()))
 
 
 def _report(summary: dict, out: Path, as_json: bool) -> None:
