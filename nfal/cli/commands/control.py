@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import datetime
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
-from nfal.apps.fig7 import HARDWARE, HARDWARE_LEAD_S, REFERENCE, loop_run
+from nfal.apps.fig7 import HARDWARE_LEAD_S
+from nfal.apps.rig_comparison import compare_on_rig
 from nfal.cli.commands import COMMANDS
 from nfal.cli.commands.common import (add_output_options, add_rig_options, fill_defaults, finite_float, number_list,
                                       print_json, print_step_table, progress_bar, refuse_given, rig_from_args)
@@ -20,7 +19,7 @@ from nfal.errors import InvalidParameterError, optional_positive
 from nfal.fmus.rig_contract import rig_parameter_values
 from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
 from nfal.models.closed_loop import Staircase
-from nfal.models.comparison import controller_design, controller_name, simulate_comparison
+from nfal.models.comparison import simulate_comparison
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plausibility import require_clearances
 from nfal.models.stability import realizable_schedule, stability_map
@@ -36,7 +35,6 @@ from nfal.models.table2 import (
     STAIRCASE_LEVELS_M,
     WORK_RANGE_M,
 )
-from nfal.orchestration import run_structure
 from nfal.orchestration.run import MAX_STEPS
 
 DISCRETISATION_CHOICES = {"forward-euler": "forward_euler", "zoh": "zoh"}
@@ -261,24 +259,18 @@ def _simulated_runs(args: argparse.Namespace, keys: list[str], reference) -> dic
 
 def _rig_runs(args: argparse.Namespace, keys: list[str], reference) -> dict:
     """Each controller on the rig at ``args.port`` (fig7_hil, real time, from rest): key -> run."""
-
-    archive = build_all(args.build_dir or DEFAULT_BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
-    folder = Path(args.runs_dir or Path("runs") / f"compare-{datetime.datetime.now():%Y%m%d-%H%M%S}")
-    common = {"proxy.port": args.port, "Controller.placement": args.placement,
-              "Controller.closed_loop_cutoff": args.closed_loop_cutoff, "Controller.filter_cutoff": args.filter_cutoff,
-              "Controller.max_excitation": args.max_excitation, "Controller.realizable_only": not args.full_schedule,
-              "Controller.reference_zero": args.reference_zero,
-              "Controller.reference_min": min(reference.levels_m), "Controller.reference_max": max(reference.levels_m),
-              **({"Controller.calibration": str(Path(args.calibration).resolve())} if args.calibration else {}),
-              **_rig_parameters(args), **dict(parse_parameter(text) for text in args.param)}
-    runs = {}
+    parameters = {"proxy.port": args.port, "Controller.placement": args.placement,
+                  "Controller.closed_loop_cutoff": args.closed_loop_cutoff,
+                  "Controller.filter_cutoff": args.filter_cutoff, "Controller.max_excitation": args.max_excitation,
+                  "Controller.realizable_only": not args.full_schedule,
+                  "Controller.reference_zero": args.reference_zero,
+                  "Controller.reference_min": min(reference.levels_m),
+                  "Controller.reference_max": max(reference.levels_m),
+                  **({"Controller.calibration": str(Path(args.calibration).resolve())} if args.calibration else {}),
+                  **_rig_parameters(args), **dict(parse_parameter(text) for text in args.param)}
     with progress_bar(len(keys), "runs on the rig") as bar:
-        for key in keys:
-            result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / args.sample_rate,
-                                   inputs={REFERENCE: reference}, parameters={**common, **controller_design(key)},
-                                   realtime=True, out_dir=folder / key, plot=False, progress=False)
-            runs[key] = loop_run(result.table(), controller_name(key), HARDWARE)
-            bar.update()
+        runs, folder = compare_on_rig(keys, reference, parameters, sample_rate_hz=args.sample_rate,
+                                      build_dir=args.build_dir, runs_dir=args.runs_dir, progress=bar.update)
     print(f"nfal compare: the runs on the rig are in {folder}", file=sys.stderr)
     return runs
 
