@@ -234,20 +234,16 @@ def title(result: dict) -> str:
     return "Hardware in the loop: fig7_hil paced at 2 kHz against the emulator"
 
 
-def _cells(line: str) -> list[str]:
-    return [cell.strip() for cell in line.strip().strip("|").split("|")]
-
-
 def tables(result: dict) -> list[record.Table]:
     baseline = result["baseline"]
     main = record.Table(f"{result['seconds']:g} s paced at 2 kHz; jitter = step-start lateness; ratio = p99 jitter / "
                         "the baseline's (same run); steal = CPU time the hypervisor took, share of both CPUs:",
                         ["case", "steps", "overruns", "jitter p50 [µs]", "p99 [µs]", "max [µs]", "p99 ratio",
                          "step mean / max [µs]", "doStep mean per FMU [µs]", "host CPU", "steal"],
-                        [_cells(row("fig7_slow paced, no hardware (**baseline**)", baseline, baseline)),
-                         _cells(row("empty paced loop: what the machine itself gives", result["empty"], baseline)),
-                         _cells(row(f"fig7_hil against the emulator on a pty (truth {result['truth']})",
-                                    result["hardware"], baseline))])
+                        [record.cells(row(name, summary, baseline)) for name, summary in (
+                            ("fig7_slow paced, no hardware (**baseline**)", baseline),
+                            ("empty paced loop: what the machine itself gives", result["empty"]),
+                            (f"fig7_hil against the emulator on a pty (truth {result['truth']})", result["hardware"]))])
     if not result["ab_rows"]:
         return [main]
     fifo = result["fifo"]
@@ -262,7 +258,7 @@ def tables(result: dict) -> list[record.Table]:
                       "doStep in CPU time:",
                       ["round", f"overruns, {a}", "p99 [µs]", "max [µs]", "rig late ticks", "Plant CPU max [µs]",
                        f"overruns, {b}", "p99 [µs]", "max [µs]", "rig late ticks", "Plant CPU max [µs]"],
-                      [_cells(line) for line in result["ab_rows"]])
+                      [record.cells(line) for line in result["ab_rows"]])
     return [main, ab]
 
 

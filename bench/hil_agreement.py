@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from machine import describe
+import record
 
 from nfal.apps.build import build_all
 from nfal.cli.commands.cosim import parse_parameter
@@ -41,8 +41,6 @@ def main() -> int:
                         help="override a parameter of the truth, on both sides (repeatable)")
     args = parser.parse_args()
     overrides = dict(parse_parameter(text) for text in args.param)  # ELEMENT.VAR=VALUE, checked as nfal run does
-    print(f"machine: {describe()}; {'lockstep' if args.lockstep else 'paced on the wall clock'}; "
-          f"truth overrides {overrides or 'none'}\n")
     with tempfile.TemporaryDirectory(prefix="nfal-hil-agreement-") as temp:
         archives = build_all(Path(temp) / "build", structures=("fig7_slow", "fig7_hil", "rig_slow"))
         emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--truth", str(archives["rig_slow"]),
@@ -66,21 +64,23 @@ def main() -> int:
         difference = np.abs(np.asarray(hil[HARDWARE.measured]) - np.asarray(simulated[SIMULATED.measured]))
         [ours] = loop_metrics(hil.table(), STEP, HARDWARE)["steps"]
         [theirs] = loop_metrics(simulated.table(), STEP, SIMULATED)["steps"]
-    print("| | HIL | simulated |\n|---|---:|---:|")
-    print(f"| rise time 100 → 140 µm | {ours['rise_time_s'] * 1e3:.1f} ms | {theirs['rise_time_s'] * 1e3:.1f} ms |")
-    print(f"| overshoot | {ours['overshoot_percent']:.2f} % | {theirs['overshoot_percent']:.2f} % |")
-    print(f"| settling time | {ours['settling_time_s'] * 1e3:.1f} ms | {theirs['settling_time_s'] * 1e3:.1f} ms |")
     transient = np.max(difference[(t >= 1.0) & (t < 1.2)])
     holds = max(np.max(difference[(t >= a) & (t < b)]) for a, b in ((0.5, 1.0), (1.5, 2.0)))
-    print(f"| largest height difference in the step's first 0.2 s | {transient * 1e6:.2f} µm | |")
-    print(f"| largest difference over the last half of each hold | {holds * 1e6:.3f} µm | |")
-    print(f"| lift-off, first 0.2 s | {np.max(difference[t < 0.2]) * 1e6:.2f} µm | |")
-    print(f"| largest difference over the whole run, from rest | {np.max(difference) * 1e6:.2f} µm | |")
     lift_offs = [lift_off(t, np.asarray(run[column])) for run, column in ((hil, HARDWARE.measured),
                                                                           (simulated, SIMULATED.measured))]
-    print("| lift-off from rest to 100 µm: peak | " + " | ".join(f"{peak * 1e6:.1f} µm at {at * 1e3:.0f} ms"
-                                                               for peak, at, _ in lift_offs) + " |")
-    print("| within 3 µm of 100 µm from | " + " | ".join(f"{within * 1e3:.0f} ms" for _, _, within in lift_offs) + " |")
+    rows = [["rise time 100 → 140 µm", f"{ours['rise_time_s'] * 1e3:.1f} ms", f"{theirs['rise_time_s'] * 1e3:.1f} ms"],
+            ["overshoot", f"{ours['overshoot_percent']:.2f} %", f"{theirs['overshoot_percent']:.2f} %"],
+            ["settling time", f"{ours['settling_time_s'] * 1e3:.1f} ms", f"{theirs['settling_time_s'] * 1e3:.1f} ms"],
+            ["largest height difference in the step's first 0.2 s", f"{transient * 1e6:.2f} µm", ""],
+            ["largest difference over the last half of each hold", f"{holds * 1e6:.3f} µm", ""],
+            ["lift-off, first 0.2 s", f"{np.max(difference[t < 0.2]) * 1e6:.2f} µm", ""],
+            ["largest difference over the whole run, from rest", f"{np.max(difference) * 1e6:.2f} µm", ""],
+            ["lift-off from rest to 100 µm: peak", *(f"{peak * 1e6:.1f} µm at {at * 1e3:.0f} ms"
+                                                     for peak, at, _ in lift_offs)],
+            ["within 3 µm of 100 µm from", *(f"{within * 1e3:.0f} ms" for _, _, within in lift_offs)]]
+    result = {"lockstep": args.lockstep, "overrides": overrides, "rows": rows}
+    print(record.save("hil-agreement" + ("-lockstep" if args.lockstep else ""), result))
+    record.show(tables(result))
     return 0
 
 
@@ -91,6 +91,16 @@ def lift_off(t: np.ndarray, height: np.ndarray, level: float = STEP.levels_m[0],
     outside = np.flatnonzero(np.abs(height[hold] - level) > band)
     peak = int(np.argmax(height[hold]))
     return height[peak], t[peak], t[outside[-1] + 1] if outside.size else 0.0
+
+
+def title(result: dict) -> str:
+    return ("HIL against simulation, " + ("in lockstep" if result["lockstep"] else "paced on the wall clock")
+            + (f", truth overrides {result['overrides']}" if result["overrides"] else ""))
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table("fig7_hil against the emulator (rig_slow truth, sensor noise off) and fig7_slow with the "
+                         "truth's parameters, 100 -> 140 µm:", ["", "HIL", "simulated"], result["rows"])]
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import record
 import pythonfmu
 from fmpy import simulate_fmu
 
@@ -81,14 +82,14 @@ def c_host_runs(fmus: dict, folder: Path, runs: int, stop_s: float, stock: bool,
         result = run_in_c_host(host, fmus[name], folder / "c", runs=runs, stop_time=stop_s, env=env, cwd=cwd,
                                runtime=STOCK_RUNTIMES[fmi_version] if stock else None)
         if missing:
-            print(f"C host  FMI {fmi_version}.0  {name:17s} runs {runs:4d}  killed by a signal {result.signals:3d}  "
+            report(f"C host  FMI {fmi_version}.0  {name:17s} runs {runs:4d}  killed by a signal {result.signals:3d}  "
                   f"exit codes {sorted(set(result.exit_codes))}  one line naming the missing Python "
                   f"{result.logged_once(missing)}")
             continue
         reference = simulate_fmu(str(fmus[name]), stop_time=stop_s, step_size=5e-4, output_interval=5e-4)
         differing = sum(any(not math.isclose(value, float(reference[output][-1]), rel_tol=1e-12, abs_tol=0)
                             for output, value in outputs.items()) for outputs in result.outputs)
-        print(f"C host  FMI {fmi_version}.0  {name:17s} runs {runs:4d}  crashes {result.crashes:3d}  exit codes "
+        report(f"C host  FMI {fmi_version}.0  {name:17s} runs {runs:4d}  crashes {result.crashes:3d}  exit codes "
               f"{sorted(set(result.exit_codes))}  results differing from FMPy's {differing}")
 
 
@@ -98,7 +99,7 @@ def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, f
                    folder / f"fig7_slow_fmi{fmi_version}.ssp")
     result = run_in_ecos(ecos_executable(folder), archive, folder / "ecos", runs=runs, stop_time=stop_s, env=env)
     if missing:
-        print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  killed by a signal {result.signals:3d}  "
+        report(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  killed by a signal {result.signals:3d}  "
               f"exit codes {sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
               f"{result.logged_once(missing, fmus_in(archive))}")
         return
@@ -107,9 +108,29 @@ def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, f
                          progress=False)["Controller.drive_voltage"]
     worst = max((np.max(np.abs(np.array(o["ResonanceTracker::drive_voltage"]) - ours[:len(o["time"])]))
                  for o in result.outputs), default=float("nan"))
-    print(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  crashes {result.crashes:3d}  exit codes "
+    report(f"ecos    FMI {fmi_version}.0  fig7_slow.ssp runs {runs:4d}  crashes {result.crashes:3d}  exit codes "
           f"{sorted(set(result.exit_codes))}  max |drive voltage - ours (FMI 2.0, Jacobi)| {worst:.2g} V "
           f"over {stop_s} s")
+
+#: What this run reported, line by line: printed as it comes, and the result file's ``lines``.
+LINES: list[str] = []
+
+
+def report(line: str) -> None:
+    print(line, flush=True)
+    LINES.append(line)
+
+
+def title(result: dict) -> str:
+    return __doc__.strip().splitlines()[0].rstrip(".") + f" ({result['variant']})"
+
+
+def tables(result: dict) -> list[record.Table]:
+    return []
+
+
+def findings(result: dict) -> list[str]:
+    return [f"`{line}`" for line in result["lines"]]
 
 
 def main() -> None:
@@ -133,6 +154,8 @@ def main() -> None:
             (folder / "ecos-env").mkdir()
             ecos_runs(fmus, fmus2, folder, args.ecos_runs, args.ecos_stop_time, args.fmi, args.environment)
 
+    variant = f"host-compat-fmi{args.fmi}-{args.environment}" + ("-stock-runtime" if args.stock_runtime else "")
+    print(record.save(variant, {"variant": variant, "lines": LINES}))
 
 if __name__ == "__main__":
     main()

@@ -20,6 +20,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import record
 from loop_agreement import run
 
 from nfal.apps.build import build_all
@@ -70,20 +71,38 @@ def main() -> None:
             for damping, extra in (("eq. (6)", {}), ("identified", {"Controller.calibration": str(calibration)})):
                 rows.append((placement, damping, "today's",
                              {"Controller.placement": placement, **extra, **extra_parameters}))
-        print(f"{'placement':<11} {'damping':<11} {'law':<10} {'IAE [um s]':>10} {'ratio':>6}  overshoot % per step;"
-              " 2 % settling [ms]" + ("" if args.noise_seed is None else "; noise RMS per level [nm] (true height)"))
-        baseline = None
+        baseline, measured = None, []
         for number, (placement, damping, law, parameters) in enumerate(rows):
             result = run(archive, f"{tmp}/{number}", reference, parameters={**truth, **parameters})
             metrics = loop_metrics(result.table(), reference)
             baseline = baseline or metrics["iae"]
-            overshoots = ", ".join(f"{step['overshoot_percent']:.1f}" for step in metrics["steps"])
-            settling = ", ".join(f"{(step['settling_time_s'] or float('nan')) * 1e3:.0f}" for step in metrics["steps"])
-            noise_rms = "" if args.noise_seed is None else "; " + ", ".join(f"{step['noise_rms_m'] * 1e9:.0f}"
-                                                                           for step in metrics["steps"])
-            print(f"{placement:<11} {damping:<11} {law:<10} {metrics['iae'] * 1e6:>10.3f} "
-                  f"{metrics['iae'] / baseline:>6.2f}  {overshoots}; {settling}{noise_rms}", flush=True)
+            measured.append({"placement": placement, "damping": damping, "law": law, "iae_m_s": metrics["iae"],
+                             "ratio": metrics["iae"] / baseline,
+                             "steps": [{key: step[key] for key in ("overshoot_percent", "settling_time_s",
+                                                                   "noise_rms_m")} for step in metrics["steps"]]})
+            print(measured[-1], flush=True)
+    result = {"noise": args.noise_seed is not None, "rows": measured}
+    print(record.save("identified-design", result))
+    record.show(tables(result))
 
+
+def title(result: dict) -> str:
+    return "On a truth with the rig-like excess damping: the paper's law and today's, by placement and damping model"
+
+
+def tables(result: dict) -> list[record.Table]:
+    columns = ["placement", "damping", "law", "IAE [µm s]", "ratio (to the paper's law)", "overshoot % per step",
+               "2 % settling [ms]"] + (["noise RMS per level [nm] (true height)"] if result["noise"] else [])
+    rows = []
+    for row in result["rows"]:
+        steps = row["steps"]
+        cells = [row["placement"], row["damping"], row["law"], f"{row['iae_m_s'] * 1e6:.3f}", f"{row['ratio']:.2f}",
+                 ", ".join(f"{step['overshoot_percent']:.1f}" for step in steps),
+                 ", ".join(f"{(step['settling_time_s'] or float('nan')) * 1e3:.0f}" for step in steps)]
+        if result["noise"]:
+            cells.append(", ".join(f"{step['noise_rms_m'] * 1e9:.0f}" for step in steps))
+        rows.append(cells)
+    return [record.Table("", columns, rows)]
 
 if __name__ == "__main__":
     main()

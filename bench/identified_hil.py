@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import record
 from identify_truths import cases, emulator_arguments, identify, truth_parameters
 
 from nfal.apps.fig7_names import PAPERS_LAW
@@ -116,9 +117,13 @@ def main() -> None:
     folder.mkdir(parents=True)
     print(f"calibration files and runs in {folder}", flush=True)
     table = cases(folder)
-    print("| truth, Controller | overshoot % per step | 2 % settling [ms] | lift-off peak [um] "
-          "| IAE steps [um s] (ratio) | IAE first level [um s] | host overruns | noise RMS per step [nm] |")
-    print("|---|---|---|---|---|---|---|---|")
+    rows: list[str] = []
+
+    def out(line: str) -> None:  # printed as it comes, and kept: the result file gets every row so far
+        print(line, flush=True)
+        rows.append(line)
+        record.save("identified-hil" + ("-noise" if args.noise else ""), {"noise": args.noise, "rows": rows})
+
     for name in args.truths:
         case = table[name]
         calibration = folder / f"{name}.json"
@@ -133,17 +138,28 @@ def main() -> None:
             identified = hil_run(case, folder, f"{name}-identified-{repeat}", [f"Controller.calibration={calibration}"],
                                  args.noise)
             baseline = None if isinstance(paper, str) else paper["metrics"]["first_level"]["steps_iae_m_s"]
-            print(row(f"{name}, {label}", paper, None), flush=True)
-            print(row(f"{name}, identified", identified, baseline), flush=True)
+            out(row(f"{name}, {label}", paper, None))
+            out(row(f"{name}, identified", identified, baseline))
             if repeat == 0:
                 simulated = simulated_run(case, folder, f"{name}-identified-simulated",
                                           [f"Controller.calibration={calibration}"], args.noise)
-                print(row(f"{name}, identified, simulated", simulated, baseline), flush=True)
+                out(row(f"{name}, identified, simulated", simulated, baseline))
             papers.append(paper)
             identifieds.append(identified)
         if args.noise:
-            print(pooled_noise(f"{name}, {label}", papers))
-            print(pooled_noise(f"{name}, identified", identifieds), flush=True)
+            out(pooled_noise(f"{name}, {label}", papers))
+            out(pooled_noise(f"{name}, identified", identifieds))
+
+
+def title(result: dict) -> str:
+    return "The identified design against the emulator, beside the paper's law" + (
+        " (sensor noise on)" if result["noise"] else "")
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table("", ["truth, Controller", "overshoot % per step", "2 % settling [ms]", "lift-off peak [µm]",
+                              "IAE steps [µm s] (ratio)", "IAE first level [µm s]", "host overruns",
+                              "noise RMS per step [nm]"], [record.cells(line) for line in result["rows"]])]
 
 
 if __name__ == "__main__":

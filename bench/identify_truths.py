@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import record
 
 from nfal.errors import NfalError
 from nfal.models.calibration import (PAPER_SIGMA_RANGE, TabulatedK, calibration_from_dict, load_calibration,
@@ -107,15 +108,31 @@ def main(names: list[str]) -> None:
     folder.mkdir(parents=True)
     print(f"calibration files, raw data and figures in {folder}", flush=True)
     table = cases(folder)
+    results = {}
     for name in names or list(table):
         try:
-            result = compare(table[name], identify(table[name], folder, name))
+            results[name] = compare(table[name], identify(table[name], folder, name))
         except subprocess.CalledProcessError as exc:
-            result = {"failed": f"nfal identify exited {exc.returncode} (its message is above)"}
+            results[name] = {"failed": f"nfal identify exited {exc.returncode} (its message is above)"}
         except NfalError as exc:
-            result = {"failed": f"the identified model cannot be compared: {exc}"}
-        print(name, json.dumps(result), flush=True)
+            results[name] = {"failed": f"the identified model cannot be compared: {exc}"}
+        print(name, json.dumps(results[name]), flush=True)
+        record.save("identify-truths", {"cases": results})  # after each: a bench stopped half-way keeps what it had
+    record.show(tables({"cases": results}))
 
+
+def tables(result: dict) -> list[record.Table]:
+    rows = []
+    for name, case in result["cases"].items():
+        if "failed" in case:
+            rows.append([name, case["failed"], "-", "-", "-"])
+            continue
+        rows.append([name, f"{case['equilibrium_error_max_percent']:.2f} (at {case['worst_at_um']} µm)",
+                     f"{case['damping_error_max_percent']:.1f}", case["truth_inside_interval"],
+                     f"{case['rig_time_s']:.1f}"])
+    return [record.Table("Each truth identified over the rig protocol (the emulator's watchdog 0.2 s):",
+                         ["truth", "equilibrium heights 50-200 µm: largest error [%]",
+                          "damping factor: largest error [%]", "truth inside the interval", "rig time [s]"], rows)]
 
 if __name__ == "__main__":
     main(sys.argv[1:])

@@ -37,6 +37,11 @@ class Table:
         return "\n".join(lines)
 
 
+def cells(line: str) -> list[str]:
+    """The cells of a markdown table row that a bench printed as it went (``| a | b |`` -> ``["a", "b"]``)."""
+    return [cell.strip() for cell in line.strip().strip("|").split("|")]
+
+
 def save(name: str, data: dict, *, argv: list[str] | None = None) -> Path:
     """Write ``bench/results/<name>.json``: the bench's ``data`` with the machine, command, date and load; its path.
     Call it after every run of a long bench, so that a bench stopped half-way keeps what it measured."""

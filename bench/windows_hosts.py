@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import record
 
 from nfal.apps.build import build_all
 from nfal.fmus.build import SIMULATION_FMUS
@@ -49,13 +50,13 @@ def c_hosts(fmus: dict, folder: Path, bench, env: dict, runs: int, stop_s: float
                                wrapper=bench.command)
         seconds = (time.perf_counter() - started) / runs
         if missing:
-            print(f"C host .exe  FMI {fmi}.0  {name:17s} runs {runs:3d}  crashes {result.signals:2d}  exit codes "
+            report(f"C host .exe  FMI {fmi}.0  {name:17s} runs {runs:3d}  crashes {result.signals:2d}  exit codes "
                   f"{sorted(set(result.exit_codes))}  one line naming the missing Python {result.logged_once(missing)}")
             continue
         reference = run_in_c_host(linux, fmus[name], folder / "linux", runs=1, stop_time=stop_s).outputs[0]
         worst = max((abs(value - reference[key]) / max(abs(reference[key]), 1e-300)
                      for outputs in result.outputs for key, value in outputs.items()), default=float("nan"))
-        print(f"C host .exe  FMI {fmi}.0  {name:17s} runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
+        report(f"C host .exe  FMI {fmi}.0  {name:17s} runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
               f"{sorted(set(result.exit_codes))}  max relative difference from Linux {worst:.2g}  {seconds:.1f} s/run")
 
 
@@ -68,7 +69,7 @@ def fmpy_remoting(fmus: dict, folder: Path, bench, runs: int, stop_s: float) -> 
         reference = run_in_c_host(linux, fmus[name], folder / "linux", runs=1, stop_time=stop_s).outputs[0]
         worst = max((abs(outputs[key] - value) / max(abs(value), 1e-300)
                      for outputs in result.outputs for key, value in reference.items()), default=float("nan"))
-        print(f"FMPy remote  FMI 2.0  {name:17s} runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
+        report(f"FMPy remote  FMI 2.0  {name:17s} runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
               f"{sorted(set(result.exit_codes))}  max relative difference from Linux {worst:.2g}  {seconds:.1f} s/run")
 
 
@@ -78,7 +79,7 @@ def ecos(archive: Path, folder: Path, bench, env: dict, runs: int, stop_s: float
     result = run_in_ecos(exe, archive, folder / "ecos-win", runs=runs, stop_time=stop_s, env=env, wrapper=bench.command)
     seconds = (time.perf_counter() - started) / max(runs, 1)
     if missing:
-        print(f"ecos.exe     FMI {fmi}.0  fig7_slow.ssp runs {runs:3d}  crashes {result.signals:2d}  exit codes "
+        report(f"ecos.exe     FMI {fmi}.0  fig7_slow.ssp runs {runs:3d}  crashes {result.signals:2d}  exit codes "
               f"{sorted(set(result.exit_codes))}  one line per FMU naming the missing Python "
               f"{result.logged_once(missing, fmus_in(archive))}")
         return
@@ -86,10 +87,30 @@ def ecos(archive: Path, folder: Path, bench, env: dict, runs: int, stop_s: float
     csv = max((np.max(np.abs(np.array(o[HEIGHT]) - np.array(linux[HEIGHT]))) for o in result.outputs),
               default=float("nan"))
     columns = sum(any(o[name] != linux[name] for o in result.outputs) for name in linux)
-    print(f"ecos.exe     FMI {fmi}.0  fig7_slow.ssp runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
+    report(f"ecos.exe     FMI {fmi}.0  fig7_slow.ssp runs {runs:3d}  crashes {result.crashes:2d}  exit codes "
           f"{sorted(set(result.exit_codes))}  max |height - Linux ecos| in the CSVs (6 decimals) {csv:.2g} m, "
           f"Real columns differing {columns} of {len(linux)}  "
           f"{seconds:.1f} s/run over {stop_s} s")
+
+#: What this run reported, line by line: printed as it comes, and the result file's ``lines``.
+LINES: list[str] = []
+
+
+def report(line: str) -> None:
+    print(line, flush=True)
+    LINES.append(line)
+
+
+def title(result: dict) -> str:
+    return __doc__.strip().splitlines()[0].rstrip(".") + f" ({result['variant']})"
+
+
+def tables(result: dict) -> list[record.Table]:
+    return []
+
+
+def findings(result: dict) -> list[str]:
+    return [f"`{line}`" for line in result["lines"]]
 
 
 def main() -> None:
@@ -121,6 +142,8 @@ def main() -> None:
         if args.ecos_runs:
             ecos(archive, folder, bench, env, args.ecos_runs, args.ecos_stop_time, args.fmi, missing)
 
+    variant = f"windows-hosts-fmi{args.fmi}-{args.environment}"
+    print(record.save(variant, {"variant": variant, "lines": LINES}))
 
 if __name__ == "__main__":
     main()
