@@ -33,6 +33,17 @@ def test_run_writes_results_summary_and_plot(capsys, tmp_path, fig7_archives):
     assert (out / "response.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # a run of the loop
+def test_no_plot_leaves_the_plot_out_and_the_results_as_they_are(capsys, tmp_path, fig7_archives):
+    runs = {}
+    for name, extra in (("plotted", []), ("unplotted", ["--no-plot"])):
+        out = tmp_path / name
+        assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.05", "--out", str(out), *extra]) == 0
+        runs[name] = out
+    assert (runs["plotted"] / "response.png").is_file() and not (runs["unplotted"] / "response.png").exists()
+    assert (runs["plotted"] / "results.csv").read_bytes() == (runs["unplotted"] / "results.csv").read_bytes()
+
+
 @pytest.mark.slow  # whole runs of the loop
 def test_run_from_a_reference_csv_of_steps_prints_the_step_table(capsys, tmp_path, fig7_archives):
     csv = tmp_path / "reference.csv"

@@ -44,6 +44,7 @@ class RunRequest:
     overwrite: bool = False
     max_steps: int | None = None
     build_dir: Path = Path("build")
+    plot: bool = True  #: response.png for the Fig. 7 loop (about 2 s of matplotlib)
 
 
 def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text: None):
@@ -93,7 +94,8 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
         result = run_structure(structure, start_time=request.start_time, stop_time=stop_time, step_size=request.step,
                                inputs=inputs, parameters=parameters, algorithm=request.algorithm, out_dir=out,
                                realtime=realtime, rt_priority=request.rt_priority, overwrite=request.overwrite,
-                               max_steps=request.max_steps, plot=response_panels(columns) if fig7 else None,
+                               max_steps=request.max_steps,
+                               plot=response_panels(columns) if fig7 and request.plot else None,
                                metrics=metrics, checks=lambda table: loop_checks(table, steps, columns))
     except SimulationError as exc:
         if exc.result is not None:

@@ -119,6 +119,8 @@ def _register_run(commands) -> None:
     run.add_argument("--build-dir", default="build", metavar="DIR",
                      help="where built-in structures are built (default build/)")
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
+    run.add_argument("--no-plot", dest="plot", action="store_false",
+                     help="no response.png (the Fig. 7 loop's plot: about 2 s of a short run)")
     run.set_defaults(handler=run_cosimulation)
 
 
@@ -162,7 +164,7 @@ def run_cosimulation(args: argparse.Namespace) -> int:
                          reference_input=args.reference_input, start_time=args.start_time, stop_time=args.stop_time,
                          step=args.step, algorithm=args.algorithm, realtime=args.realtime, rt_priority=args.rt_priority,
                          out=Path(args.out) if args.out else None, overwrite=args.overwrite, max_steps=args.max_steps,
-                         build_dir=Path(args.build_dir))
+                         build_dir=Path(args.build_dir), plot=args.plot)
     try:
         result = run_request(request, notice=lambda text: print(f"nfal run: {text}", file=sys.stderr))
     except SimulationError as exc:
