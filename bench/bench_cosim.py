@@ -30,6 +30,7 @@ import numpy as np
 import record
 from machine import describe
 
+from nfal.fmus.bundle_loader import REGISTRY
 from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 from nfal.orchestration.libcosim import run_ssp
@@ -253,26 +254,26 @@ class Clocks:
     makes it, and (2) our master's get/set calls at the call site (fmpy; its doStep calls are timed by
     the master itself, ``summary["do_step_wall_time_s"]``).
 
-    (1): the FMUs' slave classes derive from the ``nfal.fmus.base.NfalSlave`` already imported here
-    (Python keeps one module per name), so patching its methods reaches the FMUs loaded by fmpy and by
-    libcosim alike. A call made before the instance's ``exit_initialization_mode`` counts as setup, the
-    others as loop; ``first``/``last`` bound the doStep calls in wall-clock time. (2): ``_Transfer``
-    objects get a timed ``function``; only calls after the first doStep count. Adds ~1 us per call."""
+    (1): each FMU runs on the nfal it carries (``nfal.fmus.bundle_loader``), so the ``NfalSlave`` its slave
+    class derives from is patched as the loader registers the FMU (fmpy's and libcosim's alike). A call made
+    before the instance's ``exit_initialization_mode`` counts as setup, the others as loop; ``first``/``last``
+    bound the doStep calls in wall-clock time. (2): ``_Transfer`` objects get a timed ``function``; only calls
+    after the first doStep count. Adds ~1 us per call."""
 
     def __init__(self) -> None:
-        import nfal.fmus.base as base
         import nfal.orchestration.master as master
 
-        self.base, self.transfer = base.NfalSlave, master._Transfer
+        self.transfer = master._Transfer
         self.saved: dict[tuple[type, str], object] = {}
         self.fmu_setup = self.fmu_loop = self.exchange = 0.0
         self.first = self.last = None
 
-    def __enter__(self) -> "Clocks":
+    def _patch(self, base: type) -> None:
+        """Time ``base``'s SLAVE_METHODS (an FMU's own ``NfalSlave``)."""
         clock = time.perf_counter
         for name in SLAVE_METHODS:
-            original = self.base.__dict__[name]
-            self.saved[(self.base, name)] = original
+            original = base.__dict__[name]
+            self.saved[(base, name)] = original
 
             def timed(slave, *args, _original=original, _step=name == "do_step"):
                 running = getattr(slave, "initialized", False)
@@ -289,7 +290,32 @@ class Clocks:
                         self.first = begin if self.first is None else self.first
                         self.last = end
 
-            setattr(self.base, name, timed)
+            setattr(base, name, timed)
+
+    def _patch_module(self, module) -> None:
+        """Patch the NfalSlave under each slave class of an FMU's slave module (once each)."""
+        for value in vars(module).values():
+            for base in value.__mro__ if isinstance(value, type) else ():
+                if base.__name__ == "NfalSlave" and (base, "do_step") not in self.saved:
+                    self._patch(base)
+
+    def __enter__(self) -> "Clocks":
+        from nfal.fmus.bundle_loader import _registry
+
+        clocks, bundles = self, _registry()  # the loader's registry (made if no FMU was loaded yet)
+
+        class Patching(dict):
+            """The loader's registry: each FMU's slave module patched as it is registered."""
+
+            def __setitem__(self, key, module) -> None:
+                super().__setitem__(key, module)
+                clocks._patch_module(module)
+
+        for module in bundles.values():  # FMUs loaded before, and loaded again from the same folder
+            self._patch_module(module)
+        self._bundles = bundles
+        sys.modules[REGISTRY].bundles = Patching(bundles)
+        clock = time.perf_counter
         init = self.transfer.__init__
         self.saved[(self.transfer, "__init__")] = init
 
@@ -311,6 +337,7 @@ class Clocks:
         return self
 
     def __exit__(self, *exc) -> None:
+        sys.modules[REGISTRY].bundles = self._bundles
         for (owner, name), original in self.saved.items():
             setattr(owner, name, original)
 
