@@ -33,7 +33,7 @@ class Table:
     def markdown(self) -> str:
         lines = [self.title, ""] if self.title else []
         lines += ["| " + " | ".join(self.columns) + " |", "|" + "---|" * len(self.columns)]
-        lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in self.rows]
+        lines += ["| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |" for row in self.rows]
         return "\n".join(lines)
 
 
