@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import record
+from record import report
 import pythonfmu
 from fmpy import simulate_fmu
 
@@ -112,27 +113,6 @@ def ecos_runs(fmus: dict, fmus2: dict, folder: Path, runs: int, stop_s: float, f
           f"{sorted(set(result.exit_codes))}  max |drive voltage - ours (FMI 2.0, Jacobi)| {worst:.2g} V "
           f"over {stop_s} s")
 
-#: What this run reported, line by line: printed as it comes, and the result file's ``lines``.
-LINES: list[str] = []
-
-
-def report(line: str) -> None:
-    print(line, flush=True)
-    LINES.append(line)
-
-
-def title(result: dict) -> str:
-    return __doc__.strip().splitlines()[0].rstrip(".") + f" ({result['variant']})"
-
-
-def tables(result: dict) -> list[record.Table]:
-    return []
-
-
-def findings(result: dict) -> list[str]:
-    return [f"`{line}`" for line in result["lines"]]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", type=int, default=100, help="C-host runs per FMU (default 100)")
@@ -155,7 +135,7 @@ def main() -> None:
             ecos_runs(fmus, fmus2, folder, args.ecos_runs, args.ecos_stop_time, args.fmi, args.environment)
 
     variant = f"host-compat-fmi{args.fmi}-{args.environment}" + ("-stock-runtime" if args.stock_runtime else "")
-    print(record.save(variant, {"variant": variant, "lines": LINES}))
+    print(record.save(variant, {"variant": variant, "lines": record.LINES}))
 
 if __name__ == "__main__":
     main()

@@ -4,8 +4,9 @@ A bench is a script ``bench/<script>.py`` run from the repository root (``python
 measures, then calls :func:`save` with its raw measurements (``data``): the file also records the machine, the
 command, the date and the load average. The script's ``tables(result)`` turns a result into :class:`Table` s (the
 baseline of a ratio is measured in the same run, so it is in ``data`` too), and ``findings(result)`` into sentences
-whose numbers come from ``data``. ``python bench/report.py`` writes docs/benchmarks.md from every result file with
-those functions: no number there is copied by hand.
+whose numbers come from ``data``; a bench that reports free-form lines (:func:`report`) saves them as ``lines``,
+which the document lists (no ``tables`` needed). ``python bench/report.py`` writes docs/benchmarks.md from every
+result file with those functions: no number there is copied by hand.
 """
 
 from __future__ import annotations
@@ -55,6 +56,16 @@ def save(name: str, data: dict, *, argv: list[str] | None = None) -> Path:
     path = RESULTS / f"{name}.json"
     path.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
     return path
+
+
+#: What a bench that reports line by line has said (:func:`report`): its result file's ``lines``.
+LINES: list[str] = []
+
+
+def report(line: str) -> None:
+    """Print ``line`` and keep it for the result file (a bench of free-form lines, as the host checks are)."""
+    print(line, flush=True)
+    LINES.append(line)
 
 
 def load(name: str) -> dict:

@@ -41,12 +41,15 @@ def script_of(result: dict) -> str:
 def section(result: dict) -> str:
     module = importlib.import_module(script_of(result))
     title = module.title(result) if hasattr(module, "title") else module.__doc__.strip().splitlines()[0].rstrip(".")
+    if "variant" in result:
+        title += f" ({result['variant']})"
     load = ", ".join(f"{value:.2f}" for value in result["load_average"]) if "load_average" in result else "not recorded"
     parts = [f"## {title}",
              f"`{result['command']}`: {result['date']}; {result['machine']}; load average {load}. "
              f"Data: `bench/results/{result['bench']}.json`."]
-    parts += [table.markdown().strip() for table in module.tables(result)]
-    findings = module.findings(result) if hasattr(module, "findings") else []
+    parts += [table.markdown() for table in (module.tables(result) if hasattr(module, "tables") else [])]
+    findings = module.findings(result) if hasattr(module, "findings") else [f"`{line}`" for line in
+                                                                             result.get("lines", [])]
     if findings:
         parts.append("\n".join(f"* {finding}" for finding in findings))
     return "\n\n".join(parts)

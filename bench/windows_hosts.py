@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 import record
+from record import report
 
 from nfal.apps.build import build_all
 from nfal.fmus.build import SIMULATION_FMUS
@@ -92,27 +93,6 @@ def ecos(archive: Path, folder: Path, bench, env: dict, runs: int, stop_s: float
           f"Real columns differing {columns} of {len(linux)}  "
           f"{seconds:.1f} s/run over {stop_s} s")
 
-#: What this run reported, line by line: printed as it comes, and the result file's ``lines``.
-LINES: list[str] = []
-
-
-def report(line: str) -> None:
-    print(line, flush=True)
-    LINES.append(line)
-
-
-def title(result: dict) -> str:
-    return __doc__.strip().splitlines()[0].rstrip(".") + f" ({result['variant']})"
-
-
-def tables(result: dict) -> list[record.Table]:
-    return []
-
-
-def findings(result: dict) -> list[str]:
-    return [f"`{line}`" for line in result["lines"]]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
@@ -143,7 +123,7 @@ def main() -> None:
             ecos(archive, folder, bench, env, args.ecos_runs, args.ecos_stop_time, args.fmi, missing)
 
     variant = f"windows-hosts-fmi{args.fmi}-{args.environment}"
-    print(record.save(variant, {"variant": variant, "lines": LINES}))
+    print(record.save(variant, {"variant": variant, "lines": record.LINES}))
 
 if __name__ == "__main__":
     main()
