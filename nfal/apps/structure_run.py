@@ -95,7 +95,7 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
                                inputs=inputs, parameters=parameters, algorithm=request.algorithm, out_dir=out,
                                realtime=realtime, rt_priority=request.rt_priority, overwrite=request.overwrite,
                                max_steps=request.max_steps,
-                               plot=response_panels(columns) if fig7 and request.plot else None,
+                               plot=(response_panels(columns) if fig7 else None) if request.plot else False,
                                metrics=metrics, checks=lambda table: loop_checks(table, steps, columns))
     except SimulationError as exc:
         if exc.result is not None:
