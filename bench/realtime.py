@@ -106,7 +106,11 @@ def run_hil(args, folder: Path) -> list[dict]:
     with emulator(folder) as (port, rig):
         command = [sys.executable, "-m", "nfal", "run", "fig7_hil", "--realtime", "--param", f"proxy.port={port}",
                    "--reference", spec, "--stop-time", str(args.duration), "--out", str(out), "--json"]
-        host = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        # to files, not pipes: the summary of a 10-minute run (300 KB of JSON) would fill a pipe nobody reads yet
+        # (a run of 2026-11-26 completed, then waited on its own print until killed)
+        host_output = open(folder / "host.out", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
+        host_errors = open(folder / "host.err", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
+        host = subprocess.Popen(command, stdout=host_output, stderr=host_errors, text=True)
         memory = []
         while host.poll() is None:
             summary_path = out / "summary.json"
@@ -114,7 +118,10 @@ def run_hil(args, folder: Path) -> list[dict]:
                 if json.loads(summary_path.read_text()).get("status") == "running":
                     memory.append(resident_mb(host.pid))
             time.sleep(10)
-        output, errors = host.communicate()
+        host.wait()
+        host_output.close()
+        host_errors.close()
+        errors = (folder / "host.err").read_text(encoding="utf-8")
     events = (folder / next(folder.glob("*.events")).name).read_text()
     summary = json.loads(out.joinpath("summary.json").read_text())
     realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
