@@ -139,6 +139,9 @@ def run_hil(args, folder: Path) -> list[dict]:
            "emulator_pacing": next((line for line in events.splitlines() if line.startswith("pacing:")), None),
            "watchdog_trips": events.count("watchdog: no DRIVE"), "missed_sample_stop": "no measurement" in errors,
            "rss_mb_first_last_max": [round(memory[0]), round(memory[-1]), round(max(memory))] if memory else None,
+           # every 10 s while summary.json says "running": that lasts until metrics and plot are done, so the last
+           # samples may hold the results read back after the loop
+           "rss_mb_every_10_s": [round(m) for m in memory],
            "error": summary.get("error")}
     print(json.dumps(row), flush=True)
     save(args, [row])
