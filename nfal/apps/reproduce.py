@@ -31,14 +31,15 @@ import numpy as np
 from scipy import signal
 
 from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
-from nfal.apps.fig7 import HARDWARE, HARDWARE_LEAD_S, loop_run
+from nfal.apps.fig7 import HARDWARE_LEAD_S
 from nfal.apps.figures.control import plot_comparison, plot_stability_map
 from nfal.apps.figures.physics import plot_table1
 from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitation, shown, write_html
 from nfal.apps.fig7_names import PAPERS_LAW
+from nfal.apps.rig_comparison import controller_on_rig
 from nfal.models.calibration import paper_calibration, perturbation_calibration
 from nfal.models.closed_loop import ClosedLoopRun, Staircase
-from nfal.models.comparison import GAIN_SCHEDULED, controller_design, controller_name, simulate_comparison
+from nfal.models.comparison import GAIN_SCHEDULED, controller_name, simulate_comparison
 from nfal.models.excitation import paper_shape
 from nfal.models.measured_calibration import EquilibriumData, fit_calibration
 from nfal.models.paper_numbers import PaperNumber, paper_numbers, paper_value
@@ -390,15 +391,10 @@ def figs11_12(context: _Context, progress: Callable[[], None] | None = None) -> 
     runs, metrics = {}, {}
     for key in CONTROLLERS:
         with _emulator(context.out_dir / "runs" / f"rig_{key}.pty", context.build_dir) as port:
-            result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / SAMPLING_RATE_HZ,
-                                   inputs={"Controller.reference": reference}, plot=False, progress=False,
-                                   parameters={"proxy.port": port, "proxy.lockstep": True, **PAPERS_LAW,
-                                               **controller_design(key)},
-                                   out_dir=context.out_dir / "runs" / f"rig_{key}", overwrite=True)
-        if result.summary["status"] != "ok":
-            raise RuntimeError(f"the rig run of the {controller_name(key)} controller failed: "
-                               f"{result.summary['error']}")
-        raw = loop_run(result.table(), controller_name(key), HARDWARE)
+            raw = controller_on_rig(archive, key, reference, {"proxy.port": port, "proxy.lockstep": True,
+                                                              **PAPERS_LAW},
+                                    sample_rate_hz=SAMPLING_RATE_HZ, out_dir=context.out_dir / "runs" / f"rig_{key}",
+                                    realtime=False, overwrite=True)
         runs[key] = dataclasses.replace(raw, height_m=low_pass(raw.measured_m, raw.time_s))
         metrics[key] = _metrics(runs[key], reference)
         if progress is not None:

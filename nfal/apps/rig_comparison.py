@@ -15,19 +15,29 @@ from nfal.models.comparison import controller_design, controller_name
 from nfal.orchestration import run_structure
 
 
+def controller_on_rig(archive: Path, key: str, reference: Staircase, parameters: Mapping[str, object], *,
+                      sample_rate_hz: float, out_dir: Path, realtime: bool = True,
+                      overwrite: bool = False) -> ClosedLoopRun:
+    """fig7_hil (``archive``) with controller ``key`` (``gs`` or a design height in um: ``controller_design``) and
+    ``parameters`` (``proxy.port`` among them) over ``reference``, kept in ``out_dir``: the run as a comparison takes
+    it. ``realtime`` False: a rig in lockstep paces the loop."""
+    result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / sample_rate_hz,
+                           inputs={REFERENCE: reference}, parameters={**parameters, **controller_design(key)},
+                           realtime=realtime, out_dir=out_dir, overwrite=overwrite, plot=False, progress=False)
+    return loop_run(result.table(), controller_name(key), HARDWARE)
+
+
 def compare_on_rig(keys: list[str], reference: Staircase, parameters: Mapping[str, object], *, sample_rate_hz: float,
                    build_dir: str | Path | None = None, runs_dir: str | Path | None = None,
                    progress: Callable[[], None] = lambda: None) -> tuple[dict[str, ClosedLoopRun], Path]:
-    """Run fig7_hil with each controller of ``keys`` (``gs`` or a design height in um: ``controller_design``) and
-    ``parameters`` (``proxy.port`` among them), one after the other over ``reference``; ``progress()`` after each.
-    Returns key -> run, and the folder with the runs (default runs/compare-<date-time>)."""
+    """Each controller of ``keys`` on the rig, one after the other (:func:`controller_on_rig`, paced on the wall
+    clock); ``progress()`` after each. Returns key -> run, and the folder with the runs (default
+    runs/compare-<date-time>)."""
     archive = build_all(build_dir or DEFAULT_BUILD_DIR, structures=("fig7_hil",))["fig7_hil"]
     folder = Path(runs_dir or Path("runs") / f"compare-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     runs = {}
     for key in keys:
-        result = run_structure(archive, stop_time=reference.duration_s, step_size=1.0 / sample_rate_hz,
-                               inputs={REFERENCE: reference}, parameters={**parameters, **controller_design(key)},
-                               realtime=True, out_dir=folder / key, plot=False, progress=False)
-        runs[key] = loop_run(result.table(), controller_name(key), HARDWARE)
+        runs[key] = controller_on_rig(archive, key, reference, parameters, sample_rate_hz=sample_rate_hz,
+                                      out_dir=folder / key)
         progress()
     return runs, folder
