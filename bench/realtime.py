@@ -2,6 +2,7 @@
 
     python bench/realtime.py identify --runs 10 --truths default mass damping [--neighbour]
     python bench/realtime.py hil --duration 600 [--neighbour]
+    python bench/realtime.py hil --duration 120 --lockstep   # the host's memory over 240 000 steps, unpaced
     python bench/realtime.py tests --runs 20            # the suite's real-time tests; the neighbour in every other run
 
 The rig emulator stands for the rig, a separate machine: it runs under SCHED_FIFO (priority 50) where the system
@@ -33,6 +34,8 @@ TRUTHS = {"default": [], "mass": ["--param", "Plant.mass=0.18"],
 #: The staircase of Figs. 9-10, repeated for a long HIL run [m].
 CYCLE = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6)
 RT_PRIORITY = "50"
+#: How often the HIL run's resident memory is sampled [s].
+MEMORY_EVERY_S = 5
 
 
 @contextlib.contextmanager
@@ -103,9 +106,10 @@ def run_hil(args, folder: Path) -> list[dict]:
     levels = [CYCLE[i % len(CYCLE)] for i in range(int(args.duration / 0.6) + 2)]
     spec = "staircase:" + ",".join(f"{level:g}" for level in levels) + ":0.6:1.0"
     out = folder / "hil"
-    with emulator(folder) as (port, rig):
-        command = [sys.executable, "-m", "nfal", "run", "fig7_hil", "--realtime", "--param", f"proxy.port={port}",
-                   "--reference", spec, "--stop-time", str(args.duration), "--out", str(out), "--json"]
+    with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
+        pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
+        command = [sys.executable, "-m", "nfal", "run", "fig7_hil", *pacing, "--param", f"proxy.port={port}",
+                   "--reference", spec, "--stop-time", str(args.duration), "--out", str(out), "--json", "--no-plot"]
         # to files, not pipes: the summary of a 10-minute run (300 KB of JSON) would fill a pipe nobody reads yet
         # (a run of 2026-11-26 completed, then waited on its own print until killed)
         host_output = open(folder / "host.out", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
@@ -117,7 +121,7 @@ def run_hil(args, folder: Path) -> list[dict]:
             with contextlib.suppress(OSError, json.JSONDecodeError):  # sampled while the loop runs
                 if json.loads(summary_path.read_text()).get("status") == "running":
                     memory.append(resident_mb(host.pid))
-            time.sleep(10)
+            time.sleep(MEMORY_EVERY_S)
         host.wait()
         host_output.close()
         host_errors.close()
@@ -126,7 +130,7 @@ def run_hil(args, folder: Path) -> list[dict]:
     summary = json.loads(out.joinpath("summary.json").read_text())
     realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
     memory = [m for m in memory if m is not None]
-    row = {"exit": host.returncode, "status": summary["status"], "steps": realtime.get("steps"),
+    row = {"exit": host.returncode, "status": summary["status"], "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
            "overrun_share_percent": round(100 * realtime.get("overruns", 0) / max(1, realtime.get("steps") or 1), 4),
            "jitter_p99_ms": round(realtime.get("jitter_p99_s", 0) * 1e3, 3),
@@ -139,9 +143,9 @@ def run_hil(args, folder: Path) -> list[dict]:
            "emulator_pacing": next((line for line in events.splitlines() if line.startswith("pacing:")), None),
            "watchdog_trips": events.count("watchdog: no DRIVE"), "missed_sample_stop": "no measurement" in errors,
            "rss_mb_first_last_max": [round(memory[0]), round(memory[-1]), round(max(memory))] if memory else None,
-           # every 10 s while summary.json says "running": that lasts until metrics and plot are done, so the last
-           # samples may hold the results read back after the loop
-           "rss_mb_every_10_s": [round(m) for m in memory],
+           # every MEMORY_EVERY_S while summary.json says "running": that lasts until the metrics are done, so the
+           # last samples may hold the results read back after the loop
+           "rss_every_s": MEMORY_EVERY_S, "rss_mb_samples": [round(m) for m in memory],
            "error": summary.get("error")}
     print(json.dumps(row), flush=True)
     save(args, [row])
@@ -171,7 +175,8 @@ def run_tests(args, folder: Path) -> list[dict]:
 
 def save(args, rows: list[dict]) -> Path:
     """bench/results/realtime-<kind>[-neighbour].json: the machine, the command and every run so far."""
-    name = f"realtime-{args.kind}" + ("-neighbour" if args.neighbour and args.kind != "tests" else "")
+    name = (f"realtime-{args.kind}" + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
+            + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
     return record.save(name, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)})
 
 
@@ -180,6 +185,7 @@ def title(result: dict) -> str:
     return {"identify": "Real time: `nfal identify` against the emulator, full length",
             "identify-neighbour": "Real time: `nfal identify` beside a CPU-bound process",
             "hil": "Real time: a long `nfal run fig7_hil --realtime` against the emulator",
+            "hil-lockstep": "A long `nfal run fig7_hil` against the emulator in lockstep: the host's memory",
             "tests": "Real time: the suite's real-time tests in a loop"}[kind]
 
 
@@ -204,7 +210,7 @@ def tables(result: dict) -> list[record.Table]:
                              ["truth", "completed", "DRIVE gaps p99 [ms] (median of runs, worst)",
                               "longest DRIVE gap [ms] (range)", "collector's longest pause [µs]", "rig time [s]"],
                              rows)]
-    if kind == "hil":
+    if kind.startswith("hil"):
         return [record.Table("", ["status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
                                   "watchdog trips", "stopped on missed samples", "resident memory first / last / max "
                                   "[MB]"],
@@ -224,6 +230,9 @@ def findings(result: dict) -> list[str]:
         if run.get("error"):
             out.append(f"Run {run.get('run', 0)}{' (' + run['truth'] + ')' if 'truth' in run else ''}: "
                        f"{run['error']}")
+        if run.get("rss_mb_samples"):
+            out.append(f"Resident memory every {run['rss_every_s']} s while the run was on [MB]: "
+                       + ", ".join(map(str, run["rss_mb_samples"])) + ".")
         for line in run.get("errors", [])[:2]:
             out.append(f"Run {run['run']}: `{line.strip()}`")
     return out
@@ -235,6 +244,8 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--truths", nargs="+", default=list(TRUTHS), choices=list(TRUTHS))
     parser.add_argument("--duration", type=float, default=600.0, help="hil: seconds of the run (default 600)")
+    parser.add_argument("--lockstep", action="store_true", help="hil: the rig in lockstep, the host not paced (its "
+                        "memory over many steps, whatever the machine's load)")
     parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests: every other run)")
     args = parser.parse_args()
     folder = HERE.parent / "runs" / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")  # runs/ is ignored
