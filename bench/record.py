@@ -68,10 +68,6 @@ def report(line: str) -> None:
     LINES.append(line)
 
 
-def load(name: str) -> dict:
-    return json.loads((RESULTS / f"{name}.json").read_text(encoding="utf-8"))
-
-
 def show(tables: list[Table], findings: list[str] = ()) -> None:
     """Print a bench's tables and findings as they appear in docs/benchmarks.md."""
     for table in tables:
