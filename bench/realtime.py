@@ -1,15 +1,16 @@
 """Real time at full length, on an idle or a busy machine (docs/hil.md, "Real time that holds").
 
     python bench/realtime.py identify --runs 10 --truths default mass damping [--neighbour]
-    python bench/realtime.py hil --duration 600 [--neighbour]
+    python bench/realtime.py hil --duration 600 [--neighbour] [--host-rt-priority 50]
     python bench/realtime.py hil --duration 120 --lockstep   # the host's memory over 240 000 steps, unpaced
     python bench/realtime.py tests --runs 20            # the suite's real-time tests; the neighbour in every other run
 
 The rig emulator stands for the rig, a separate machine: it runs under SCHED_FIFO (priority 50) where the system
-allows it, with its default 20 ms watchdog. The host (``nfal identify``, ``nfal run fig7_hil``) runs at normal
-priority. ``--neighbour`` starts a CPU-bound process at normal priority beside them (``python -c "while True: pass"``).
-Each command prints one JSON line per run and writes the whole result, with the machine and the command, to
-``bench/results/realtime-<kind>[-neighbour].json``.
+allows it, with its default 100 ms watchdog. The host (``nfal identify``, ``nfal run fig7_hil``) runs at normal
+priority, unless ``--host-rt-priority N`` (hil) gives it SCHED_FIFO too. ``--neighbour`` starts a CPU-bound process
+at normal priority beside them (``python -c "while True: pass"``). Each command prints one JSON line per run and
+writes the whole result, with the machine and the command, to
+``bench/results/realtime-<kind>[-lockstep][-fifo][-neighbour].json``.
 """
 
 from __future__ import annotations
@@ -108,6 +109,8 @@ def run_hil(args, folder: Path) -> list[dict]:
     out = folder / "hil"
     with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
         pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
+        if args.host_rt_priority is not None:
+            pacing += ["--rt-priority", str(args.host_rt_priority)]
         command = [sys.executable, "-m", "nfal", "run", "fig7_hil", *pacing, "--param", f"proxy.port={port}",
                    "--reference", spec, "--stop-time", str(args.duration), "--out", str(out), "--json", "--no-plot"]
         # to files, not pipes: the summary of a 10-minute run (300 KB of JSON) would fill a pipe nobody reads yet
@@ -130,7 +133,8 @@ def run_hil(args, folder: Path) -> list[dict]:
     summary = json.loads(out.joinpath("summary.json").read_text())
     realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
     memory = [m for m in memory if m is not None]
-    row = {"exit": host.returncode, "status": summary["status"], "steps": summary.get("steps_completed"),
+    row = {"exit": host.returncode, "host_rt_priority": args.host_rt_priority, "status": summary["status"],
+           "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
            "overrun_share_percent": round(100 * realtime.get("overruns", 0) / max(1, realtime.get("steps") or 1), 4),
            "jitter_p99_ms": round(realtime.get("jitter_p99_s", 0) * 1e3, 3),
@@ -176,16 +180,22 @@ def run_tests(args, folder: Path) -> list[dict]:
 def save(args, rows: list[dict]) -> Path:
     """bench/results/realtime-<kind>[-neighbour].json: the machine, the command and every run so far."""
     name = (f"realtime-{args.kind}" + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
+            + ("-fifo" if args.kind == "hil" and args.host_rt_priority is not None else "")
             + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
     return record.save(name, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)})
 
 
 def title(result: dict) -> str:
     kind = result["bench"].removeprefix("realtime-")
+    if kind == "hil-lockstep":
+        return "A long `nfal run fig7_hil` against the emulator in lockstep: the host's memory"
+    if kind.startswith("hil"):
+        priority = next((f" --rt-priority {run['host_rt_priority']}" for run in result["runs"]
+                         if run.get("host_rt_priority") is not None), "")
+        return (f"Real time: a long `nfal run fig7_hil --realtime{priority}` "
+                + ("beside a CPU-bound process" if kind.endswith("-neighbour") else "against the emulator"))
     return {"identify": "Real time: `nfal identify` against the emulator, full length",
             "identify-neighbour": "Real time: `nfal identify` beside a CPU-bound process",
-            "hil": "Real time: a long `nfal run fig7_hil --realtime` against the emulator",
-            "hil-lockstep": "A long `nfal run fig7_hil` against the emulator in lockstep: the host's memory",
             "tests": "Real time: the suite's real-time tests in a loop"}[kind]
 
 
@@ -246,6 +256,8 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=600.0, help="hil: seconds of the run (default 600)")
     parser.add_argument("--lockstep", action="store_true", help="hil: the rig in lockstep, the host not paced (its "
                         "memory over many steps, whatever the machine's load)")
+    parser.add_argument("--host-rt-priority", type=int, metavar="N", help="hil: the host under SCHED_FIFO at N "
+                        "(nfal run --rt-priority N); default: normal priority")
     parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests: every other run)")
     args = parser.parse_args()
     folder = HERE.parent / "runs" / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")  # runs/ is ignored
