@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
 import subprocess
@@ -118,12 +119,13 @@ def run_hil(args, folder: Path) -> list[dict]:
         host_output = open(folder / "host.out", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
         host_errors = open(folder / "host.err", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
         host = subprocess.Popen(command, stdout=host_output, stderr=host_errors, text=True)
-        memory = []
+        memory, written = [], 0  # (MB, the loop still ran: results.csv grew since the sample before)
         while host.poll() is None:
-            summary_path = out / "summary.json"
-            with contextlib.suppress(OSError, json.JSONDecodeError):  # sampled while the loop runs
-                if json.loads(summary_path.read_text()).get("status") == "running":
-                    memory.append(resident_mb(host.pid))
+            with contextlib.suppress(OSError, json.JSONDecodeError):  # from the first step to the summary's end
+                if json.loads((out / "summary.json").read_text()).get("status") == "running":
+                    size = (out / "results.csv").stat().st_size
+                    memory.append((resident_mb(host.pid), size > written))
+                    written = size
             time.sleep(MEMORY_EVERY_S)
         host.wait()
         host_output.close()
@@ -132,7 +134,8 @@ def run_hil(args, folder: Path) -> list[dict]:
     events = (folder / next(folder.glob("*.events")).name).read_text()
     summary = json.loads(out.joinpath("summary.json").read_text())
     realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
-    memory = [m for m in memory if m is not None]
+    loop = [mb for mb, running in memory if mb is not None and running]
+    after = [mb for mb, running in memory if mb is not None and not running]
     row = {"exit": host.returncode, "host_rt_priority": args.host_rt_priority, "status": summary["status"],
            "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
@@ -146,10 +149,11 @@ def run_hil(args, folder: Path) -> list[dict]:
                                for name, fmu in (summary.get("timing") or {}).items()},
            "emulator_pacing": next((line for line in events.splitlines() if line.startswith("pacing:")), None),
            "watchdog_trips": events.count("watchdog: no DRIVE"), "missed_sample_stop": "no measurement" in errors,
-           "rss_mb_first_last_max": [round(memory[0]), round(memory[-1]), round(max(memory))] if memory else None,
-           # every MEMORY_EVERY_S while summary.json says "running": that lasts until the metrics are done, so the
-           # last samples may hold the results read back after the loop
-           "rss_every_s": MEMORY_EVERY_S, "rss_mb_samples": [round(m) for m in memory],
+           "rss_mb_first_last_max": [round(loop[0]), round(loop[-1]), round(max(loop))] if loop else None,
+           # every MEMORY_EVERY_S while summary.json says "running", which lasts until the metrics are done: the
+           # samples while results.csv grew are the loop's, the others the results read back after it
+           "rss_every_s": MEMORY_EVERY_S, "rss_mb_samples": [round(mb) for mb in loop],
+           "rss_mb_after_loop": [round(mb) for mb in after],
            "error": summary.get("error")}
     print(json.dumps(row), flush=True)
     save(args, [row])
@@ -222,16 +226,28 @@ def tables(result: dict) -> list[record.Table]:
                              rows)]
     if kind.startswith("hil"):
         return [record.Table("", ["status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
-                                  "watchdog trips", "stopped on missed samples", "resident memory first / last / max "
-                                  "[MB]"],
+                                  "watchdog trips", "stopped on missed samples", "resident memory in the loop, first / "
+                                  "last / max [MB]"],
                              [[run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
                                f"{run['drive_gap_p50_ms']} / {run['drive_gap_p99_ms']} / {run['drive_gap_max_ms']}",
                                run["watchdog_trips"], "yes" if run["missed_sample_stop"] else "no",
-                               " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"]))] for run in runs])]
+                               _memory_cell(run)] for run in runs])]
     return [record.Table("", ["run", "CPU-bound process beside", "result", "failed"],
                          [[run["run"], "yes" if run["neighbour"] else "no", run["summary"],
                            "; ".join(line.removeprefix("FAILED ").split(" - ")[0] for line in run["failed"]) or "-"]
                           for run in runs])]
+
+
+def _memory_cell(run: dict) -> str:
+    cell = " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"]))
+    # runs before 2026-11-27 sampled until the metrics were done, the results read back included
+    return cell if "rss_mb_after_loop" in run else f"{cell} (the loop and the read-back after it)"
+
+
+def _runs_of(values: list) -> str:
+    """``197 (120 samples), 693, 441 (12 samples)``: equal neighbours counted, not repeated."""
+    groups = [(value, len(list(same))) for value, same in itertools.groupby(values)]
+    return ", ".join(f"{value} ({count} samples)" if count > 1 else str(value) for value, count in groups)
 
 
 def findings(result: dict) -> list[str]:
@@ -241,8 +257,11 @@ def findings(result: dict) -> list[str]:
             out.append(f"Run {run.get('run', 0)}{' (' + run['truth'] + ')' if 'truth' in run else ''}: "
                        f"{run['error']}")
         if run.get("rss_mb_samples"):
-            out.append(f"Resident memory every {run['rss_every_s']} s while the run was on [MB]: "
-                       + ", ".join(map(str, run["rss_mb_samples"])) + ".")
+            out.append(f"Resident memory every {run['rss_every_s']} s while the loop ran [MB]: "
+                       + _runs_of(run["rss_mb_samples"]) + ".")
+        if run.get("rss_mb_after_loop"):
+            out.append("After the loop, while the results were read back for the metrics [MB]: "
+                       + _runs_of(run["rss_mb_after_loop"]) + ".")
         for line in run.get("errors", [])[:2]:
             out.append(f"Run {run['run']}: `{line.strip()}`")
     return out
