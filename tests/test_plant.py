@@ -107,8 +107,8 @@ def surface_plant(request):
 
 def free_release_from_rest_gap(plant, excitation, step):
     """Eq. (13) integrated without any surface logic from (rest_gap, 0): the reference for a lift-off. Its rise is
-    within 2e-10 (relative) of rtol = 1e-12, atol = 1e-17 m's in every case here, which took 20.6 s of this
-    module's 21; the tests compare to 1e-3."""
+    within 2e-10 (relative) of that at rtol = 1e-12, atol = 1e-17 m in every case here (which made this module
+    take 20.6 s rather than 6); the tests compare to 1e-3."""
     solution = integrate.solve_ivp(lambda t, y: [y[1], plant.acceleration(y[0], y[1], excitation)], (0.0, step),
                                    [plant.rest_gap, 0.0], method="Radau", rtol=1e-9, atol=(1e-15, 1e-12))
     assert solution.success
