@@ -8,6 +8,7 @@ tools that walk ``nfal/`` alone miss the layers; this check reads every folder o
 from __future__ import annotations
 
 import ast
+import functools
 import textwrap
 from pathlib import Path
 
@@ -56,9 +57,20 @@ def modules(root: Path = ROOT) -> dict[str, Path]:
     return found
 
 
+def parsed(path: Path) -> tuple[list[str], ast.Module]:
+    """(lines, syntax tree) of a source file, parsed once per content for all the checks in this process."""
+    text = path.read_text(encoding="utf-8")
+    return text.splitlines(), _syntax_tree(text)
+
+
+@functools.lru_cache(maxsize=None)
+def _syntax_tree(text: str) -> ast.Module:
+    return ast.parse(text)
+
+
 def imports(module: str, path: Path) -> list[tuple[str, int, bool]]:
     """(imported nfal module, line, inside a function) for every import of nfal in ``path``."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
+    tree = parsed(path)[1]
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     local = {id(node) for function in ast.walk(tree) if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef))
              for node in ast.walk(function)}
@@ -110,8 +122,7 @@ def unexplained_local_imports(root: Path = ROOT) -> list[str]:
     block of imports they belong to: each needs its stated reason (an optional or slow dependency)."""
     found = []
     for module, path in modules(root).items():
-        lines = path.read_text(encoding="utf-8").splitlines()
-        tree = ast.parse("\n".join(lines))
+        lines, tree = parsed(path)
         for function in ast.walk(tree):
             if not isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 continue
@@ -184,7 +195,7 @@ def long_functions(root: Path = ROOT) -> list[str]:
     """Functions longer than :data:`MAX_FUNCTION_LINES` (without the docstring), numba kernels left out."""
     found = []
     for module, path in modules(root).items():
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        for node in ast.walk(parsed(path)[1]):
             if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 continue
             if any("numba" in ast.unparse(decorator) for decorator in node.decorator_list):
