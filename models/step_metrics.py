@@ -70,8 +70,10 @@ def _holds(reference) -> list[tuple[float, float]]:
     return list(zip([-np.inf, *starts], [*starts, float(reference.duration_s)]))
 
 
-def _window(run: ClosedLoopRun, start: float, end: float) -> np.ndarray:
-    return (run.time_s >= start - 1e-12) & (run.time_s < end - 1e-12)
+def _window(run: ClosedLoopRun, start: float, end: float) -> slice:
+    """The samples with start <= t < end (to 1e-12 s), found by bisection of the (increasing) times: a run of
+    10 minutes at 2 kHz has 1000 steps, and a mask over all 1.2 million samples for each took 30 s."""
+    return slice(*np.searchsorted(run.time_s, (start - 1e-12, end - 1e-12), side="left"))
 
 
 def step_metrics(run: ClosedLoopRun, reference, *, band: float = SETTLING_BAND,
