@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.orchestration.pacing import RealTimePacer
-from nfal.orchestration.results import (Column, CsvWriter, PlotPanel, default_panels, plot_response, read_results,
-                                        write_summary)
+from nfal.orchestration.results import (MAX_LINE_SAMPLES, Column, CsvWriter, PlotPanel, default_panels, extremes,
+                                        plot_response, read_results, response_figure, write_summary)
 
 COLUMNS = (Column("time", "s"), Column("reference", "m"), Column("Plant.height", "m"),
            Column("Plant.resting", None, "Boolean"), Column("Sensor.count", None, "Integer"))
@@ -74,6 +74,34 @@ def test_plot_of_chosen_and_default_panels(tmp_path):
     assert (tmp_path / "chosen.png").stat().st_size > 1000
     with pytest.raises(InvalidParameterError, match="Plant.speed"):
         plot_response(table, tmp_path / "x.png", [PlotPanel("Plant.speed")])
+
+
+@given(st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=300), st.integers(1, 40))
+def test_a_line_drawn_through_the_extremes_keeps_every_buckets_peak_and_dip(values, bucket):
+    values = np.array(values)
+    kept = extremes(values, bucket)
+    assert np.all(np.diff(kept) > 0) and kept[0] == 0 and kept[-1] == values.size - 1  # in time order, whole span
+    assert kept.size <= 2 * -(-values.size // bucket) + 2
+    for start in range(0, values.size, bucket):
+        mine = values[kept[(kept >= start) & (kept < start + bucket)]]
+        assert mine.min() == values[start:start + bucket].min() and mine.max() == values[start:start + bucket].max()
+
+
+def test_a_nan_breaks_the_reduced_line_as_it_breaks_the_whole_one():
+    values = np.arange(100.0)
+    values[37] = np.nan
+    assert 37 in extremes(values, 10)
+
+
+def test_a_long_run_is_plotted_through_its_extremes_and_says_so(tmp_path):
+    rows = 3 * MAX_LINE_SAMPLES + 7
+    with CsvWriter(tmp_path / "r.csv", COLUMNS[:3]) as writer:
+        for k in range(rows):
+            writer.write([k * 5e-4, 1e-4, 1e-4 + (5e-5 if k == 12345 else 0.0)])  # one spike of one sample
+    figure = response_figure(read_results(tmp_path / "r.csv"), [PlotPanel(("reference", "Plant.height"), 1e6)])
+    line = figure.axes[0].get_lines()[1]
+    assert len(line.get_xdata()) <= 2 * MAX_LINE_SAMPLES + 4 and max(line.get_ydata()) == pytest.approx(150.0)
+    assert "lowest and highest of every 4 samples" in figure.texts[0].get_text()
 
 
 class FakeClock:
