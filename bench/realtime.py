@@ -182,7 +182,7 @@ def run_tests(args, folder: Path) -> list[dict]:
 
 
 def save(args, rows: list[dict]) -> Path:
-    """bench/results/realtime-<kind>[-neighbour].json: the machine, the command and every run so far."""
+    """bench/results/realtime-<kind>[-lockstep][-fifo][-neighbour].json: the machine, the command, every run so far."""
     name = (f"realtime-{args.kind}" + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
             + ("-fifo" if args.kind == "hil" and args.host_rt_priority is not None else "")
             + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
