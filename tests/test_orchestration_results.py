@@ -76,6 +76,22 @@ def test_plot_of_chosen_and_default_panels(tmp_path):
         plot_response(table, tmp_path / "x.png", [PlotPanel("Plant.speed")])
 
 
+@pytest.mark.parametrize("content, message", [
+    (b"time [s],x [m]\n0,1\n1\n", "not a table of numbers"),
+    (b"time [s],x [m]\n0,1\n" + b"1,2\n" * 5000 + b"2,\xff\n", "not UTF-8 text"),  # far past the header's block
+    (b"time [s],x [\xb5m]\n0,1\n", "not UTF-8 text"),
+], ids=["a short row", "a bad byte in a row", "a bad byte in the header"])
+def test_a_damaged_results_file_is_one_clear_error(tmp_path, content, message):
+    (tmp_path / "r.csv").write_bytes(content)
+    with pytest.raises(DataFormatError, match=message):
+        read_results(tmp_path / "r.csv")
+
+
+def test_blank_lines_in_a_results_file_are_skipped(tmp_path):
+    (tmp_path / "r.csv").write_text("time [s],x [m]\n0,1\n   \n\n1,2\n")
+    assert list(read_results(tmp_path / "r.csv")["x"]) == [1.0, 2.0]
+
+
 @given(st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=300), st.integers(1, 40))
 def test_a_line_drawn_through_the_extremes_keeps_every_buckets_peak_and_dip(values, bucket):
     values = np.array(values)
