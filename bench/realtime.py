@@ -104,9 +104,14 @@ def run_identify(args, folder: Path) -> list[dict]:
     return rows
 
 
+def hil_staircase(duration_s: float) -> str:
+    """``nfal run --reference``'s staircase for a HIL run of ``duration_s``: CYCLE over and over, 0.6 s holds."""
+    levels = [CYCLE[i % len(CYCLE)] for i in range(int(duration_s / 0.6) + 2)]
+    return "staircase:" + ",".join(f"{level:g}" for level in levels) + ":0.6:1.0"
+
+
 def run_hil(args, folder: Path) -> list[dict]:
-    levels = [CYCLE[i % len(CYCLE)] for i in range(int(args.duration / 0.6) + 2)]
-    spec = "staircase:" + ",".join(f"{level:g}" for level in levels) + ":0.6:1.0"
+    spec = hil_staircase(args.duration)
     out = folder / "hil"
     with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
         pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
