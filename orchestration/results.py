@@ -9,9 +9,9 @@ written before the failure. Booleans are written as 0/1.
 from __future__ import annotations
 
 import csv
-import itertools
 import dataclasses
 import io
+import itertools
 import json
 import logging
 import math
@@ -151,22 +151,20 @@ def read_results(path: str | os.PathLike) -> ResultTable:
     try:
         with open(path, encoding="utf-8", newline="") as file:
             header = next(csv.reader(file), None)
-            if header is None:
-                raise DataFormatError(f"{path}: empty; expected a header line")
-            names, units = _header(header)
             rows = (line for line in file if line.strip())
             first = next(rows, None)
-            try:
-                data = (np.loadtxt(itertools.chain([first], rows), delimiter=",", ndmin=2) if first is not None
-                        else np.empty((0, len(names))))
-            except UnicodeDecodeError:
-                raise
-            except ValueError as exc:
-                raise DataFormatError(f"{path}: not a table of numbers: {exc}") from None
+            data = None if first is None else np.loadtxt(itertools.chain([first], rows), delimiter=",", ndmin=2)
     except OSError as exc:
         raise DataFormatError(f"cannot read {path}: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
+    except UnicodeDecodeError as exc:  # before ValueError, which it is
         raise DataFormatError(f"{path}: not UTF-8 text ({exc.reason}), as a results CSV is written") from None
+    except ValueError as exc:
+        raise DataFormatError(f"{path}: not a table of numbers: {exc}") from None
+    if header is None:
+        raise DataFormatError(f"{path}: empty; expected a header line")
+    names, units = _header(header)
+    if data is None:
+        data = np.empty((0, len(names)))
     if data.shape[1] != len(names):
         raise DataFormatError(f"{path}: {data.shape[1]} values per row, {len(names)} names in the header")
     return ResultTable(tuple(names), tuple(units), data)
