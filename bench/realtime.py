@@ -124,13 +124,11 @@ def run_hil(args, folder: Path) -> list[dict]:
         host_output = open(folder / "host.out", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
         host_errors = open(folder / "host.err", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
         host = subprocess.Popen(command, stdout=host_output, stderr=host_errors, text=True)
-        memory, written = [], 0  # (MB, the loop still ran: results.csv grew since the sample before)
+        memory = []  # (MB, results.csv's size) every MEMORY_EVERY_S
         while host.poll() is None:
             with contextlib.suppress(OSError, json.JSONDecodeError):  # from the first step to the summary's end
                 if json.loads((out / "summary.json").read_text()).get("status") == "running":
-                    size = (out / "results.csv").stat().st_size
-                    memory.append((resident_mb(host.pid), size > written))
-                    written = size
+                    memory.append((resident_mb(host.pid), (out / "results.csv").stat().st_size))
             time.sleep(MEMORY_EVERY_S)
         host.wait()
         host_output.close()
@@ -139,8 +137,10 @@ def run_hil(args, folder: Path) -> list[dict]:
     events = (folder / next(folder.glob("*.events")).name).read_text()
     summary = json.loads(out.joinpath("summary.json").read_text())
     realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
-    loop = [mb for mb, running in memory if mb is not None and running]
-    after = [mb for mb, running in memory if mb is not None and not running]
+    # a sample is the loop's if results.csv grew after it (the loop went on writing), else the read-back's
+    running = [later[1] > now[1] for now, later in zip(memory, memory[1:])] + [False]
+    loop = [mb for (mb, _), on in zip(memory, running) if mb is not None and on]
+    after = [mb for (mb, _), on in zip(memory, running) if mb is not None and not on]
     row = {"exit": host.returncode, "host_rt_priority": args.host_rt_priority, "status": summary["status"],
            "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
@@ -155,8 +155,7 @@ def run_hil(args, folder: Path) -> list[dict]:
            "emulator_pacing": next((line for line in events.splitlines() if line.startswith("pacing:")), None),
            "watchdog_trips": events.count("watchdog: no DRIVE"), "missed_sample_stop": "no measurement" in errors,
            "rss_mb_first_last_max": [round(loop[0]), round(loop[-1]), round(max(loop))] if loop else None,
-           # every MEMORY_EVERY_S while summary.json says "running", which lasts until the metrics are done: the
-           # samples while results.csv grew are the loop's, the others the results read back after it
+           # every MEMORY_EVERY_S while summary.json says "running", which lasts until the metrics are done
            "rss_every_s": MEMORY_EVERY_S, "rss_mb_samples": [round(mb) for mb in loop],
            "rss_mb_after_loop": [round(mb) for mb in after],
            "error": summary.get("error")}
@@ -236,17 +235,11 @@ def tables(result: dict) -> list[record.Table]:
                              [[run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
                                f"{run['drive_gap_p50_ms']} / {run['drive_gap_p99_ms']} / {run['drive_gap_max_ms']}",
                                run["watchdog_trips"], "yes" if run["missed_sample_stop"] else "no",
-                               _memory_cell(run)] for run in runs])]
+                               " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"]))] for run in runs])]
     return [record.Table("", ["run", "CPU-bound process beside", "result", "failed"],
                          [[run["run"], "yes" if run["neighbour"] else "no", run["summary"],
                            "; ".join(line.removeprefix("FAILED ").split(" - ")[0] for line in run["failed"]) or "-"]
                           for run in runs])]
-
-
-def _memory_cell(run: dict) -> str:
-    cell = " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"]))
-    # runs before 2026-11-27 sampled until the metrics were done, the results read back included
-    return cell if "rss_mb_after_loop" in run else f"{cell} (the loop and the read-back after it)"
 
 
 def _runs_of(values: list) -> str:
