@@ -44,6 +44,9 @@ from .protocol import DecoderCounters, Measurement, StatusFlags
 FIRMWARE_DIR = Path(__file__).resolve().parent.parent / "firmware"
 #: The rig firmwares the emulator can run: the Python one, the C host build, the C build in QEMU.
 FIRMWARES = ("python", "c", "qemu")
+#: The Makefile's targets and what each builds: the firmware as a Linux process, its C unit tests, the firmware for
+#: QEMU's board, the host's compiled loop (a shared library).
+BUILDS = {"host": "nfal-fw-host", "test": "test_core", "mps2": "nfal-fw-mps2.elf", "loop": "libnfal-loop.so"}
 #: What each build needs: (program, Debian package).
 NEEDS = {"host": (("make", "make"), ("cc", "gcc")),
          "mps2": (("make", "make"), ("arm-none-eabi-gcc", "gcc-arm-none-eabi")),
@@ -75,12 +78,12 @@ def require_tools(build: str) -> None:
 
 
 def build(target: str, build_dir: str | os.PathLike | None = None) -> Path:
-    """Build ``target`` ("host", "test" or "mps2") with firmware/Makefile; return the program (or ELF)."""
-    if target not in ("host", "test", "mps2"):
-        raise InvalidParameterError("firmware target", target, "host, test or mps2")
+    """Build ``target`` with firmware/Makefile; return the program, ELF or library (:data:`BUILDS`)."""
+    if target not in BUILDS:
+        raise InvalidParameterError("firmware target", target, ", ".join(BUILDS))
     if not (FIRMWARE_DIR / "Makefile").exists():
         raise FirmwareBuildError(f"no firmware sources at {FIRMWARE_DIR} (an installed nfal without its source tree)")
-    require_tools("host" if target == "test" else target)
+    require_tools("mps2" if target == "mps2" else "host")
     out = Path(build_dir) if build_dir is not None else FIRMWARE_DIR / "build"
     out.mkdir(parents=True, exist_ok=True)
     # one make at a time per folder: two emulators (or test workers) starting together must not write one ELF at once
@@ -92,7 +95,7 @@ def build(target: str, build_dir: str | os.PathLike | None = None) -> Path:
         text = done.stderr + done.stdout
         hint = " (is libnewlib-arm-none-eabi installed?)" if "nano.specs" in text or "newlib" in text else ""
         raise FirmwareBuildError(f"make {target} failed{hint}:\n{text.strip()}")
-    return out.resolve() / {"host": "nfal-fw-host", "test": "test_core", "mps2": "nfal-fw-mps2.elf"}[target]
+    return out.resolve() / BUILDS[target]
 
 
 @dataclasses.dataclass(frozen=True)

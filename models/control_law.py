@@ -205,6 +205,26 @@ class DiscreteControlLaw:
                                         "is stable")
         self.name = gains.name
 
+    def compiled_constants(self) -> dict:
+        """Everything :meth:`step` computes from besides its arguments, as ``firmware/loop/nfal_law.h``'s
+        ``nfal_law_params`` names it (the compiled loop's law). A law with a feedforward path is refused: the
+        compiled law does not carry the design model."""
+        if self.feedforward is not None:
+            raise InvalidParameterError("feedforward", self.feedforward, "none: the compiled loop's law has no "
+                                        "feedforward path (run this law in the Python loop)")
+        decays = {name: (0 if decay is None else 1, 0.0 if decay is None else decay)
+                  for name, decay in (("reference_pair", self._decay[False]), ("lift_off", self._decay[True]))}
+        return {"period_s": self.period_s, "filter_rad_s": self.filter_rad_s,
+                "max_excitation_m": self.max_excitation_m, "tracking_time_s": self.tracking_time_s,
+                "reference_low_m": self.reference_range_m[0], "reference_high_m": self.reference_range_m[1],
+                "measurement_low_m": MEASUREMENT_RANGE_M[0], "measurement_high_m": MEASUREMENT_RANGE_M[1],
+                **{key: value for name, (has, decay) in decays.items()
+                   for key, value in ((f"has_{name}", has), (f"{name}_decay", decay))},
+                "has_lead": int(self.actuator_lag_s != 0.0),
+                **dict(zip(("lead_held", "lead_new", "lead_rate"), self._lead_weights)),
+                "has_reference_zero": int(self.reference_zero_ratio is not None),
+                "reference_zero_ratio": self.reference_zero_ratio or 0.0, **self.gains.law_table()}
+
     def initial_state(self, height_m: float, excitation_m: float) -> ControllerState:
         """Bumpless start at an equilibrium: the integrator holds the excitation ``excitation_m`` [m] that holds
         ``height_m`` [m], and the first sample's derivative update is zero whatever it measures, so a plant that

@@ -379,6 +379,13 @@ class GainSchedule:
         slow_time = slow[i] + (slow[i + 1] - slow[i]) * dx / (knots[i + 1] - knots[i])
         return kp, ki * self.omega, kd / self.omega, slow_time
 
+    def law_table(self) -> dict:
+        """What :meth:`law_terms` computes from, for the compiled loop (``firmware/loop/nfal_law.h``): the knots in
+        Hbar, the spline's pieces, 1 / p1 at each knot [s], the reference clearance [m] and omega [rad/s]."""
+        return {"knot": self._scalar_gains.knots, "pieces": self._scalar_gains.pieces,
+                "slow_time_s": list(self._slow_times_s), "reference_clearance_m": float(self.reference_clearance),
+                "omega": float(self.omega)}
+
     def slope_nondimensional(self, height_m) -> np.ndarray:
         """d(k_p, k_i, k_d)/dHbar (zero outside the table, where the gains are held)."""
         inside = (np.asarray(height_m) >= self.heights_m[0]) & (np.asarray(height_m) <= self.heights_m[-1])
@@ -412,6 +419,10 @@ class FixedGains:
     def law_terms(self, height_m: float) -> tuple[float, float, float, float]:
         """:meth:`gains_si` and 1 / p1 [s] of the design, as plain floats, at every clearance."""
         return self._law_terms
+
+    def law_table(self) -> dict:
+        """:meth:`law_terms`, for the compiled loop (``firmware/loop/nfal_law.h``)."""
+        return dict(zip(("fixed_kp", "fixed_ki", "fixed_kd", "fixed_slow_time_s"), self._law_terms))
 
 
 def design_schedule(heights_m=None, rig: RigParameters | None = None, calibration: CalibrationFunction | None = None,

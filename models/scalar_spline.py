@@ -33,6 +33,11 @@ class ScalarSpline:
         c3, c2, c1, c0 = self._pieces[i]
         return ((c3 * dx + c2) * dx + c1) * dx + c0
 
+    @property
+    def pieces(self) -> list:
+        """Per interval, per component, the cubic's coefficients, highest power first."""
+        return self._pieces
+
     def values_in(self, i: int, dx: float) -> list[float]:
         """The vector-valued spline's components at offset ``dx`` into interval ``i`` (:meth:`piece`)."""
         return [((c3 * dx + c2) * dx + c1) * dx + c0 for c3, c2, c1, c0 in self._pieces[i]]
