@@ -34,7 +34,8 @@ from pythonfmu.enums import Fmi2Status
 from nfal.errors import InvalidParameterError, optional_positive, require_positive, span_um
 from nfal.fmus.base import DefaultExperiment, SampleClock
 from nfal.fmus.rig_contract import RigSlave
-from nfal.models.control_law import LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw
+from nfal.models.control_law import (LIFT_OFF_TIME_S, SATURATION_WARNING_S, ControllerState, DiscreteControlLaw,
+                                     SaturationWatch)
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.plausibility import MAX_METRES_PER_VOLT, require_clearance, require_plausible
@@ -47,8 +48,6 @@ DESIGNS = ("gain-scheduled", "fixed")
 PLACEMENTS = ("continuous", "sampled")
 #: Design heights of the gain schedule, evenly over [reference_min, reference_max].
 DESIGN_HEIGHTS = 31
-#: A saturation goes on through dips below the limit shorter than this [s] (measurement noise feeds through).
-SATURATION_GAP_S = 0.02
 
 
 
@@ -109,9 +108,7 @@ class Controller(RigSlave):
         self._held = 0.0  # the command of the last sample instant
         self._cache: tuple | None = None  # (state, reference, measured, command, next state)
         self._gains: tuple | None = None  # (settings, gains) of the last design
-        self._saturated_since: float | None = None  # start of the current saturation, if any
-        self._last_at_limit = 0.0  # the last sample at the limit
-        self._warned = False  # the current saturation has been reported
+        self._saturation = SaturationWatch(MAX_EXCITATION_M)  # the drive's episodes at max_excitation
 
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -154,7 +151,7 @@ class Controller(RigSlave):
         self._held = equilibrium
         self._clock = SampleClock(self.law.period_s, self.start_time)
         self._cache = None
-        self._saturated_since, self._warned = None, False
+        self._saturation = SaturationWatch(self.law.max_excitation_m)
 
     def _design(self, design_height, sample_rate, rig, model, spec, reference_range):
         if self.design == "fixed":
@@ -173,6 +170,12 @@ class Controller(RigSlave):
             raise InvalidParameterError("reference", self.reference,
                                         f"within reference_min–reference_max, {span_um(low, high)}")
         return float(self.reference)
+
+    @property
+    def law_state(self) -> ControllerState | None:
+        """The law's state at the current communication point (None before initialisation ends): with :attr:`law`,
+        what a loop that runs this Controller's law elsewhere starts from (the compiled loop, docs/hil.md)."""
+        return self._state
 
     # --- outputs (feedthrough at sample instants) -----------------------------------------------------
     def _sample(self) -> tuple[float, ControllerState]:
@@ -205,36 +208,31 @@ class Controller(RigSlave):
             self._checked_reference()
 
     def _watch_saturation(self, now: float) -> None:
-        """Track how long the drive has been at max_excitation (dips shorter than SATURATION_GAP_S, noise
-        feeding through, do not end it); log a warning once per saturation longer than saturation_warning_time."""
-        if self._held >= self.law.max_excitation_m:
-            if self._saturated_since is None:
-                self._saturated_since = now
-            self._last_at_limit = now
-        elif self._saturated_since is not None and now - self._last_at_limit > SATURATION_GAP_S:
-            self._saturated_since, self._warned = None, False
-        if self._saturated_since is not None and not self._warned \
-                and now - self._saturated_since >= self.saturation_warning_time - 1e-12:
-            self._warned = True
+        """Track how long the drive has been at max_excitation (:class:`SaturationWatch`); log a warning once per
+        saturation longer than saturation_warning_time."""
+        watch = self._saturation
+        watch.update(now, self._held)
+        if watch.warning_due(now, self.saturation_warning_time):
             self.log(f"drive saturated at |a| = {self.max_excitation * 1e6:.3g} um for "
-                     f"{now - self._saturated_since:.3g} s (since t = {self._saturated_since:.4g} s): the reference "
+                     f"{now - watch.since_s:.3g} s (since t = {watch.since_s:.4g} s): the reference "
                      f"{self.reference * 1e6:.4g} um is out of reach (measured {self.measured_height * 1e6:.4g} um); "
                      "the film cannot hold it with this drive limit", Fmi2Status.warning)
 
     def _saturated_time(self) -> float:
-        return 0.0 if self._saturated_since is None else max(0.0, self.time - self._saturated_since)
+        return self._saturation.duration_s(self.time)
 
     # --- FMU state ----------------------------------------------------------------------------------
     def get_internal_state(self) -> dict:
         state = self._state
-        return {"held": self._held, "saturated_since": self._saturated_since, "warned": self._warned,
-                "last_at_limit": self._last_at_limit,
+        watch = self._saturation
+        return {"held": self._held, "saturated_since": watch.since_s, "warned": watch.warned,
+                "last_at_limit": watch.last_at_limit_s,
                 "law": None if state is None else state.as_list()}
 
     def set_internal_state(self, state: dict) -> None:
         self._held = float(state["held"])
-        self._saturated_since, self._warned = state.get("saturated_since"), bool(state.get("warned", False))
-        self._last_at_limit = float(state.get("last_at_limit", 0.0))
+        self._saturation = SaturationWatch(self._saturation.limit_m, state.get("saturated_since"),
+                                           float(state.get("last_at_limit", 0.0)), bool(state.get("warned", False)))
         law = state["law"]
         self._state = None if law is None else ControllerState.from_list(law)
         self._cache = None

@@ -146,6 +146,12 @@ class HardwareProxy(NfalSlave):
         self.samples_missed = 0
         self._answered_at = None
 
+    @property
+    def link(self) -> RigLink | None:
+        """The session opened at the end of initialisation (None before, and once closed): for a loop that drives the
+        rig itself while the proxy holds the session (the compiled loop, docs/hil.md)."""
+        return self._link
+
     def _publish(self, sample, *, fresh: bool) -> None:
         link = self._link
         measurement = sample.measurement

@@ -220,6 +220,22 @@ class RigLink:
         """A session is up: the port is open and the rig has answered HELLO."""
         return self._port is not None and self._acknowledged.is_set()
 
+    @property
+    def descriptor(self) -> int | None:
+        """The open port's file descriptor (None when down, or for a port that has none, such as ``loop://``)."""
+        return serial_descriptor(self._port)
+
+    @property
+    def next_frame_seq(self) -> int:
+        """The seq the next frame this link sends takes: a loop that writes DRIVE frames on :attr:`descriptor` itself
+        (the compiled loop) continues from here and sets it back, so that STOP follows its last DRIVE in order."""
+        return self._encoder.next_seq
+
+    @next_frame_seq.setter
+    def next_frame_seq(self, seq: int) -> None:
+        with self._write_lock:
+            self._encoder.next_seq = int(seq) % (1 << 32)
+
     def wait_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
         """Wait up to ``timeout_s`` for ``condition()``, polling every WAIT_PAUSE_S if there is no reader
         thread (for set-up: a co-simulation step never waits). Returns ``condition()``'s last value."""

@@ -255,6 +255,12 @@ class FrameDecoder:
         self._pending = bytearray()
         self._overflowing = False
 
+    @property
+    def mid_frame(self) -> bool:
+        """Bytes of a frame are waiting for the rest of it (a reader that takes over the stream skips to the next
+        delimiter)."""
+        return bool(self._pending) or self._overflowing
+
     def reset_sequence(self) -> None:
         """Forget the last seq (a new session: the peer restarts its count)."""
         self.last_seq = None

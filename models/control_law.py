@@ -78,6 +78,8 @@ LIFT_OFF_END = 1e-3
 FEEDFORWARD_FLOOR, FEEDFORWARD_CEILING = 0.5, 0.9
 #: High-frequency gain N of the actuator-lag lead (1 + tau s) / (1 + tau s / N).
 LEAD_RATIO = 4.0
+#: A saturation goes on through dips below the limit shorter than this [s] (measurement noise feeds through).
+SATURATION_GAP_S = 0.02
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,6 +131,38 @@ class ControllerState:
             return value if value is None or isinstance(value, bool) else float(value)
 
         return cls(**{field.name: read(value) for field, value in zip(dataclasses.fields(cls), values)})
+
+
+@dataclasses.dataclass
+class SaturationWatch:
+    """How long the command has been at the limit ``limit_m``, through dips shorter than SATURATION_GAP_S: the episodes
+    the Controller FMU reports (``saturated_time``, a warning once per episode) and a loop that runs its law elsewhere
+    records alike."""
+
+    limit_m: float
+    since_s: float | None = None  #: start of the current saturation, if any
+    last_at_limit_s: float = 0.0  #: the last sample at the limit
+    warned: bool = False          #: the current saturation has been reported
+
+    def update(self, now_s: float, command_m: float) -> None:
+        """The command held from ``now_s`` on."""
+        if command_m >= self.limit_m:
+            if self.since_s is None:
+                self.since_s = now_s
+            self.last_at_limit_s = now_s
+        elif self.since_s is not None and now_s - self.last_at_limit_s > SATURATION_GAP_S:
+            self.since_s, self.warned = None, False
+
+    def warning_due(self, now_s: float, warning_time_s: float) -> bool:
+        """True once per saturation, when it has lasted ``warning_time_s``."""
+        if self.since_s is None or self.warned or now_s - self.since_s < warning_time_s - 1e-12:
+            return False
+        self.warned = True
+        return True
+
+    def duration_s(self, now_s: float) -> float:
+        """How long the current saturation has lasted at ``now_s`` (0: none)."""
+        return 0.0 if self.since_s is None else max(0.0, now_s - self.since_s)
 
 
 class DiscreteControlLaw:

@@ -99,7 +99,7 @@ def _require_step_count(steps: int, stop: float, step: float, max_steps: int) ->
             "more with --max-steps (max_steps=)")
 
 
-def _claim_results_folder(out: Path, overwrite: bool) -> None:
+def claim_results_folder(out: Path, overwrite: bool) -> None:
     """Create ``out``; refuse it if it holds a previous run's files, unless ``overwrite`` (then remove them,
     so that a run failing at start-up leaves no older plot or summary beside its own)."""
     ours = [out / name for name in (RESULTS_CSV, SUMMARY_JSON, RESPONSE_PNG) if (out / name).exists()]
@@ -212,12 +212,12 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
     started_at = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
     with read_ssp(path) as structure:
         system = resolve(structure, parameters, undeclared_dependencies=undeclared_dependencies)
-        start, step, steps = _experiment(structure.default_experiment, start_time, stop_time, step_size,
+        start, step, steps = experiment_steps(structure.default_experiment, start_time, stop_time, step_size,
                                          MAX_STEPS if max_steps is None else max_steps)
         master = Master(system, step_size=step, algorithm=algorithm, inputs=inputs, fmu_logging=fmu_logging)
         out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="nfal-run-"))
-        _claim_results_folder(out, overwrite)
-        summary = _opening_summary(path, system, master, algorithm, start, step, steps, started_at, inputs,
+        claim_results_folder(out, overwrite)
+        summary = opening_summary(path, system, master, algorithm, start, step, steps, started_at, inputs,
                                    parameters, rt_priority)
         summary_path = write_summary(out / SUMMARY_JSON, summary)
         writer = CsvWriter(out / RESULTS_CSV, master.columns, flush_interval_s=flush_interval_s)
@@ -227,23 +227,31 @@ def run_structure(path: str | os.PathLike, *, stop_time: float | None = None, st
                   mininterval=0.25) as bar:
             loop = _run_loop(master, writer, start, step, steps, pacer, rt_priority, bar)
         summary.update(_closing_summary(loop, master, writer, start, step, pacer))
-        result = RunResult(out, out / RESULTS_CSV, summary_path, None, summary)
-        if plot is not False and writer.rows:
-            _plot(result, plot, title=f"{system.name} ({algorithm}, {step:g} s)")
-        if metrics is not None and loop.error is None:
-            _evaluate_metrics(result, metrics)
-        failed_check = _evaluate_checks(result, checks) if checks is not None and loop.error is None else None
-        write_summary(summary_path, summary)
-        logger.info("%s: %s, %d of %d steps in %.3f s wall time -> %s", system.name, summary["status"],
-                    loop.completed, steps, loop.wall_time_s, out)
-        if loop.error is not None:
-            if isinstance(loop.error, SimulationError):
-                loop.error.result = result
-            raise loop.error
-        if failed_check is not None:
-            failed_check.result = result
-            raise failed_check
-        return result
+        return finish_run(RunResult(out, out / RESULTS_CSV, summary_path, None, summary), loop.error, plot=plot,
+                          metrics=metrics, checks=checks, title=f"{system.name} ({algorithm}, {step:g} s)")
+
+
+def finish_run(result: RunResult, error: BaseException | None, *, plot, metrics, checks, title: str) -> RunResult:
+    """What follows a run's loop (ours, or another engine's that wrote the same files): the plot, the metrics and the
+    checks (on a run that completed), ``summary.json`` rewritten; then ``error`` (the loop's) or a failed check raised
+    with ``result`` attached, or ``result`` returned. ``plot``, ``metrics`` and ``checks`` as :func:`run_structure`."""
+    summary = result.summary
+    if plot is not False and summary.get("rows_written"):
+        _plot(result, plot, title=title)
+    if metrics is not None and error is None:
+        _evaluate_metrics(result, metrics)
+    failed_check = _evaluate_checks(result, checks) if checks is not None and error is None else None
+    write_summary(result.summary_path, summary)
+    logger.info("%s: %s, %d of %d steps in %.3f s wall time -> %s", summary["system"], summary["status"],
+                summary["steps_completed"], summary["steps"], summary["wall_time_s"], result.out_dir)
+    if error is not None:
+        if isinstance(error, SimulationError):
+            error.result = result
+        raise error
+    if failed_check is not None:
+        failed_check.result = result
+        raise failed_check
+    return result
 
 
 def _pacing_speed(realtime: bool | float | None, rt_priority: int | None) -> float:
@@ -261,7 +269,7 @@ def _pacing_speed(realtime: bool | float | None, rt_priority: int | None) -> flo
     return speed
 
 
-def _experiment(experiment, start_time: float | None, stop_time: float | None, step_size: float | None,
+def experiment_steps(experiment, start_time: float | None, stop_time: float | None, step_size: float | None,
                 max_steps: int) -> tuple[float, float, int]:
     """(start, step, number of steps): the arguments where given, else the SSD's DefaultExperiment."""
     start = float(start_time if start_time is not None else (experiment.start_time or 0.0))
@@ -277,7 +285,7 @@ def _experiment(experiment, start_time: float | None, stop_time: float | None, s
     return start, step, steps
 
 
-def _opening_summary(path, system, master: Master, algorithm: str, start: float, step: float, steps: int,
+def opening_summary(path, system, master: Master, algorithm: str, start: float, step: float, steps: int,
                      started_at: str, inputs, parameters, rt_priority) -> dict:
     """The summary as written before the first step (status "running")."""
     return {

@@ -21,6 +21,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "nfal_frame.h"
+
 #define NFAL_PROTOCOL_VERSION 1u
 #define NFAL_MAX_FRAME_BYTES 64u
 #define NFAL_MAX_ENCODED_BYTES 65u
@@ -101,10 +103,5 @@ void nfal_fw_rx(nfal_fw *fw, const uint8_t *data, size_t n);
 void nfal_fw_tick(nfal_fw *fw);
 uint32_t nfal_fw_dropped(const nfal_fw *fw);
 
-/* The building blocks, exposed for the unit tests and for a board's own use. */
-uint32_t nfal_crc32(const uint8_t *p, size_t n);
-size_t nfal_cobs_encode(const uint8_t *in, size_t n, uint8_t *out);
-int nfal_cobs_decode(const uint8_t *in, size_t n, uint8_t *out);
-int nfal_seq_newer(uint32_t seq, uint32_t last);
 
 #endif

@@ -1,5 +1,6 @@
-"""The host's compiled 2 kHz path (``firmware/loop/``), loaded with ctypes: the control law in C, held to
-:class:`~nfal.models.control_law.DiscreteControlLaw` to the bit.
+"""The host's compiled 2 kHz path (``firmware/loop/``), loaded with ctypes: the link and the control law in C, the law
+held to :class:`~nfal.models.control_law.DiscreteControlLaw` to the bit (:class:`CompiledLaw`), the loop's structures
+(``nfal_loop.h``) as ctypes structures and its rows as a numpy dtype. :mod:`nfal.apps.compiled_run` runs it.
 
 ctypes releases the GIL for the length of every foreign call, so C that runs there waits for no Python thread and no
 garbage collection. The library is built from source with the firmware's Makefile (``make loop``: needs ``cc`` and
@@ -59,6 +60,52 @@ class LawState(ctypes.Structure):
                                self.reference_lag_m if self.has_reference_lag else None)
 
 
+class Row(ctypes.Structure):
+    """``nfal_loop_row``: one row of the Controller's and the HardwareProxy's outputs, and the step's timing."""
+
+    _fields_ = [(name, ctypes.c_double) for name in (
+        "reference_m", "command_m", "voltage_v", "height_m", "drive_frequency_hz", "applied_voltage_v", "rig_time_s",
+        "measurement_age_s", "lateness_s", "duration_s", "drive_gap_s")] + [(name, ctypes.c_uint32) for name in (
+            "status", "fresh", "samples_missed", "frames_dropped", "frames_lost", "rig_faults", "drive_sent",
+            "overran")]
+
+
+#: A ring of rows as numpy sees it.
+ROW = np.dtype(Row)
+
+
+class LinkState(ctypes.Structure):
+    """``nfal_loop_link``: the newest measurement and the decoder's memory, handed over and kept by the loop."""
+
+    _fields_ = [(name, ctypes.c_double) for name in (
+        "height_m", "drive_frequency_hz", "applied_voltage_v", "rig_time_s", "arrival_s")] + [
+        (name, ctypes.c_uint32) for name in ("status", "last_seq", "has_last_seq", "next_drive_seq",
+                                             "skip_to_delimiter")] + [
+        ("measurements", ctypes.c_uint64)] + [(name, ctypes.c_uint32) for name in (
+            "frames_dropped", "frames_lost", "rig_faults")]
+
+
+class LoopConfig(ctypes.Structure):
+    """``nfal_loop_config``."""
+
+    _fields_ = [("fd", ctypes.c_int32), ("rt_priority", ctypes.c_int32), ("steps", ctypes.c_uint64),
+                ("period_s", ctypes.c_double), ("spin_s", ctypes.c_double), ("metres_per_volt", ctypes.c_double),
+                ("sample_rate_hz", ctypes.c_double), ("max_missed_samples", ctypes.c_uint32),
+                ("reference_m", _DOUBLES), ("ring", ctypes.POINTER(Row)), ("ring_size", ctypes.c_uint64)]
+
+
+class Shared(ctypes.Structure):
+    """``nfal_loop_shared``: written by the loop and by Python while it runs."""
+
+    _fields_ = [("rows_written", ctypes.c_uint64), ("rows_read", ctypes.c_uint64), ("stop", ctypes.c_int32),
+                ("reason", ctypes.c_int32), ("error_number", ctypes.c_int32), ("steps_done", ctypes.c_uint64),
+                ("overruns", ctypes.c_uint64), ("start_s", ctypes.c_double)]
+
+
+#: ``enum nfal_loop_end``: why the loop ended.
+ENDS = ("running", "done", "stopped", "watchdog", "silent", "law input", "port", "restarted", "ring full", "setup")
+
+
 @functools.cache
 def library() -> ctypes.CDLL:
     """The compiled loop's library, built on first use (FirmwareBuildError names what is missing)."""
@@ -66,6 +113,11 @@ def library() -> ctypes.CDLL:
     lib.nfal_law_step.argtypes = [ctypes.POINTER(LawParameters), ctypes.POINTER(LawState), ctypes.c_double,
                                   ctypes.c_double, _DOUBLES]
     lib.nfal_law_step.restype = ctypes.c_int
+    lib.nfal_loop_run.argtypes = [ctypes.POINTER(LoopConfig), ctypes.POINTER(LawParameters), ctypes.POINTER(LawState),
+                                  ctypes.POINTER(LinkState), ctypes.POINTER(Shared)]
+    lib.nfal_loop_run.restype = ctypes.c_int
+    lib.nfal_loop_clock.argtypes = []
+    lib.nfal_loop_clock.restype = ctypes.c_double
     return lib
 
 
