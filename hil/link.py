@@ -265,7 +265,7 @@ class RigLink:
         (every measurement since HELLO_ACK, undecoded while it set up: up to ~25 us a frame): the second DRIVE then
         follows the first as promptly as any other."""
         if not self._drove and not self.reader_thread:
-            self._drain()
+            self.drain()
         if self._send(Drive(float(voltage))):
             self._drove = True
             self.last_drive_seq = self._encoder.last_seq
@@ -289,7 +289,7 @@ class RigLink:
                 return False
             self.wait_readable(remaining)
 
-    def _drain(self) -> None:
+    def drain(self) -> None:
         """Poll until the port has nothing waiting (at most a few DRAIN_LIMIT reads: a rig streams on meanwhile)."""
         for _ in range(8):
             self.poll()

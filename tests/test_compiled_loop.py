@@ -1,10 +1,22 @@
-"""The compiled 2 kHz path (firmware/loop/): its law equals DiscreteControlLaw to the bit."""
+"""The compiled 2 kHz path (firmware/loop/): its law equals DiscreteControlLaw to the bit, and in lockstep its run
+equals the master's run of the FMUs to the bit; on the rig's clock, through the CLI, and stopped by a signal."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
+from helpers.rig import run_hil
 
 from nfal.apps.compiled_loop import CompiledLaw
+from nfal.apps.compiled_run import run_compiled
+from nfal.cli import main
 from nfal.errors import InvalidParameterError
+from nfal.fmus.controller import Controller
+from nfal.models.closed_loop import Staircase
 from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
 from nfal.models.calibration import paper_calibration
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design
@@ -12,6 +24,9 @@ from nfal.models.plant import SimplifiedPlant
 from nfal.models.rig import RigParameters
 from nfal.models.table2 import REFERENCE_ZERO_RATIO
 from nfal.models.transducer import Transducer
+from nfal.orchestration import read_ssp
+from nfal.orchestration.resolve import resolve
+from nfal.orchestration.results import read_results
 
 SAMPLED = design_schedule(None, spec=DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATIO))
 LAWS = {
@@ -72,3 +87,103 @@ def test_a_law_with_a_feedforward_path_is_refused_by_name():
     law = DiscreteControlLaw(SAMPLED, reference_filter_s=0.01, feedforward=plant)
     with pytest.raises(InvalidParameterError, match="feedforward"):
         CompiledLaw(law)
+
+
+# --- the loop against the emulator -------------------------------------------------------------------------------
+#: Columns of the wall clock, not of the loop: they differ between any two runs.
+WALL_CLOCK = ("proxy.measurement_age", "proxy.drive_gap_max", "proxy.drive_gap_p50",
+              "proxy.drive_gap_p99")
+#: From rest through lift-off and a step.
+LIFT_AND_STEP = Staircase((100e-6, 140e-6), hold_s=0.3, lead_s=0.4)
+STEPS = round(LIFT_AND_STEP.duration_s * 2000)
+
+
+def _compiled(fig7_archives, port: str, out, reference=LIFT_AND_STEP, **parameters):
+    return run_compiled(fig7_archives["fig7_hil"], reference=reference, stop_time=reference.duration_s,
+                        parameters={"proxy.port": port, **parameters}, out_dir=out, plot=False)
+
+
+@pytest.mark.slow
+def test_in_lockstep_the_compiled_loop_is_the_fmu_loop_to_the_bit(fig7_archives, emulator, tmp_path):
+    """Against two emulators in lockstep (noise off), the master stepping the FMUs and the compiled loop write the same
+    results.csv, every column to the bit but the wall clock's (and the rig time's origin: two rigs' clocks), whatever
+    the machine's load."""
+    tables = {}
+    for engine in ("fmus", "compiled"):
+        rig = emulator("--lockstep", "--param", "SensorChain.noise_peak=0")
+        run = run_hil if engine == "fmus" else _compiled
+        tables[engine] = run(fig7_archives, rig.port, tmp_path / engine, reference=LIFT_AND_STEP,
+                             **({"lockstep": True} if engine == "fmus" else {"proxy.lockstep": True})).table()
+        assert f"({STEPS} on the host's DRIVE)" in rig.stop() and "STOP" in rig.output
+    fmus, compiled = tables["fmus"], tables["compiled"]
+    assert compiled.names == fmus.names and len(compiled["time"]) == STEPS + 1
+    for name in fmus.names:
+        if name == "proxy.rig_time":  # two rigs' clocks: the same ticks from the first DRIVE on
+            np.testing.assert_array_equal(np.round(np.diff(compiled[name][1:]) * 1e6),
+                                          np.round(np.diff(fmus[name][1:]) * 1e6))
+        elif name not in WALL_CLOCK:
+            np.testing.assert_array_equal(compiled[name], fmus[name], err_msg=name)
+    assert fmus["proxy.measured_height"].max() > 130e-6  # the loop lifted the object and stepped it
+
+
+@pytest.mark.realtime
+def test_on_the_rigs_clock_through_the_cli(fig7_archives, emulator, tmp_path, capsys):
+    """`nfal run fig7_hil --compiled` against the emulator on its own clock: every step, the real-time report of the
+    compiled loop, and every command the Python law's on what the loop measured."""
+    rig = emulator()
+    out = tmp_path / "run"
+    # a generous missed-sample limit: this test is about what the loop computes, not how late a loaded machine's
+    # emulator answers (the emulator runs the rig's default watchdog)
+    assert main(["run", str(fig7_archives["fig7_hil"]), "--compiled", "--param", f"proxy.port={rig.port}",
+                 "--param", "proxy.max_missed_samples=400", "--stop-time", "1.5", "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert "STOP" in rig.stop()
+    assert summary["status"] == "ok" and summary["steps_completed"] == 3000
+    assert summary["realtime"]["engine"] == "compiled" and summary["realtime"]["steps"] == 3000
+    assert summary["link"]["frames_dropped"] == 0 and summary["metrics"]
+    table = read_results(out / "results.csv")
+    np.testing.assert_array_equal(table["Controller.excitation_command"],
+                                  _controller_slave_on(fig7_archives["fig7_hil"], table))
+
+
+def _controller_slave_on(structure, table) -> list:
+    """The Controller FMU's slave (Python), set up from ``structure`` and stepped on the recorded reference and
+    measurements: its command at every row."""
+    with read_ssp(structure) as read:
+        element = next(e for e in resolve(read).elements if e.name == "Controller")
+    slave = Controller(instance_name="Controller")
+    for name, value in element.start_values.items():
+        setattr(slave, name, value)
+    references, heights = table["Controller.reference"], table["proxy.measured_height"]
+    slave.setup_experiment(0.0)
+    slave.enter_initialization_mode()
+    slave.reference = references[0]
+    slave.exit_initialization_mode()
+    commands = []
+    for k, (reference, height) in enumerate(zip(references, heights)):
+        slave.reference, slave.measured_height = reference, height
+        commands.append(slave.value("excitation_command"))
+        slave.do_step(k * 5e-4, 5e-4)
+    return commands
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize("signal_number", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_a_stop_signal_ends_the_compiled_loop_keeps_every_row_and_says_stop(fig7_archives, emulator, tmp_path,
+                                                                             signal_number):
+    rig = emulator()
+    out = tmp_path / "run"
+    process = subprocess.Popen([sys.executable, "-m", "nfal", "run", str(fig7_archives["fig7_hil"]), "--compiled",
+                                "--param", f"proxy.port={rig.port}", "--stop-time", "30", "--out", str(out),
+                                "--no-plot"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    results = out / "results.csv"
+    deadline = time.monotonic() + 60
+    while not (results.is_file() and results.stat().st_size > 100_000) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal_number)
+    _, errors = process.communicate(timeout=60)
+    assert process.returncode == 128 + signal_number, errors
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["steps_completed"] < 60_000
+    assert len(read_results(results)["time"]) == summary["steps_completed"] + 1
+    assert "STOP: session ended" in rig.stop()

@@ -4,6 +4,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <poll.h>
 #include <pthread.h>
 #include <sched.h>
 #include <signal.h>
@@ -84,6 +85,7 @@ static void take_frame(receiver *r, double now) {
         l->drive_frequency_hz = (double)get_f32(body + 12);
         l->applied_voltage_v = (double)get_f32(body + 16);
         l->status = (uint32_t)(body[20] | (body[21] << 8));
+        l->command_seq = get_u32(body + 22);
         l->arrival_s = now;
         l->measurements++;
     } else if (type == NFAL_FAULT) {
@@ -113,8 +115,9 @@ static void take_bytes(receiver *r, const uint8_t *data, size_t n, double now) {
     }
 }
 
-/* What the port holds, without waiting; -1 on a failed read (errno kept), 0 otherwise. */
-static int take_in(receiver *r, int fd) {
+/* What the port holds, without waiting; -1 on a failed read (errno kept), 0 otherwise. A tty in raw mode (VMIN 0)
+ * reads 0 bytes when it has none; anything else that reads 0 has been closed at the other end. */
+static int take_in(receiver *r, int fd, int tty) {
     uint8_t data[READ_CHUNK];
     for (;;) {
         ssize_t got = read(fd, data, sizeof data);
@@ -122,11 +125,28 @@ static int take_in(receiver *r, int fd) {
             take_bytes(r, data, (size_t)got, nfal_loop_clock());
             if ((size_t)got < sizeof data) return 0;
         } else if (got == 0) {
-            errno = EPIPE;  /* end of file: the other side closed */
+            if (tty) return 0;
+            errno = EPIPE;
             return -1;
         } else {
             return errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR ? 0 : -1;
         }
+    }
+}
+
+/* Lockstep: take in until the newest measurement reports DRIVE `seq` applied; 0, -1 (a failed read), or 1 (none within
+ * timeout_s). */
+static int await_answer(receiver *r, int fd, int tty, uint32_t seq, double timeout_s) {
+    double deadline = nfal_loop_clock() + timeout_s;
+    for (;;) {
+        struct pollfd p;
+        double left;
+        if (take_in(r, fd, tty) != 0) return -1;
+        if (r->link->measurements && r->link->command_seq == seq) return 0;
+        left = deadline - nfal_loop_clock();
+        if (left <= 0.0 || r->hello_ack) return 1;
+        p.fd = fd, p.events = POLLIN, p.revents = 0;
+        poll(&p, 1, (int)(left * 1e3) + 1);
     }
 }
 
@@ -183,7 +203,7 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
     nfal_loop_row row;
     uint64_t k;
     double last_drive = 0.0, gap = 0.0;
-    int flags = fcntl(c->fd, F_GETFL), end = NFAL_LOOP_DONE;
+    int flags = fcntl(c->fd, F_GETFL), end = NFAL_LOOP_DONE, tty = isatty(c->fd);
     sigset_t all, before;
     struct sched_param was;
     int policy = -1;
@@ -217,11 +237,11 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
     __atomic_store_n(&shared->rows_written, 1u, __ATOMIC_RELEASE);
     shared->start_s = nfal_loop_clock();
     for (k = 0; k < c->steps; k++) {
-        double release = shared->start_s + (double)k * c->period_s, started, now;
+        double release = c->lockstep ? nfal_loop_clock() : shared->start_s + (double)k * c->period_s, started, now;
         uint64_t seen = link->measurements;
         int sent;
         if (shared->stop) { end = NFAL_LOOP_STOPPED; break; }
-        wait_until(release, c->spin_s);
+        if (!c->lockstep) wait_until(release, c->spin_s);
         started = nfal_loop_clock();
         sent = send_drive(c->fd, link->next_drive_seq, row.voltage_v);
         if (sent < 0) { shared->error_number = errno; end = NFAL_LOOP_PORT; break; }
@@ -231,7 +251,15 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             gap = last_drive > 0.0 ? now - last_drive : 0.0;
             last_drive = now;
         }
-        if (take_in(&r, c->fd) != 0) { shared->error_number = errno; end = NFAL_LOOP_PORT; break; }
+        if (c->lockstep && sent) {
+            int answer = await_answer(&r, c->fd, tty, link->next_drive_seq - 1u, c->answer_timeout_s);
+            if (answer < 0) { shared->error_number = errno; end = NFAL_LOOP_PORT; break; }
+            if (answer > 0 && !r.hello_ack) { end = NFAL_LOOP_NO_ANSWER; break; }
+        } else if (take_in(&r, c->fd, tty) != 0) {
+            shared->error_number = errno;
+            end = NFAL_LOOP_PORT;
+            break;
+        }
         if (r.hello_ack) { end = NFAL_LOOP_RESTARTED; break; }
         {
             nfal_loop_row next;
@@ -241,6 +269,11 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             next.drive_sent = (uint32_t)sent, next.drive_gap_s = sent ? gap : 0.0;
             next.lateness_s = started - release;
             refused = next_row(c, law, state, link, k + 1u, seen, &next);
+            if (c->lockstep) {  /* in rig time: the ticks between two answers, less one */
+                double ticks = k == 0 ? 1.0 : (next.rig_time_s - row.rig_time_s) * c->sample_rate_hz;
+                long whole = (long)(ticks + (ticks >= 0 ? 0.5 : -0.5));
+                next.samples_missed = whole > 1 ? (uint32_t)(whole - 1) : 0u;
+            }
             now = nfal_loop_clock();
             next.duration_s = now - started;
             next.overran = now > release + c->period_s;
@@ -258,7 +291,7 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             row = next;
         }
     }
-    if (end == NFAL_LOOP_DONE) wait_until(shared->start_s + (double)c->steps * c->period_s, c->spin_s);
+    if (end == NFAL_LOOP_DONE && !c->lockstep) wait_until(shared->start_s + (double)c->steps * c->period_s, c->spin_s);
 done:
     if (flags >= 0) fcntl(c->fd, F_SETFL, flags);
     if (policy >= 0) pthread_setschedparam(pthread_self(), policy, &was);

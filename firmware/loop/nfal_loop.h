@@ -13,7 +13,8 @@
  * It ends after `steps` steps (and one more period, so that the last DRIVE holds as long as the others), or at the
  * first of: the rig's watchdog tripped, more than max_missed_samples samples without a measurement (by the clock, as
  * the HardwareProxy counts them), a measurement the law refuses, a port that fails, a HELLO_ACK the loop did not ask
- * for (the rig restarted), the ring full, `stop` set by Python (a signal).
+ * for (the rig restarted), the ring full, `stop` set by Python (a signal), and in lockstep no answer in time.
+ * In lockstep missed samples are counted in rig time, as the HardwareProxy does (the ticks between answers less one).
  * The port is left open: Python sends STOP and closes it. No reconnection (the FMU loop's HardwareProxy has it).
  */
 #ifndef NFAL_LOOP_H
@@ -26,7 +27,8 @@
 /* Why the loop ended (nfal_loop_shared.reason). */
 enum nfal_loop_end {
     NFAL_LOOP_RUNNING = 0, NFAL_LOOP_DONE = 1, NFAL_LOOP_STOPPED = 2, NFAL_LOOP_WATCHDOG = 3, NFAL_LOOP_SILENT = 4,
-    NFAL_LOOP_LAW_INPUT = 5, NFAL_LOOP_PORT = 6, NFAL_LOOP_RESTARTED = 7, NFAL_LOOP_RING_FULL = 8, NFAL_LOOP_SETUP = 9
+    NFAL_LOOP_LAW_INPUT = 5, NFAL_LOOP_PORT = 6, NFAL_LOOP_RESTARTED = 7, NFAL_LOOP_RING_FULL = 8, NFAL_LOOP_SETUP = 9,
+    NFAL_LOOP_NO_ANSWER = 10
 };
 
 /* One row: what the Controller and the HardwareProxy FMUs output at a communication point, and the loop's timing. */
@@ -46,7 +48,8 @@ typedef struct {
 typedef struct {
     double height_m, drive_frequency_hz, applied_voltage_v, rig_time_s;
     double arrival_s;                       /* CLOCK_MONOTONIC [s] (Python's time.perf_counter) */
-    uint32_t status, last_seq, has_last_seq;
+    uint32_t status, command_seq;           /* the measurement's status word, the seq of the DRIVE it applied */
+    uint32_t last_seq, has_last_seq;
     uint32_t next_drive_seq;                /* the seq the next DRIVE takes */
     uint32_t skip_to_delimiter;             /* bytes of a frame were pending in Python's decoder */
     uint64_t measurements;                  /* measurements received, the first included */
@@ -60,6 +63,10 @@ typedef struct {
     double period_s, spin_s;                /* release every period_s; sleep until spin_s before, then spin */
     double metres_per_volt, sample_rate_hz;
     uint32_t max_missed_samples;
+    int32_t lockstep;                       /* each step waits for the measurement that reports its DRIVE applied
+                                               (up to answer_timeout_s), and is released at once: the HardwareProxy's
+                                               lockstep, against nfal rig-emulator --lockstep */
+    double answer_timeout_s;
     const double *reference_m;              /* [steps + 1]: the reference at each row */
     nfal_loop_row *ring;                    /* [ring_size], a power of two */
     uint64_t ring_size;

@@ -18,7 +18,7 @@ from nfal.errors import InvalidParameterError
 from nfal.hil.plant_channel import build
 from nfal.models.control_law import MEASUREMENT_RANGE_M, ControllerState, DiscreteControlLaw
 
-_DOUBLES = ctypes.POINTER(ctypes.c_double)
+DOUBLES = ctypes.POINTER(ctypes.c_double)
 
 
 class LawParameters(ctypes.Structure):
@@ -31,8 +31,8 @@ class LawParameters(ctypes.Structure):
         ("has_lift_off", ctypes.c_int32), ("lift_off_decay", ctypes.c_double),
         ("has_lead", ctypes.c_int32), ("lead_held", ctypes.c_double), ("lead_new", ctypes.c_double),
         ("lead_rate", ctypes.c_double), ("has_reference_zero", ctypes.c_int32),
-        ("reference_zero_ratio", ctypes.c_double), ("knots", ctypes.c_int32), ("knot", _DOUBLES),
-        ("pieces", _DOUBLES), ("slow_time_s", _DOUBLES)] + [(name, ctypes.c_double) for name in (
+        ("reference_zero_ratio", ctypes.c_double), ("knots", ctypes.c_int32), ("knot", DOUBLES),
+        ("pieces", DOUBLES), ("slow_time_s", DOUBLES)] + [(name, ctypes.c_double) for name in (
             "reference_clearance_m", "omega", "fixed_kp", "fixed_ki", "fixed_kd", "fixed_slow_time_s")]
 
 
@@ -79,7 +79,7 @@ class LinkState(ctypes.Structure):
 
     _fields_ = [(name, ctypes.c_double) for name in (
         "height_m", "drive_frequency_hz", "applied_voltage_v", "rig_time_s", "arrival_s")] + [
-        (name, ctypes.c_uint32) for name in ("status", "last_seq", "has_last_seq", "next_drive_seq",
+        (name, ctypes.c_uint32) for name in ("status", "command_seq", "last_seq", "has_last_seq", "next_drive_seq",
                                              "skip_to_delimiter")] + [
         ("measurements", ctypes.c_uint64)] + [(name, ctypes.c_uint32) for name in (
             "frames_dropped", "frames_lost", "rig_faults")]
@@ -91,7 +91,8 @@ class LoopConfig(ctypes.Structure):
     _fields_ = [("fd", ctypes.c_int32), ("rt_priority", ctypes.c_int32), ("steps", ctypes.c_uint64),
                 ("period_s", ctypes.c_double), ("spin_s", ctypes.c_double), ("metres_per_volt", ctypes.c_double),
                 ("sample_rate_hz", ctypes.c_double), ("max_missed_samples", ctypes.c_uint32),
-                ("reference_m", _DOUBLES), ("ring", ctypes.POINTER(Row)), ("ring_size", ctypes.c_uint64)]
+                ("lockstep", ctypes.c_int32), ("answer_timeout_s", ctypes.c_double),
+                ("reference_m", DOUBLES), ("ring", ctypes.POINTER(Row)), ("ring_size", ctypes.c_uint64)]
 
 
 class Shared(ctypes.Structure):
@@ -103,7 +104,8 @@ class Shared(ctypes.Structure):
 
 
 #: ``enum nfal_loop_end``: why the loop ended.
-ENDS = ("running", "done", "stopped", "watchdog", "silent", "law input", "port", "restarted", "ring full", "setup")
+ENDS = ("running", "done", "stopped", "watchdog", "silent", "law input", "port", "restarted", "ring full", "setup",
+        "no answer")
 
 
 @functools.cache
@@ -111,7 +113,7 @@ def library() -> ctypes.CDLL:
     """The compiled loop's library, built on first use (FirmwareBuildError names what is missing)."""
     lib = ctypes.CDLL(str(build("loop")))
     lib.nfal_law_step.argtypes = [ctypes.POINTER(LawParameters), ctypes.POINTER(LawState), ctypes.c_double,
-                                  ctypes.c_double, _DOUBLES]
+                                  ctypes.c_double, DOUBLES]
     lib.nfal_law_step.restype = ctypes.c_int
     lib.nfal_loop_run.argtypes = [ctypes.POINTER(LoopConfig), ctypes.POINTER(LawParameters), ctypes.POINTER(LawState),
                                   ctypes.POINTER(LinkState), ctypes.POINTER(Shared)]
@@ -129,7 +131,7 @@ class CompiledLaw:
         constants = law.compiled_constants()
         self._arrays = {name: np.ascontiguousarray(constants.pop(name, ()), dtype=float).ravel()
                         for name in ("knot", "pieces", "slow_time_s")}
-        pointers = {name: array.ctypes.data_as(_DOUBLES) for name, array in self._arrays.items()}
+        pointers = {name: array.ctypes.data_as(DOUBLES) for name, array in self._arrays.items()}
         self.parameters = LawParameters(**constants, **pointers, knots=len(self._arrays["knot"]))
         self.law = law
 

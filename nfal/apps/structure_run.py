@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from nfal.apps.build import STRUCTURES, build_all
+from nfal.apps.compiled_run import run_compiled
 from nfal.apps.fig7 import (HARDWARE, HARDWARE_LEAD_S, generated_reference, link_summary, loop_checks, loop_columns,
                             loop_metrics, matched_design, reference_staircase, response_panels, step_reference)
 from nfal.apps.fig7_names import REFERENCE
@@ -45,6 +46,7 @@ class RunRequest:
     max_steps: int | None = None
     build_dir: Path = Path("build")
     plot: bool = True  #: response.png for the Fig. 7 loop (about 2 s of matplotlib)
+    compiled: bool = False  #: the Controller and the link run by the compiled loop (:mod:`.compiled_run`)
 
 
 def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text: None):
@@ -65,8 +67,14 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
     # in lockstep the rig's answers pace the loop (a value that is no Boolean is refused when the structure resolves)
     lockstep = parse_boolean(str(parameters.get("proxy.lockstep", "false"))) is True
     realtime = request.realtime
+    if request.compiled and columns is not HARDWARE:
+        raise InvalidParameterError("--compiled", True, "a run against a rig: a structure with the hardware proxy "
+                                    "(fig7_hil)")
+    if request.compiled and request.algorithm != "causal":
+        raise InvalidParameterError("--algorithm", request.algorithm, "not given with --compiled (no master runs)")
     if columns is HARDWARE and not realtime and not lockstep:
-        notice("the structure has the hardware proxy: pacing it on the wall clock (--realtime)")
+        if not request.compiled:  # the compiled loop is paced by its nature
+            notice("the structure has the hardware proxy: pacing it on the wall clock (--realtime)")
         realtime = True
     if request.rt_priority is not None and not realtime:
         raise InvalidParameterError("--rt-priority", request.rt_priority, "used with --realtime (a paced run)")
@@ -79,6 +87,9 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
         reference = _reference(request.reference, columns is HARDWARE, structure)
         inputs = {} if reference_input == "none" else {reference_input: reference}
     inputs.update(request.inputs)
+    if request.compiled and (reference_input != REFERENCE or request.inputs or from_structure):
+        raise InvalidParameterError("--compiled", True, f"the master driving {REFERENCE} alone (no --input, no "
+                                    "--reference-input, no ReferenceGenerator element)")
     stop_time, note = _stop_time(request.stop_time, ssd_stop, reference if reference_input != "none" else None)
     if note:
         notice(note)
@@ -90,13 +101,16 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
     metrics = (lambda table: loop_metrics(table, steps, columns, no_steps=no_steps)) if fig7 else None
     experiment = {"reference": generated.source if from_structure else (reference_input if fig7 else None),
                   "stop_time_note": note}
+    plot = (response_panels(columns) if fig7 else None) if request.plot else False
+    common = dict(start_time=request.start_time, stop_time=stop_time, step_size=request.step, parameters=parameters,
+                  out_dir=out, rt_priority=request.rt_priority, overwrite=request.overwrite,
+                  max_steps=request.max_steps, plot=plot, metrics=metrics,
+                  checks=lambda table: loop_checks(table, steps, columns))
     try:
-        result = run_structure(structure, start_time=request.start_time, stop_time=stop_time, step_size=request.step,
-                               inputs=inputs, parameters=parameters, algorithm=request.algorithm, out_dir=out,
-                               realtime=realtime, rt_priority=request.rt_priority, overwrite=request.overwrite,
-                               max_steps=request.max_steps,
-                               plot=(response_panels(columns) if fig7 else None) if request.plot else False,
-                               metrics=metrics, checks=lambda table: loop_checks(table, steps, columns))
+        if request.compiled:
+            result = run_compiled(structure, reference=inputs.pop(reference_input), **common)
+        else:
+            result = run_structure(structure, inputs=inputs, algorithm=request.algorithm, realtime=realtime, **common)
     except SimulationError as exc:
         if exc.result is not None:
             _complete(exc.result, columns, experiment)

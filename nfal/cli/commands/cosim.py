@@ -111,6 +111,10 @@ def _register_run(commands) -> None:
     run.add_argument("--rt-priority", type=int, metavar="1-99", help="with --realtime (on by itself against hardware): "
                      "run the paced loop under SCHED_FIFO at this priority, so other processes cannot delay its steps "
                      "(Linux; needs root, CAP_SYS_NICE or an rtprio limit; e.g. 50)")
+    run.add_argument("--compiled", action="store_true", help="against a rig (fig7_hil): run the Controller's law and "
+                     "the link in the compiled 2 kHz loop (C, on a thread that waits for no Python) instead of "
+                     "stepping the two FMUs; the same parameters, columns and summary (docs/hil.md, \"The compiled "
+                     "loop\"; needs cc and make)")
     run.add_argument("--out", metavar="DIR", help="result folder (default runs/<structure>-<date-time>); refused if it "
                      "holds a previous run's results.csv, summary.json or response.png, unless --overwrite")
     run.add_argument("--overwrite", action="store_true", help="replace the results of a previous run in --out")
@@ -164,7 +168,7 @@ def run_cosimulation(args: argparse.Namespace) -> int:
                          reference_input=args.reference_input, start_time=args.start_time, stop_time=args.stop_time,
                          step=args.step, algorithm=args.algorithm, realtime=args.realtime, rt_priority=args.rt_priority,
                          out=Path(args.out) if args.out else None, overwrite=args.overwrite, max_steps=args.max_steps,
-                         build_dir=Path(args.build_dir), plot=args.plot)
+                         build_dir=Path(args.build_dir), plot=args.plot, compiled=args.compiled)
     try:
         result = run_request(request, notice=lambda text: print(f"nfal run: {text}", file=sys.stderr))
     except SimulationError as exc:
@@ -234,7 +238,8 @@ def _print_summary(summary: dict, out: Path) -> None:
               f"p50 {realtime.get('jitter_p50_s', 0) * 1e6:.0f} us, "
               f"p99 {realtime.get('jitter_p99_s', 0) * 1e6:.0f} us, "
               f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us"
-              + (f" (SCHED_FIFO priority {summary['rt_priority']})" if summary.get("rt_priority") else ""))
+              + (f" (SCHED_FIFO priority {summary['rt_priority']})" if summary.get("rt_priority") else "")
+              + (" in the compiled loop" if realtime.get("engine") == "compiled" else ""))
         pauses = realtime.get("gc_pauses")
         if pauses:
             print(f"collector: {pauses['count']} young collections in slack, "
