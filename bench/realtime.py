@@ -1,16 +1,17 @@
 """Real time at full length, on an idle or a busy machine (docs/hil.md, "Real time that holds").
 
     python bench/realtime.py identify --runs 10 --truths default mass damping [--neighbour]
-    python bench/realtime.py hil --duration 600 [--neighbour] [--host-rt-priority 50]
+    python bench/realtime.py hil --duration 600 [--neighbour] [--host-rt-priority 50] [--compiled]
     python bench/realtime.py hil --duration 120 --lockstep   # the host's memory over 240 000 steps, unpaced
     python bench/realtime.py tests --runs 20            # the suite's real-time tests; the neighbour in every other run
 
 The rig emulator stands for the rig, a separate machine: it runs under SCHED_FIFO (priority 50) where the system
 allows it, with its default 100 ms watchdog. The host (``nfal identify``, ``nfal run fig7_hil``) runs at normal
-priority, unless ``--host-rt-priority N`` (hil) gives it SCHED_FIFO too. ``--neighbour`` starts a CPU-bound process
+priority, unless ``--host-rt-priority N`` (hil) gives it SCHED_FIFO too (with ``--compiled``, ``nfal run --compiled``:
+the compiled loop's thread, docs/hil.md "The compiled loop"). ``--neighbour`` starts a CPU-bound process
 at normal priority beside them (``python -c "while True: pass"``). Each command prints one JSON line per run and
 writes the whole result, with the machine and the command, to
-``bench/results/realtime-<kind>[-lockstep][-fifo][-neighbour].json``.
+``bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json``.
 """
 
 from __future__ import annotations
@@ -115,6 +116,7 @@ def run_hil(args, folder: Path) -> list[dict]:
     out = folder / "hil"
     with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
         pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
+        pacing += ["--compiled"] if args.compiled else []
         if args.host_rt_priority is not None:
             pacing += ["--rt-priority", str(args.host_rt_priority)]
         command = [sys.executable, "-m", "nfal", "run", "fig7_hil", *pacing, "--param", f"proxy.port={port}",
@@ -141,7 +143,8 @@ def run_hil(args, folder: Path) -> list[dict]:
     running = [later[1] > now[1] for now, later in zip(memory, memory[1:])] + [False]
     loop = [mb for (mb, _), on in zip(memory, running) if mb is not None and on]
     after = [mb for (mb, _), on in zip(memory, running) if mb is not None and not on]
-    row = {"exit": host.returncode, "host_rt_priority": args.host_rt_priority, "status": summary["status"],
+    row = {"exit": host.returncode, "host_rt_priority": args.host_rt_priority, "compiled": args.compiled,
+           "status": summary["status"],
            "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
            "overrun_share_percent": round(100 * realtime.get("overruns", 0) / max(1, realtime.get("steps") or 1), 4),
@@ -186,8 +189,10 @@ def run_tests(args, folder: Path) -> list[dict]:
 
 
 def save(args, rows: list[dict]) -> Path:
-    """bench/results/realtime-<kind>[-lockstep][-fifo][-neighbour].json: the machine, the command, every run so far."""
-    name = (f"realtime-{args.kind}" + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
+    """bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json: the machine, the command, every run
+    so far."""
+    name = (f"realtime-{args.kind}" + ("-compiled" if args.kind == "hil" and args.compiled else "")
+            + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
             + ("-fifo" if args.kind == "hil" and args.host_rt_priority is not None else "")
             + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
     return record.save(name, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)})
@@ -200,7 +205,8 @@ def title(result: dict) -> str:
     if kind.startswith("hil"):
         priority = next((f" --rt-priority {run['host_rt_priority']}" for run in result["runs"]
                          if run.get("host_rt_priority") is not None), "")
-        return (f"Real time: a long `nfal run fig7_hil --realtime{priority}` "
+        engine = " --compiled" if kind.startswith("hil-compiled") else " --realtime"
+        return (f"Real time: a long `nfal run fig7_hil{engine}{priority}` "
                 + ("beside a CPU-bound process" if kind.endswith("-neighbour") else "against the emulator"))
     return {"identify": "Real time: `nfal identify` against the emulator, full length",
             "identify-neighbour": "Real time: `nfal identify` beside a CPU-bound process",
@@ -275,6 +281,8 @@ def main() -> None:
                         "memory over many steps, whatever the machine's load)")
     parser.add_argument("--host-rt-priority", type=int, metavar="N", help="hil: the host under SCHED_FIFO at N "
                         "(nfal run --rt-priority N); default: normal priority")
+    parser.add_argument("--compiled", action="store_true", help="hil: the compiled loop runs the link and the law "
+                        "(nfal run --compiled)")
     parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests: every other run)")
     args = parser.parse_args()
     folder = HERE.parent / "runs" / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")  # runs/ is ignored
