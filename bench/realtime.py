@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import record
-from machine import describe
+from machine import describe, steal_s
 
 HERE = Path(__file__).resolve().parent
 #: The emulator's truths for the identification runs: the design model's and two it was not designed for.
@@ -125,6 +125,7 @@ def run_hil(args, folder: Path) -> list[dict]:
         # (a run of 2026-11-26 completed, then waited on its own print until killed)
         host_output = open(folder / "host.out", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
         host_errors = open(folder / "host.err", "w+", encoding="utf-8")  # noqa: SIM115 - closed below
+        stolen, started = steal_s(), time.perf_counter()
         host = subprocess.Popen(command, stdout=host_output, stderr=host_errors, text=True)
         memory = []  # (MB, results.csv's size) every MEMORY_EVERY_S
         while host.poll() is None:
@@ -133,6 +134,7 @@ def run_hil(args, folder: Path) -> list[dict]:
                     memory.append((resident_mb(host.pid), (out / "results.csv").stat().st_size))
             time.sleep(MEMORY_EVERY_S)
         host.wait()
+        stolen = None if stolen is None else (steal_s() - stolen, time.perf_counter() - started)
         host_output.close()
         host_errors.close()
         errors = (folder / "host.err").read_text(encoding="utf-8")
@@ -161,6 +163,8 @@ def run_hil(args, folder: Path) -> list[dict]:
            # every MEMORY_EVERY_S while summary.json says "running", which lasts until the metrics are done
            "rss_every_s": MEMORY_EVERY_S, "rss_mb_samples": [round(mb) for mb in loop],
            "rss_mb_after_loop": [round(mb) for mb in after],
+           # the hypervisor's share of the vCPUs over the run: pauses no code here can avoid (docs/hil.md, the floor)
+           "steal_percent": None if stolen is None else round(100 * stolen[0] / (stolen[1] * os.cpu_count()), 3),
            "error": summary.get("error")}
     print(json.dumps(row), flush=True)
     save(args, [row])
@@ -237,11 +241,12 @@ def tables(result: dict) -> list[record.Table]:
     if kind.startswith("hil"):
         return [record.Table("", ["status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
                                   "watchdog trips", "stopped on missed samples", "resident memory in the loop, first / "
-                                  "last / max [MB]"],
+                                  "last / max [MB]", "hypervisor's steal [%]"],
                              [[run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
                                f"{run['drive_gap_p50_ms']} / {run['drive_gap_p99_ms']} / {run['drive_gap_max_ms']}",
                                run["watchdog_trips"], "yes" if run["missed_sample_stop"] else "no",
-                               " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"]))] for run in runs])]
+                               " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"])),
+                               run.get("steal_percent", "-")] for run in runs])]
     return [record.Table("", ["run", "CPU-bound process beside", "result", "failed"],
                          [[run["run"], "yes" if run["neighbour"] else "no", run["summary"],
                            "; ".join(line.removeprefix("FAILED ").split(" - ")[0] for line in run["failed"]) or "-"]
