@@ -9,7 +9,7 @@ real-time throttling then stops it 50 ms a second). It runs at normal priority a
 idle and with a CPU-bound process beside it (``python -c "while True: pass"``). Its overruns (steps that finish
 after the next one's release, RealTimePacer's count) and its longest gap between two step starts are the least a
 host can show on this machine: a number in docs/hil.md below this floor is the machine's, not the code's. Writes
-bench/results/machine-floor.json.
+bench/results/machine-floor.json, with the hypervisor's steal over each run (the share of the vCPUs it took).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 import record
-from machine import describe
+from machine import describe, steal_s
 from realtime import neighbour
 
 HERE = Path(__file__).resolve().parent
@@ -45,8 +45,10 @@ def measure(binary: Path, seconds: float, work_us: float, fifo: bool, wait: str)
     command = [str(binary), str(seconds), str(work_us), wait]
     if fifo:
         command = ["chrt", "-f", "50", *command]
+    stolen = steal_s()
     done = subprocess.run(command, capture_output=True, text=True, check=True)
-    return json.loads(done.stdout)
+    steal = None if stolen is None else round(100 * (steal_s() - stolen) / (seconds * os.cpu_count()), 3)
+    return {**json.loads(done.stdout), "steal_percent": steal}
 
 
 def main() -> None:
@@ -75,10 +77,11 @@ def main() -> None:
 def tables(result: dict) -> list[record.Table]:
     return [record.Table(f"Each run {result['seconds']:g} s of 0.5 ms steps:",
                          ["CPU-bound process beside", "priority", "wait", "work a step [µs]", "overruns [%]",
-                          "longest gap between step starts [ms]", "gaps > 5 ms", "gaps > 10 ms"],
+                          "longest gap between step starts [ms]", "gaps > 5 ms", "gaps > 10 ms",
+                          "hypervisor's steal [%]"],
                          [["yes" if run["neighbour"] else "no", run["priority"], run["wait"], f"{run['work_us']:g}",
                            f"{run['overrun_share_percent']:.2f}", f"{run['gap_max_ms']:.1f}", run["gaps_over_5ms"],
-                           run["gaps_over_10ms"]] for run in result["runs"]])]
+                           run["gaps_over_10ms"], run.get("steal_percent", "-")] for run in result["runs"]])]
 
 
 def findings(result: dict) -> list[str]:
