@@ -107,6 +107,49 @@ def realtime_priority_refusal(priority: int) -> str | None:
     return None
 
 
+class ReleaseStats:
+    """What a paced loop's steps did, in bounded memory: each release's lateness, each step's duration, the overruns
+    (steps that ended after the next release: all counted, the first FIRST_OVERRUNS listed) [s]. The pacer keeps them
+    for its steps, and :mod:`nfal.apps.compiled_run` for the compiled loop's, so both report alike."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.lateness, self.durations = LatencyStats(), LatencyStats()
+        self.overruns: list[tuple[int, float]] = []
+        self.overrun_count, self.overrun_max = 0, 0.0
+
+    def released(self, lateness_s: float) -> None:
+        """A step started ``lateness_s`` after its release time."""
+        self.lateness.add(lateness_s)
+
+    def finished(self, k: int, duration_s: float, excess_s: float) -> bool:
+        """Step ``k`` took ``duration_s`` and ended ``excess_s`` after the next release (> 0: an overrun, True)."""
+        self.durations.add(duration_s)
+        if excess_s <= 0:
+            return False
+        self.overrun_count += 1
+        self.overrun_max = max(self.overrun_max, excess_s)
+        if len(self.overruns) < FIRST_OVERRUNS:
+            self.overruns.append((k, excess_s))
+        return True
+
+    def report(self) -> dict:
+        """``summary.json``'s ``realtime`` counts and statistics [s]."""
+        lateness, durations = self.lateness, self.durations
+        return {
+            "period_s": self.period_s,
+            "steps": lateness.count,
+            "overruns": self.overrun_count,
+            "overrun_max_s": self.overrun_max,
+            "first_overruns": [{"step": k, "excess_s": e} for k, e in self.overruns],
+            "jitter_max_s": lateness.maximum,
+            "jitter_mean_s": lateness.total / lateness.count if lateness.count else 0.0,
+            **{f"jitter_p{q}_s": lateness.percentile(q) for q in (50, 95, 99)},
+            "step_duration_max_s": durations.maximum,
+            "step_duration_mean_s": durations.total / durations.count if durations.count else 0.0,
+        }
+
+
 class RealTimePacer:
     """Release fixed steps on the wall clock and measure how well that went.
 
@@ -137,12 +180,7 @@ class RealTimePacer:
             raise InvalidParameterError("spin_s", spin_s, "in [0, 1) s")
         self.spin_s, self.clock, self.sleep = float(spin_s), clock, sleep
         self.start_time: float | None = None
-        self.released = 0  # steps released
-        self.lateness = LatencyStats()
-        self.durations = LatencyStats()
-        self.overruns: list[tuple[int, float]] = []  # the first ones (at most FIRST_OVERRUNS)
-        self.overrun_count = 0
-        self.overrun_max = 0.0
+        self.stats = ReleaseStats(self.period)
         if resync_after_s is not None and not resync_after_s > 0:
             raise InvalidParameterError("resync_after_s", resync_after_s, "> 0 s, or None")
         self.resync_after_s = resync_after_s
@@ -172,8 +210,7 @@ class RealTimePacer:
             now = self.clock()
         self._started_at = now
         lateness = now - deadline
-        self.released += 1
-        self.lateness.add(lateness)
+        self.stats.released(lateness)
         if self.resync_after_s is not None and lateness > self.resync_after_s:
             self.start_time += lateness
             self.resyncs += 1
@@ -193,31 +230,11 @@ class RealTimePacer:
     def done(self, k: int) -> bool:
         """Record that step ``k`` finished; True if it overran (finished after step k + 1's release)."""
         now = self.clock()
-        self.durations.add(now - self._started_at)
-        excess = now - self.release_time(k + 1)
-        if excess > 0:
-            self.overrun_count += 1
-            self.overrun_max = max(self.overrun_max, excess)
-            if len(self.overruns) < FIRST_OVERRUNS:
-                self.overruns.append((k, excess))
-            return True
-        return False
+        return self.stats.finished(k, now - self._started_at, now - self.release_time(k + 1))
 
     def report(self) -> dict:
         """Counts and statistics of the steps so far [s] (see the module docstring)."""
-        lateness = self.lateness
-        stats = {
-            "period_s": self.period,
-            "steps": self.released,
-            "overruns": self.overrun_count,
-            "overrun_max_s": self.overrun_max,
-            "first_overruns": [{"step": k, "excess_s": e} for k, e in self.overruns],
-            "jitter_max_s": lateness.maximum,
-            "jitter_mean_s": lateness.total / lateness.count if lateness.count else 0.0,
-            **{f"jitter_p{q}_s": lateness.percentile(q) for q in (50, 95, 99)},
-            "step_duration_max_s": self.durations.maximum,
-            "step_duration_mean_s": self.durations.total / self.durations.count if self.durations.count else 0.0,
-        }
+        stats = self.stats.report()
         if self.resync_after_s is not None:
             stats.update(resyncs=self.resyncs, time_given_up_s=self.time_given_up)
         if self.start_time is not None:

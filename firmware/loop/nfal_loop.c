@@ -276,8 +276,6 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             }
             now = nfal_loop_clock();
             next.duration_s = now - started;
-            next.overran = now > release + c->period_s;
-            shared->overruns += next.overran;
             if (written - __atomic_load_n(&shared->rows_read, __ATOMIC_ACQUIRE) >= c->ring_size) {
                 end = NFAL_LOOP_RING_FULL;
                 break;

@@ -41,7 +41,6 @@ typedef struct {
     uint32_t status, fresh, samples_missed;
     uint32_t frames_dropped, frames_lost, rig_faults;
     uint32_t drive_sent;                                       /* the step's DRIVE left whole */
-    uint32_t overran;                                          /* the step ended after the next release */
 } nfal_loop_row;
 
 /* The newest measurement, and the decoder's memory: given by Python from the session it opened, kept by the loop. */
@@ -77,7 +76,7 @@ typedef struct {
     volatile uint64_t rows_written, rows_read;
     volatile int32_t stop, reason;
     int32_t error_number;                   /* errno of a failed read or write */
-    uint64_t steps_done, overruns;
+    uint64_t steps_done;
     double start_s;                         /* step 0's release (CLOCK_MONOTONIC) */
 } nfal_loop_shared;
 

@@ -66,8 +66,7 @@ class Row(ctypes.Structure):
     _fields_ = [(name, ctypes.c_double) for name in (
         "reference_m", "command_m", "voltage_v", "height_m", "drive_frequency_hz", "applied_voltage_v", "rig_time_s",
         "measurement_age_s", "lateness_s", "duration_s", "drive_gap_s")] + [(name, ctypes.c_uint32) for name in (
-            "status", "fresh", "samples_missed", "frames_dropped", "frames_lost", "rig_faults", "drive_sent",
-            "overran")]
+            "status", "fresh", "samples_missed", "frames_dropped", "frames_lost", "rig_faults", "drive_sent")]
 
 
 #: A ring of rows as numpy sees it.
@@ -100,7 +99,7 @@ class Shared(ctypes.Structure):
 
     _fields_ = [("rows_written", ctypes.c_uint64), ("rows_read", ctypes.c_uint64), ("stop", ctypes.c_int32),
                 ("reason", ctypes.c_int32), ("error_number", ctypes.c_int32), ("steps_done", ctypes.c_uint64),
-                ("overruns", ctypes.c_uint64), ("start_s", ctypes.c_double)]
+                ("start_s", ctypes.c_double)]
 
 
 #: ``enum nfal_loop_end``: why the loop ended.
