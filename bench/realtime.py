@@ -112,7 +112,7 @@ def hil_staircase(duration_s: float) -> str:
 
 
 def run_hil(args, folder: Path) -> list[dict]:
-    spec = hil_staircase(args.duration)
+    spec, started = hil_staircase(args.duration), provenance()
     out = folder / "hil"
     with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
         pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
@@ -145,7 +145,7 @@ def run_hil(args, folder: Path) -> list[dict]:
     running = [later[1] > now[1] for now, later in zip(memory, memory[1:])] + [False]
     loop = [mb for (mb, _), on in zip(memory, running) if mb is not None and on]
     after = [mb for (mb, _), on in zip(memory, running) if mb is not None and not on]
-    row = {"exit": host.returncode, "host_rt_priority": args.host_rt_priority, "compiled": args.compiled,
+    row = {**started, "exit": host.returncode, "host_rt_priority": args.host_rt_priority, "compiled": args.compiled,
            "status": summary["status"],
            "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
@@ -194,12 +194,33 @@ def run_tests(args, folder: Path) -> list[dict]:
 
 def save(args, rows: list[dict]) -> Path:
     """bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json: the machine, the command, every run
-    so far."""
+    so far. A long HIL run is one run a command: its file keeps the runs before it (each with its date and commit), so
+    that a run on a machine whose hypervisor took more than usual stands beside the others, not instead of them."""
     name = (f"realtime-{args.kind}" + ("-compiled" if args.kind == "hil" and args.compiled else "")
             + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
             + ("-fifo" if args.kind == "hil" and args.host_rt_priority is not None else "")
             + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
+    if args.kind == "hil":
+        rows = earlier_runs(record.RESULTS / f"{name}.json") + rows
     return record.save(name, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)})
+
+
+def earlier_runs(path: Path) -> list[dict]:
+    """The runs a result file holds, each dated (a run written before runs were dated takes the file's date)."""
+    try:
+        result = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return []
+    return [{"date": result.get("date"), **run} for run in result.get("runs", [])]
+
+
+def provenance() -> dict:
+    """When a run started and at which commit of nfal."""
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True)
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE, capture_output=True,
+                           text=True).stdout.strip()
+    return {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "commit": (commit.stdout.strip() or None) and commit.stdout.strip() + ("+" if dirty else "")}
 
 
 def title(result: dict) -> str:
@@ -239,10 +260,10 @@ def tables(result: dict) -> list[record.Table]:
                               "longest DRIVE gap [ms] (range)", "collector's longest pause [µs]", "rig time [s]"],
                              rows)]
     if kind.startswith("hil"):
-        return [record.Table("", ["status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
+        return [record.Table("", ["date", "status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
                                   "watchdog trips", "stopped on missed samples", "resident memory in the loop, first / "
                                   "last / max [MB]", "hypervisor's steal [%]"],
-                             [[run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
+                             [[run.get("date", "-"), run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
                                f"{run['drive_gap_p50_ms']} / {run['drive_gap_p99_ms']} / {run['drive_gap_max_ms']}",
                                run["watchdog_trips"], "yes" if run["missed_sample_stop"] else "no",
                                " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"])),
@@ -262,14 +283,14 @@ def _runs_of(values: list) -> str:
 def findings(result: dict) -> list[str]:
     out = [f"{result['completed']} of {result['of']} runs completed (exit status 0)."]
     for run in result["runs"]:
+        label = f"Run {run['run']}" if "run" in run else f"The run of {run.get('date', '?')}"
         if run.get("error"):
-            out.append(f"Run {run.get('run', 0)}{' (' + run['truth'] + ')' if 'truth' in run else ''}: "
-                       f"{run['error']}")
+            out.append(f"{label}{' (' + run['truth'] + ')' if 'truth' in run else ''}: {run['error']}")
         if run.get("rss_mb_samples"):
-            out.append(f"Resident memory every {run['rss_every_s']} s while the loop ran [MB]: "
+            out.append(f"{label}: resident memory every {run['rss_every_s']} s while the loop ran [MB]: "
                        + _runs_of(run["rss_mb_samples"]) + ".")
         if run.get("rss_mb_after_loop"):
-            out.append("After the loop, while the results were read back for the metrics [MB]: "
+            out.append(f"{label}: after the loop, while the results were read back for the metrics [MB]: "
                        + _runs_of(run["rss_mb_after_loop"]) + ".")
         for line in run.get("errors", [])[:2]:
             out.append(f"Run {run['run']}: `{line.strip()}`")

@@ -23,7 +23,8 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 #: The result files in the document's order (by ``bench`` name); a file not named here comes after them.
 ORDER = ("film", "reynolds", "reynolds-tracking", "reynolds-tracking-noise-off", "cosim", "loop-agreement", "sweep",
          "rig-truth", "hil", "hil-agreement-lockstep", "realtime-identify", "realtime-identify-neighbour",
-         "realtime-hil", "realtime-hil-fifo", "realtime-hil-fifo-neighbour", "realtime-hil-lockstep", "post-processing",
+         "realtime-hil", "realtime-hil-fifo", "realtime-hil-fifo-neighbour", "realtime-hil-compiled-fifo",
+         "realtime-hil-compiled-fifo-neighbour", "realtime-hil-lockstep", "post-processing",
          "realtime-tests", "machine-floor", "watchdog-hold", "firmware")
 HEADER = """# Benchmarks
 

@@ -14,7 +14,7 @@ from helpers.rig import run_hil
 from nfal.apps.compiled_loop import CompiledLaw
 from nfal.apps.compiled_run import run_compiled
 from nfal.cli import main
-from nfal.errors import InvalidParameterError
+from nfal.errors import InvalidParameterError, SimulationError
 from nfal.fmus.controller import Controller
 from nfal.models.closed_loop import Staircase
 from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
@@ -187,3 +187,22 @@ def test_a_stop_signal_ends_the_compiled_loop_keeps_every_row_and_says_stop(fig7
     assert summary["status"] == "interrupted" and summary["steps_completed"] < 60_000
     assert len(read_results(results)["time"]) == summary["steps_completed"] + 1
     assert "STOP: session ended" in rig.stop()
+
+
+@pytest.mark.realtime
+def test_a_lost_link_ends_the_compiled_loop_with_the_reason_and_every_row(fig7_archives, emulator, tmp_path):
+    """The cable pulled 1 s into the loop and never put back: the run fails naming why (the port's error, or the
+    silence beyond the missed-sample limit), keeps a row for every step it completed, and the rig's watchdog ramps
+    the drive down."""
+    rig = emulator("--disconnect-at", "1.0", "--reconnect-after", "never")
+    reference = Staircase((60e-6, 80e-6), hold_s=3.0, lead_s=0.5)
+    with pytest.raises(SimulationError, match="compiled loop: .*(no measurement from the rig|the port failed)") as \
+            failure:
+        _compiled(fig7_archives, rig.port, tmp_path / "run", reference=reference, **{"proxy.max_missed_samples": 400})
+    result = failure.value.result
+    assert result.summary["status"] == "failed" and 1000 < result.summary["steps_completed"] < 7000
+    rows = (tmp_path / "run" / "results.csv").read_text().splitlines()
+    assert len(rows) == 1 + 1 + result.summary["steps_completed"]  # header, the initial row, one per completed step
+    time.sleep(0.5)  # the rig's watchdog needs 100 ms and its ramp 50 ms after the last DRIVE
+    log = rig.stop()
+    assert "port disconnected" in log and "drive down: 0 V" in log

@@ -276,6 +276,11 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             }
             now = nfal_loop_clock();
             next.duration_s = now - started;
+            /* a step that fails writes no row, as the master's run of the FMUs: the proxy's step raises on a trip or
+               a silence, the Controller's outputs on a measurement its law refuses */
+            if (refused) { end = refused; break; }
+            if (next.status & NFAL_WATCHDOG_TRIPPED) { end = NFAL_LOOP_WATCHDOG; break; }
+            if (next.samples_missed > c->max_missed_samples) { end = NFAL_LOOP_SILENT; break; }
             if (written - __atomic_load_n(&shared->rows_read, __ATOMIC_ACQUIRE) >= c->ring_size) {
                 end = NFAL_LOOP_RING_FULL;
                 break;
@@ -283,9 +288,6 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             c->ring[written & (c->ring_size - 1u)] = next;
             __atomic_store_n(&shared->rows_written, written + 1u, __ATOMIC_RELEASE);
             shared->steps_done = k + 1u;
-            if (refused) { end = refused; break; }
-            if (next.status & NFAL_WATCHDOG_TRIPPED) { end = NFAL_LOOP_WATCHDOG; break; }
-            if (next.samples_missed > c->max_missed_samples) { end = NFAL_LOOP_SILENT; break; }
             row = next;
         }
     }
