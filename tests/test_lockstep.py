@@ -70,7 +70,7 @@ def test_a_host_that_let_the_port_fill_still_gets_the_answer_to_its_first_drive(
     while emulator.port.bytes_dropped == 0 and time.monotonic() < deadline:  # the port full, nothing read
         time.sleep(0.01)
     assert emulator.port.bytes_dropped > 0
-    monkeypatch.setattr(host, "_drain", lambda: None)  # the DRIVE goes with the backlog unread
+    monkeypatch.setattr(host, "drain", lambda: None)  # the DRIVE goes with the backlog unread
     assert host.send_drive(33.0)
     assert host.wait_applied(3.0)  # without the fix: only after the rig's LOCKSTEP_WAIT_S (5 s) on the wall clock
     assert host.latest().measurement.drive_voltage == 33.0

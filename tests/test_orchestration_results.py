@@ -143,7 +143,7 @@ def test_pacer_releases_on_the_grid_and_counts_overruns():
     report = pacer.report()
     assert report["overruns"] == 1 and report["first_overruns"][0]["step"] == 1
     assert report["overrun_max_s"] == pytest.approx(0.005)
-    assert pacer.lateness.count == 4  # late once (step 2, by 5 ms), then back on the grid:
+    assert pacer.stats.lateness.count == 4  # late once (step 2, by 5 ms), then back on the grid:
     assert report["jitter_max_s"] == pytest.approx(0.005) and report["jitter_mean_s"] == pytest.approx(0.00125)
     assert report["jitter_p50_s"] < 1e-6
     pacer.sleep_until(len(durations))
