@@ -59,9 +59,8 @@ RING_ROWS = 1 << 17
 #: How often the recorder drains the ring [s].
 DRAIN_PAUSE_S = 0.05
 #: Before each release the loop sleeps until this close, then spins [s]: most of the period, so that its vCPU hardly
-#: idles (a hypervisor is slow to give an idle vCPU back: 60 s against the emulator under SCHED_FIFO 50 on 2026-11-27,
-#: 0.72 % overruns spinning 100 us, 0.17-0.22 % spinning 400-450 us; docs/hil.md, "The compiled loop"), and not all of
-#: it, so that the kernel's real-time throttling (95 % of a CPU) never stops it under SCHED_FIFO.
+#: idles (a hypervisor is slow to give an idle vCPU back: bench/machine_floor.py, docs/hil.md "This machine's floor"),
+#: and not all of it, so that the kernel's real-time throttling (95 % of a CPU) never stops it under SCHED_FIFO.
 SPIN_S = 4e-4
 #: The FMUs the loop stands in for, by model identifier, and the connections it makes between them.
 ROLES = {"Controller": Controller, "HardwareProxy": HardwareProxy}
@@ -167,7 +166,7 @@ def _run(elements: dict, columns, writer: CsvWriter, references: np.ndarray, sta
          rt_priority: int | None, bar) -> _Outcome:
     """Set up, run the loop on its thread and drain it; every error is caught into the outcome (the CSV closed,
     every row kept)."""
-    outcome, wall_start, slaves = _Outcome(), time.perf_counter(), {}
+    outcome, wall_start, slaves, loop = _Outcome(), time.perf_counter(), {}, None
     try:
         with deferred_interrupts() as stop_request:
             slaves = _slaves(elements, float(references[0]), start)
@@ -192,6 +191,8 @@ def _run(elements: dict, columns, writer: CsvWriter, references: np.ndarray, sta
     except BaseException as exc:  # noqa: BLE001 - recorded in the summary, then re-raised by finish_run
         outcome.error = exc
     finally:
+        if loop is not None:
+            loop.stop()  # (a second signal, or an error here) the port is the proxy's again before it closes it
         for slave in slaves.values():
             slave.terminate()  # the proxy sends STOP (the rig ramps the drive down) and closes the port
         try:
@@ -255,6 +256,12 @@ class _Loop:
 
     def running(self) -> bool:
         return self._thread.is_alive()
+
+    def stop(self) -> None:
+        """End the loop at its next step and wait for it (at once if it has ended or never started)."""
+        self.shared.stop = 1
+        if self._thread.is_alive():
+            self._thread.join()
 
     def rows(self) -> np.ndarray:
         """The rows written since the last call (a copy), marked read."""
