@@ -112,7 +112,7 @@ def hil_staircase(duration_s: float) -> str:
 
 
 def run_hil(args, folder: Path) -> list[dict]:
-    spec, started = hil_staircase(args.duration), provenance()
+    spec, run_start = hil_staircase(args.duration), provenance()
     out = folder / "hil"
     with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
         pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
@@ -145,7 +145,7 @@ def run_hil(args, folder: Path) -> list[dict]:
     running = [later[1] > now[1] for now, later in zip(memory, memory[1:])] + [False]
     loop = [mb for (mb, _), on in zip(memory, running) if mb is not None and on]
     after = [mb for (mb, _), on in zip(memory, running) if mb is not None and not on]
-    row = {**started, "exit": host.returncode, "host_rt_priority": args.host_rt_priority, "compiled": args.compiled,
+    row = {**run_start, "exit": host.returncode, "host_rt_priority": args.host_rt_priority, "compiled": args.compiled,
            "status": summary["status"],
            "steps": summary.get("steps_completed"),
            "overruns": realtime.get("overruns"),
