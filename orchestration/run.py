@@ -371,18 +371,25 @@ def _run_loop(master: Master, writer: CsvWriter, start: float, step: float, step
     return outcome
 
 
+def loop_summary(error: BaseException | None, completed: int, start: float, step: float, rows: int, wall_time_s: float,
+                 init_time_s: float, loop_time_s: float) -> dict:
+    """The summary's entries any engine's loop gives once it has ended: status, how far it got, its times."""
+    return {
+        "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
+        "error": None if error is None else str(error) or type(error).__name__, "warnings": [],
+        "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": rows,
+        "wall_time_s": wall_time_s, "initialization_wall_time_s": init_time_s, "loop_wall_time_s": loop_time_s,
+        "real_time_factor": (completed * step) / loop_time_s if loop_time_s > 0 else None,
+    }
+
+
 def _closing_summary(loop: _LoopOutcome, master: Master, writer: CsvWriter, start: float, step: float,
                      pacer: RealTimePacer | None) -> dict:
     """The summary's entries once the loop has ended: status, how far it got, timing, and why it stopped."""
     error, completed, loop_time = loop.error, loop.completed, loop.loop_time_s
     do_step_total = sum(t["do_step_total_s"] for t in loop.timing.values())
     entries = {
-        "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
-        "error": None if error is None else str(error) or type(error).__name__, "warnings": [],
-        "steps_completed": completed, "end_time_s": start + completed * step, "rows_written": writer.rows,
-        "wall_time_s": loop.wall_time_s,
-        "initialization_wall_time_s": loop.init_time_s, "loop_wall_time_s": loop_time,
-        "real_time_factor": (completed * step) / loop_time if loop_time > 0 else None,
+        **loop_summary(error, completed, start, step, writer.rows, loop.wall_time_s, loop.init_time_s, loop_time),
         "do_step_wall_time_s": do_step_total,
         "exchange_and_record_us_per_step": (loop_time - do_step_total) / completed * 1e6 if completed else None,
         "timing": loop.timing,

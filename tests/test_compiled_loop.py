@@ -14,7 +14,7 @@ from helpers.rig import run_hil
 from nfal.apps.compiled_loop import CompiledLaw
 from nfal.apps.compiled_run import run_compiled
 from nfal.cli import main
-from nfal.errors import InvalidParameterError, SimulationError
+from nfal.errors import InvalidParameterError, SimulationError, UnsupportedFeatureError
 from nfal.fmus.controller import Controller
 from nfal.models.closed_loop import Staircase
 from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
@@ -213,3 +213,10 @@ def test_a_lost_link_ends_the_compiled_loop_with_the_reason_and_every_row(fig7_a
     time.sleep(0.5)  # the rig's watchdog needs 100 ms and its ramp 50 ms after the last DRIVE
     log = rig.stop()
     assert "port disconnected" in log and "drive down: 0 V" in log
+
+
+@pytest.mark.slow
+def test_a_structure_other_than_fig7_hils_pair_is_refused_before_anything_opens(fig7_archives, tmp_path):
+    with pytest.raises(UnsupportedFeatureError, match="a Controller and a HardwareProxy wired as fig7_hil"):
+        run_compiled(fig7_archives["fig7_slow"], reference=LIFT_AND_STEP, stop_time=0.1, out_dir=tmp_path / "run")
+    assert not (tmp_path / "run").exists()

@@ -50,7 +50,7 @@ from nfal.orchestration.pacing import ReleaseStats, require_realtime_priority
 from nfal.orchestration.resolve import resolve
 from nfal.orchestration.results import CsvWriter, write_summary
 from nfal.orchestration.run import (MAX_STEPS, RESULTS_CSV, SUMMARY_JSON, RunResult, claim_results_folder,
-                                    experiment_steps, finish_run, opening_summary)
+                                    experiment_steps, finish_run, loop_summary, opening_summary)
 from nfal.orchestration.signals import as_signal
 from nfal.realtime import LatencyStats
 
@@ -149,17 +149,10 @@ class _Outcome:
     realtime: dict | None = None
 
     def summary(self, start: float, step: float, rows: int) -> dict:
-        error = self.error
-        return {
-            "status": "ok" if error is None else ("interrupted" if isinstance(error, KeyboardInterrupt) else "failed"),
-            "error": None if error is None else str(error) or type(error).__name__, "warnings": [],
-            "steps_completed": self.steps_done, "end_time_s": start + self.steps_done * step, "rows_written": rows,
-            "wall_time_s": self.wall_time_s, "initialization_wall_time_s": self.init_time_s,
-            "loop_wall_time_s": self.loop_time_s,
-            "real_time_factor": self.steps_done * step / self.loop_time_s if self.loop_time_s > 0 else None,
-            "do_step_wall_time_s": None, "exchange_and_record_us_per_step": None, "timing": {},
-            "realtime": self.realtime,
-        }
+        return {**loop_summary(self.error, self.steps_done, start, step, rows, self.wall_time_s, self.init_time_s,
+                               self.loop_time_s),
+                "do_step_wall_time_s": None, "exchange_and_record_us_per_step": None, "timing": {},
+                "realtime": self.realtime}
 
 
 def _run(elements: dict, columns, writer: CsvWriter, references: np.ndarray, start: float, step: float, steps: int,
