@@ -101,7 +101,7 @@ def run_identify(args, folder: Path) -> list[dict]:
                 row["error"] = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
             print(json.dumps(row), flush=True)
             rows.append(row)
-            save(args, rows)  # after each run: an interrupted bench keeps what it measured
+            save(args, rows)
     return rows
 
 
@@ -192,17 +192,25 @@ def run_tests(args, folder: Path) -> list[dict]:
     return rows
 
 
-def save(args, rows: list[dict]) -> Path:
-    """bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json: the machine, the command, every run
-    so far. A long HIL run is one run a command: its file keeps the runs before it (each with its date and commit), so
-    that a run on a machine whose hypervisor took more than usual stands beside the others, not instead of them."""
+def result_path(args) -> Path:
+    """bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json"""
     name = (f"realtime-{args.kind}" + ("-compiled" if args.kind == "hil" and args.compiled else "")
             + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
             + ("-fifo" if args.kind == "hil" and args.host_rt_priority is not None else "")
             + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
+    return record.RESULTS / f"{name}.json"
+
+
+def save(args, rows: list[dict]) -> Path:
+    """The machine, the command, every run so far, at result_path(args); each runner saves after each of its runs (an
+    interrupted bench keeps what it measured). A long HIL run is one run a command: its file keeps the runs before it
+    (each with its date and commit), so that a run on a machine whose hypervisor took more than usual stands beside
+    the others, not instead of them."""
+    path = result_path(args)
     if args.kind == "hil":
-        rows = earlier_runs(record.RESULTS / f"{name}.json") + rows
-    return record.save(name, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0), "of": len(rows)})
+        rows = earlier_runs(path) + rows
+    return record.save(path.stem, {"runs": rows, "completed": sum(1 for r in rows if r.get("exit") == 0),
+                                   "of": len(rows)})
 
 
 def earlier_runs(path: Path) -> list[dict]:
@@ -316,9 +324,8 @@ def main() -> None:
     print(describe(), flush=True)
     runner = {"identify": run_identify, "hil": run_hil, "tests": run_tests}[args.kind]
     with neighbour(args.neighbour and args.kind != "tests"):
-        rows = runner(args, folder)
-    path = save(args, rows)
-    print(f"{sum(1 for r in rows if r.get('exit') == 0)} of {len(rows)} completed; {path}", flush=True)
+        rows = runner(args, folder)  # each saves its rows as it goes
+    print(f"{sum(1 for r in rows if r.get('exit') == 0)} of {len(rows)} completed; {result_path(args)}", flush=True)
 
 
 if __name__ == "__main__":
