@@ -37,6 +37,7 @@ from nfal.models.closed_loop import Staircase
 from nfal.orchestration import run_structure
 from nfal.errors import FmuCallError
 from nfal.orchestration.pacing import RealTimePacer, realtime_priority, realtime_priority_refusal
+from nfal.realtime import steal_s
 
 #: The reference: the staircase of Figs. 9-10, its levels repeated to fill the run.
 LEVELS = (60e-6, 100e-6, 140e-6, 180e-6, 140e-6, 100e-6)
@@ -58,20 +59,14 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def steal_seconds() -> float:
-    """CPU time the hypervisor has taken from this machine's CPUs since boot [s] (/proc/stat, all CPUs)."""
-    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
-    return int(fields[8]) / os.sysconf("SC_CLK_TCK")
-
-
 @contextlib.contextmanager
 def measured(summary: dict):
     """Add the process's CPU share and the machine's steal share over the block to ``summary``."""
-    cpu, steal, wall = time.process_time(), steal_seconds(), time.perf_counter()
+    cpu, steal, wall = time.process_time(), steal_s(), time.perf_counter()
     yield summary
     elapsed = time.perf_counter() - wall
     summary["host_cpu_share"] = (time.process_time() - cpu) / elapsed
-    summary["steal_share"] = (steal_seconds() - steal) / elapsed / os.cpu_count()
+    summary["steal_share"] = (steal_s() - steal) / elapsed / os.cpu_count()
 
 
 def floor(seconds: float, rt_priority: int | None) -> dict:

@@ -1,10 +1,12 @@
 """The machine line every benchmark prints (CPU model, cores, Python version), and the time the hypervisor took from
-this virtual machine (steal)."""
+this virtual machine (steal: nfal.realtime.steal_s, which the real-time loops report too)."""
 
 from __future__ import annotations
 
 import os
 import platform
+
+from nfal.realtime import steal_s  # noqa: F401 - the benches' steal, as the loops report it
 
 
 def describe() -> str:
@@ -15,14 +17,3 @@ def describe() -> str:
     except (OSError, StopIteration):
         pass
     return f"{cpu}, nproc = {os.cpu_count()}, Python {platform.python_version()}"
-
-
-def steal_s() -> float | None:
-    """CPU time the hypervisor has taken from this machine's vCPUs since boot [s] (/proc/stat's steal, summed over the
-    vCPUs); None where the system does not say. A difference over a run is what no process here could have used."""
-    try:
-        with open("/proc/stat", encoding="utf-8") as handle:
-            fields = handle.readline().split()
-        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return None

@@ -165,6 +165,9 @@ def run_hil(args, folder: Path) -> list[dict]:
            "rss_mb_after_loop": [round(mb) for mb in after],
            # the hypervisor's share of the vCPUs over the run: pauses no code here can avoid (docs/hil.md, the floor)
            "steal_percent": None if stolen is None else round(100 * stolen[0] / (stolen[1] * os.cpu_count()), 3),
+           # ... and as the loop saw it: its worst second, and the second before it ended (a stop's moment)
+           **{f"steal_{key}": None if value is None else round(value, 2)
+              for key, value in (realtime.get("steal") or {}).items()},
            "error": summary.get("error")}
     print(json.dumps(row), flush=True)
     save(args, [row])
@@ -270,12 +273,15 @@ def tables(result: dict) -> list[record.Table]:
     if kind.startswith("hil"):
         return [record.Table("", ["date", "status", "steps", "overruns [%]", "DRIVE gaps p50 / p99 / max [ms]",
                                   "watchdog trips", "stopped on missed samples", "resident memory in the loop, first / "
-                                  "last / max [MB]", "hypervisor's steal [%]"],
+                                  "last / max [MB]", "hypervisor's steal: run / worst second / last second [%]"],
                              [[run.get("date", "-"), run["status"], run["steps"], f"{run['overrun_share_percent']:.3f}",
                                f"{run['drive_gap_p50_ms']} / {run['drive_gap_p99_ms']} / {run['drive_gap_max_ms']}",
                                run["watchdog_trips"], "yes" if run["missed_sample_stop"] else "no",
                                " / ".join(map(str, run["rss_mb_first_last_max"] or ["-"])),
-                               run.get("steal_percent", "-")] for run in runs])]
+                               " / ".join(str(run.get(key, "-")) for key in ("steal_percent",
+                                                                             "steal_worst_second_percent",
+                                                                             "steal_last_second_percent"))]
+                              for run in runs])]
     return [record.Table("", ["run", "CPU-bound process beside", "result", "failed"],
                          [[run["run"], "yes" if run["neighbour"] else "no", run["summary"],
                            "; ".join(line.removeprefix("FAILED ").split(" - ")[0] for line in run["failed"]) or "-"]

@@ -11,6 +11,8 @@ process holds, so a loop that keeps a Python object per sample stalls longer the
   generations only, when they have filled (a bounded cost: they hold what the last few hundred samples made).
   The process's pages are locked in memory where the system allows it (:func:`lock_memory`). On exit the
   collector is restored.
+* :class:`StealWatch`: what the machine's hypervisor took from its vCPUs while a loop ran (over the run, its worst
+  second, the second before the end): a stall in a second of heavy steal was the machine's, not the loop's.
 * :class:`LatencyStats`: bounded-memory statistics of a stream of durations (gaps between DRIVE commands,
   lateness of steps, collection pauses): exact count, mean and max, percentiles from a logarithmic histogram
   (:data:`BINS_PER_DECADE` bins a decade: within 2.3 % of the exact value), O(1) per value and nothing kept per value.
@@ -23,6 +25,7 @@ threads every :data:`SWITCH_INTERVAL_S`, so that thread never holds the loop up 
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import ctypes
 import dataclasses
@@ -249,3 +252,60 @@ class BackgroundWriter:
             except OSError as exc:
                 self.error = exc
                 return
+
+
+def steal_s() -> float | None:
+    """CPU time the hypervisor has taken from this machine's vCPUs since boot [s] (/proc/stat's steal, summed over the
+    vCPUs, in 10 ms ticks); None where the system does not say."""
+    try:
+        with open("/proc/stat", encoding="ascii") as handle:
+            fields = handle.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+class StealWatch:
+    """The hypervisor's share of this machine's vCPUs while a loop runs, from :meth:`sample` called now and then (every
+    50 ms, say): over the whole watch, in its worst :data:`WINDOW_S`, and in the last one before :meth:`report`.
+    A share is of all the vCPUs (100 % = every vCPU taken); None where the system does not say."""
+
+    WINDOW_S = 1.0
+
+    def __init__(self) -> None:
+        self._recent: collections.deque = collections.deque()  # (time, steal): the last WINDOW_S and one before
+        self._first: tuple[float, float] | None = None
+        self._worst: tuple[float, float] | None = None  # (share, seconds after the first sample at the window's end)
+        self._cpus = os.cpu_count() or 1
+
+    def sample(self, now: float | None = None, stolen: float | None = None) -> None:
+        stolen = steal_s() if stolen is None else stolen
+        if stolen is None:
+            return
+        now = time.monotonic() if now is None else now
+        recent = self._recent
+        if len(recent) >= 2 and now - recent[-2][0] < self.WINDOW_S / 20:
+            recent[-1] = (now, stolen)  # the newest kept, at most ~20 a window: bounded whatever the caller's rate
+        else:
+            recent.append((now, stolen))
+        self._first = self._first or (now, stolen)
+        while len(recent) > 2 and recent[1][0] <= now - self.WINDOW_S:
+            recent.popleft()
+        share = self._share(*recent[0], now, stolen)
+        if share is not None and now - recent[0][0] >= self.WINDOW_S and (self._worst is None
+                                                                         or share > self._worst[0]):
+            self._worst = (share, now - self._first[0])
+
+    def _share(self, since: float, stolen_then: float, now: float, stolen: float) -> float | None:
+        return None if now <= since else 100 * (stolen - stolen_then) / ((now - since) * self._cpus)
+
+    def report(self) -> dict:
+        """``{"share_percent", "worst_second_percent", "worst_second_at_s", "last_second_percent"}``: over the watch,
+        its worst second (and when it ended, from the first sample), the last second (None: not measured)."""
+        if self._first is None:
+            return {"share_percent": None, "worst_second_percent": None, "worst_second_at_s": None,
+                    "last_second_percent": None}
+        now, stolen = self._recent[-1]
+        worst, at = self._worst or (None, None)
+        return {"share_percent": self._share(*self._first, now, stolen), "worst_second_percent": worst,
+                "worst_second_at_s": at, "last_second_percent": self._share(*self._recent[0], now, stolen)}

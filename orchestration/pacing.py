@@ -20,10 +20,12 @@ import time
 from collections.abc import Callable, Iterator
 
 from nfal.errors import InvalidParameterError, RealtimePriorityError, require_positive
-from nfal.realtime import LatencyStats
+from nfal.realtime import LatencyStats, StealWatch
 
 #: Overruns listed one by one in the report (all are counted).
 FIRST_OVERRUNS = 10
+#: The pacer samples the hypervisor's steal every this many steps (50 ms at 2 kHz; a read of /proc/stat, ~20 us).
+STEAL_EVERY = 100
 _PR_SET_TIMERSLACK = 29
 #: The interpreter's thread switch interval while paced [s] (Python's default is 5 ms).
 SWITCH_INTERVAL_S = 5e-5
@@ -109,14 +111,16 @@ def realtime_priority_refusal(priority: int) -> str | None:
 
 class ReleaseStats:
     """What a paced loop's steps did, in bounded memory: each release's lateness, each step's duration, the overruns
-    (steps that ended after the next release: all counted, the first FIRST_OVERRUNS listed) [s]. The pacer keeps them
-    for its steps, and :mod:`nfal.apps.compiled_run` for the compiled loop's, so both report alike."""
+    (steps that ended after the next release: all counted, the first FIRST_OVERRUNS listed) [s], and what the
+    hypervisor took meanwhile (``steal``, sampled by the loop's owner). The pacer keeps them for its steps, and
+    :mod:`nfal.apps.compiled_run` for the compiled loop's, so both report alike."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
         self.lateness, self.durations = LatencyStats(), LatencyStats()
         self.overruns: list[tuple[int, float]] = []
         self.overrun_count, self.overrun_max = 0, 0.0
+        self.steal = StealWatch()
 
     def released(self, lateness_s: float) -> None:
         """A step started ``lateness_s`` after its release time."""
@@ -147,6 +151,7 @@ class ReleaseStats:
             **{f"jitter_p{q}_s": lateness.percentile(q) for q in (50, 95, 99)},
             "step_duration_max_s": durations.maximum,
             "step_duration_mean_s": durations.total / durations.count if durations.count else 0.0,
+            "steal": self.steal.report(),
         }
 
 
@@ -230,6 +235,8 @@ class RealTimePacer:
     def done(self, k: int) -> bool:
         """Record that step ``k`` finished; True if it overran (finished after step k + 1's release)."""
         now = self.clock()
+        if k % STEAL_EVERY == 0:
+            self.stats.steal.sample()
         return self.stats.finished(k, now - self._started_at, now - self.release_time(k + 1))
 
     def report(self) -> dict:

@@ -170,11 +170,13 @@ def _run(elements: dict, columns, writer: CsvWriter, references: np.ndarray, sta
             outcome.init_time_s = time.perf_counter() - wall_start
             loop.start(proxy)
             while loop.running():
+                recorder.timing.steal.sample()
                 recorder.write(loop.rows(), writer)
                 bar.update(loop.shared.steps_done - bar.n)
                 if stop_request.signal_number is not None:
                     loop.shared.stop = 1
                 time.sleep(DRAIN_PAUSE_S)
+            recorder.timing.steal.sample()
             recorder.write(loop.rows(), writer)
             outcome.steps_done = loop.shared.steps_done
             outcome.loop_time_s = loop.wall_time_s()

@@ -113,6 +113,15 @@ def duration_text(seconds: float) -> str:
     return f"{seconds:.0f} s"
 
 
+def steal_text(steal: dict | None) -> str | None:
+    """A real-time report's ``steal`` (nfal.realtime.StealWatch) as a line, or None if there was none to speak of."""
+    if not steal or not steal.get("worst_second_percent"):
+        return None
+    return (f"the machine's hypervisor took {steal['share_percent']:.2f} % of the vCPUs over the loop, "
+            f"{steal['worst_second_percent']:.1f} % in its worst second (ending {steal['worst_second_at_s']:.1f} s "
+            f"in) and {steal['last_second_percent']:.1f} % in its last: no process here could run then")
+
+
 def print_json(data) -> None:
     """Write ``data`` as JSON on stdout (numpy arrays and numbers converted)."""
     json.dump(data, sys.stdout, indent=2, default=_to_builtin)

@@ -11,7 +11,7 @@ from nfal.apps.fig7 import reference_staircase
 from nfal.apps.fig7_names import REFERENCE
 from nfal.apps.structure_run import RunRequest, run_request
 from nfal.cli.commands import COMMANDS
-from nfal.cli.commands.common import finite_float, positive_float, print_json, print_step_table
+from nfal.cli.commands.common import finite_float, positive_float, print_json, print_step_table, steal_text
 from nfal.errors import InvalidParameterError
 from nfal.fmus.windows_python import windows_python
 from nfal.hil.link import DRIVE_GAP_BUDGET_S
@@ -240,6 +240,8 @@ def _print_summary(summary: dict, out: Path) -> None:
               f"max {realtime.get('jitter_max_s', 0) * 1e6:.0f} us"
               + (f" (SCHED_FIFO priority {summary['rt_priority']})" if summary.get("rt_priority") else "")
               + (" in the compiled loop" if realtime.get("engine") == "compiled" else ""))
+        if (stolen := steal_text(realtime.get("steal"))) is not None:
+            print(stolen)
         pauses = realtime.get("gc_pauses")
         if pauses:
             print(f"collector: {pauses['count']} young collections in slack, "

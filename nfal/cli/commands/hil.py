@@ -11,7 +11,7 @@ from nfal.apps.build import build_all
 from nfal.apps.rig_emulator import Disconnection
 from nfal.apps.rig_emulator_session import EmulatorSettings, serve_rig
 from nfal.cli.commands import COMMANDS
-from nfal.cli.commands.common import finite_float, output_file, positive_float, print_json
+from nfal.cli.commands.common import finite_float, output_file, positive_float, print_json, steal_text
 from nfal.cli.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError
 from nfal.hil.faults import FaultSettings
@@ -166,6 +166,8 @@ def _print_report(report, as_json: bool) -> None:
               f"p99 {pacing['jitter_p99_s'] * 1e6:.0f} us, max {pacing['jitter_max_s'] * 1e6:.0f} us; tick "
               f"{pacing['step_duration_mean_s'] * 1e6:.0f} us mean; {pacing.get('resyncs', 0)} stalls "
               f"({pacing.get('time_given_up_s', 0.0) * 1e3:.1f} ms given up)", flush=True)
+        if (stolen := steal_text(pacing.get("steal"))) is not None:
+            print(stolen, flush=True)
     faults = report.faults
     print(f"faults injected into the rig's frames: {faults.get('dropped', 0)} withheld, {faults.get('corrupted', 0)} "
           f"corrupted, {faults.get('duplicated', 0)} sent twice (the host counts what it drops and what never came); "
