@@ -9,6 +9,7 @@
 #include <sched.h>
 #include <signal.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -17,6 +18,8 @@
 #define HEADER_BYTES 5u
 #define CRC_BYTES 4u
 #define READ_CHUNK 4096u
+/* With no bytes for this long [s], a step reads the port even if it says it holds none (see take_in). */
+#define PROBE_AFTER_S 2e-3
 
 double nfal_loop_clock(void) {
     struct timespec t;
@@ -39,6 +42,7 @@ typedef struct {
     nfal_loop_link *link;
     uint8_t chunk[NFAL_MAX_ENCODED_BYTES];
     uint32_t chunk_len, overflowing, hello_ack;
+    double last_bytes;  /* when bytes last came in */
 } receiver;
 
 static uint32_t body_bytes(uint8_t type) {
@@ -116,13 +120,22 @@ static void take_bytes(receiver *r, const uint8_t *data, size_t n, double now) {
 }
 
 /* What the port holds, without waiting; -1 on a failed read (errno kept), 0 otherwise. A tty in raw mode (VMIN 0)
- * reads 0 bytes when it has none; anything else that reads 0 has been closed at the other end. */
-static int take_in(receiver *r, int fd, int tty) {
+ * reads 0 bytes when it has none; anything else that reads 0 has been closed at the other end.
+ * A tty's read that finds no bytes first waits for the kernel worker that moves bytes already received into it
+ * (n_tty_read's flush_work): a thread of normal priority, so a real-time loop reading would wait behind whatever
+ * runs beside it. Unless `probe`, a tty that says it holds nothing (FIONREAD) is not read: bytes still on their way
+ * are taken at the next step. The loop probes when none came for PROBE_AFTER_S, and so still sees a port that failed
+ * (the read's error) whatever FIONREAD says. */
+static int take_in(receiver *r, int fd, int tty, int probe) {
     uint8_t data[READ_CHUNK];
     for (;;) {
-        ssize_t got = read(fd, data, sizeof data);
+        ssize_t got;
+        int waiting = 0;
+        if (tty && !probe && ioctl(fd, FIONREAD, &waiting) == 0 && waiting == 0) return 0;
+        got = read(fd, data, sizeof data);
         if (got > 0) {
-            take_bytes(r, data, (size_t)got, nfal_loop_clock());
+            r->last_bytes = nfal_loop_clock();
+            take_bytes(r, data, (size_t)got, r->last_bytes);
             if ((size_t)got < sizeof data) return 0;
         } else if (got == 0) {
             if (tty) return 0;
@@ -141,7 +154,7 @@ static int await_answer(receiver *r, int fd, int tty, uint32_t seq, double timeo
     for (;;) {
         struct pollfd p;
         double left;
-        if (take_in(r, fd, tty) != 0) return -1;
+        if (take_in(r, fd, tty, 1) != 0) return -1;  /* lockstep waits for the answer anyway */
         if (r->link->measurements && r->link->command_seq == seq) return 0;
         left = deadline - nfal_loop_clock();
         if (left <= 0.0 || r->hello_ack) return 1;
@@ -255,7 +268,7 @@ int nfal_loop_run(const nfal_loop_config *c, const nfal_law_params *law, nfal_la
             int answer = await_answer(&r, c->fd, tty, link->next_drive_seq - 1u, c->answer_timeout_s);
             if (answer < 0) { shared->error_number = errno; end = NFAL_LOOP_PORT; break; }
             if (answer > 0 && !r.hello_ack) { end = NFAL_LOOP_NO_ANSWER; break; }
-        } else if (take_in(&r, c->fd, tty) != 0) {
+        } else if (take_in(&r, c->fd, tty, nfal_loop_clock() - r.last_bytes > PROBE_AFTER_S) != 0) {
             shared->error_number = errno;
             end = NFAL_LOOP_PORT;
             break;

@@ -117,9 +117,9 @@ def steal_text(steal: dict | None) -> str | None:
     """A real-time report's ``steal`` (nfal.realtime.StealWatch) as a line, or None if there was none to speak of."""
     if not steal or not steal.get("worst_second_percent"):
         return None
-    return (f"the machine's hypervisor took {steal['share_percent']:.2f} % of the vCPUs over the loop, "
-            f"{steal['worst_second_percent']:.1f} % in its worst second (ending {steal['worst_second_at_s']:.1f} s "
-            f"in) and {steal['last_second_percent']:.1f} % in its last: no process here could run then")
+    return (f"the machine's hypervisor took {steal['share_percent']:.2f} % of the vCPUs over the loop (time no "
+            f"process here could use), {steal['worst_second_percent']:.1f} % in its worst second (ending "
+            f"{steal['worst_second_at_s']:.1f} s in) and {steal['last_second_percent']:.1f} % in its last")
 
 
 def print_json(data) -> None:
