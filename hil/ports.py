@@ -9,8 +9,11 @@ at a new pty after each reconnection, so the host reopens the same path.
 
 from __future__ import annotations
 
+import fcntl
 import os
+import struct
 import tempfile
+import termios
 import time
 import tty
 from pathlib import Path
@@ -119,9 +122,14 @@ class PtyPort(_Writer):
         self._master = self._slave = None
 
     def read(self) -> bytes:
+        """What the host has sent, without waiting. A tty read that finds nothing first waits for the kernel worker
+        that moves bytes received into it, a thread of normal priority that a real-time rig would wait behind: an empty
+        pty (FIONREAD) is not read, and bytes on their way are taken at the next tick (nfal_loop.c does the same)."""
         if self._master is None:
             return b""
         try:
+            if not struct.unpack("i", fcntl.ioctl(self._master, termios.FIONREAD, b"\0\0\0\0"))[0]:
+                return b""
             return os.read(self._master, 65536)
         except (BlockingIOError, InterruptedError):
             return b""
