@@ -66,7 +66,7 @@ def measured(summary: dict):
     yield summary
     elapsed = time.perf_counter() - wall
     summary["host_cpu_share"] = (time.process_time() - cpu) / elapsed
-    summary["steal_share"] = (steal_s() - steal) / elapsed / os.cpu_count()
+    summary["steal_share"] = None if steal is None else (steal_s() - steal) / elapsed / os.cpu_count()
 
 
 def floor(seconds: float, rt_priority: int | None) -> dict:
@@ -137,7 +137,7 @@ def row(name: str, summary: dict, baseline: dict | None) -> str:
             f"{r['jitter_p99_s'] * 1e6:.0f} "
             f"| {r['jitter_max_s'] * 1e6:.0f} | {ratio} | {r['step_duration_mean_s'] * 1e6:.0f} / "
             f"{r['step_duration_max_s'] * 1e6:.0f} | {fmus} | {summary['host_cpu_share'] * 100:.0f} % "
-            f"| {summary['steal_share'] * 100:.1f} % |")
+            + ("| - |" if summary["steal_share"] is None else f"| {summary['steal_share'] * 100:.1f} % |"))
 
 
 def hil_details(name: str, summary: dict) -> str:

@@ -1,12 +1,10 @@
-"""The machine line every benchmark prints (CPU model, cores, Python version), and the time the hypervisor took from
-this virtual machine (steal: nfal.realtime.steal_s, which the real-time loops report too)."""
+"""The machine line every benchmark prints (CPU model, cores, Python version). The time the hypervisor took from this
+virtual machine (steal) is nfal.realtime.steal_s, which the real-time loops report too."""
 
 from __future__ import annotations
 
 import os
 import platform
-
-from nfal.realtime import steal_s  # noqa: F401 - the benches' steal, as the loops report it
 
 
 def describe() -> str:

@@ -24,7 +24,9 @@ import tempfile
 from pathlib import Path
 
 import record
-from machine import describe, steal_s
+from machine import describe
+
+from nfal.realtime import steal_s
 from realtime import neighbour
 
 HERE = Path(__file__).resolve().parent

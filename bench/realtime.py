@@ -28,7 +28,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import record
-from machine import describe, steal_s
+from machine import describe
+
+from nfal.realtime import steal_s
 
 HERE = Path(__file__).resolve().parent
 #: The emulator's truths for the identification runs: the design model's and two it was not designed for.
