@@ -1,0 +1,148 @@
+"""What holds the compiled HIL loop's real-time threads up, seen by the kernel's scheduler (docs/hil.md).
+
+Runs ``nfal run fig7_hil --realtime --compiled --rt-priority 50`` against ``nfal rig-emulator`` (SCHED_FIFO 50) with
+ftrace recording sched_switch and sched_wakeup (the mono clock, a ring of --ring-mb per vCPU: the last minutes are
+kept), stops the trace when the host exits, and reports for each real-time thread (the loop's, the emulator's): its
+wake-up latency (wake-up to running) at p50 / p99 / p99.9 / max, the wake-ups that waited more than 1 ms and the task
+that held the CPU meanwhile, and its longest stretches on the CPU in the last seconds before the end. Needs root
+(tracefs, SCHED_FIFO).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import record
+from machine import describe
+from realtime import HERE, emulator, hil_staircase
+
+TRACING = Path("/sys/kernel/debug/tracing")
+#: A wake-up that waited longer than this is listed with the task that held the CPU [s].
+LONG_WAIT_S = 1e-3
+#: The stretches on the CPU are looked at over this last part of the trace [s] (it ends when the host exits: a
+#: stop's moment, and the emulator's own wind-down after the host's STOP).
+LAST_S = 2.0
+EVENT = re.compile(r"\s*(?P<task>.+?)-(?P<pid>\d+)\s+\[(?P<cpu>\d+)\]\s+\S+\s+(?P<ts>[\d.]+): "
+                   r"(?P<ev>\w+): (?P<rest>.*)")
+
+
+def field(rest: str, name: str) -> str:
+    return rest.split(f"{name}=")[1].split()[0]
+
+
+def tracing(on: bool, ring_mb: int = 0) -> None:
+    if not TRACING.exists():
+        subprocess.run(["mount", "-t", "debugfs", "none", "/sys/kernel/debug"], check=True)
+    if on:
+        (TRACING / "tracing_on").write_text("0")
+        (TRACING / "trace").write_text("")
+        (TRACING / "buffer_size_kb").write_text(str(ring_mb * 1024))
+        (TRACING / "trace_clock").write_text("mono")
+        (TRACING / "set_event").write_text("sched:sched_switch sched:sched_wakeup")
+    (TRACING / "tracing_on").write_text("1" if on else "0")
+
+
+def analyse(lines, threads: dict[str, str]) -> dict:
+    """``threads``: tid -> label. Wake-up latencies, the long waits' holders, the last stretches on the CPU."""
+    woken, latency, holders = {}, collections.defaultdict(list), collections.defaultdict(collections.Counter)
+    running, stretches, first, end = {}, collections.defaultdict(list), {}, 0.0
+    for line in lines:
+        m = EVENT.match(line)
+        if not m:
+            continue
+        ts, cpu, rest = float(m["ts"]), m["cpu"], m["rest"]
+        first.setdefault(cpu, ts)
+        end = ts
+        if m["ev"] == "sched_wakeup":
+            if (tid := field(rest, "pid")) in threads:
+                woken[tid] = ts
+            continue
+        if m["ev"] != "sched_switch":
+            continue
+        prev, nxt = field(rest, "prev_pid"), field(rest, "next_pid")
+        if prev in threads and running.get(cpu, (None,))[0] == prev:
+            stretches[prev].append((ts - running[cpu][1], ts))
+        running[cpu] = (nxt, ts)
+        if nxt in threads and nxt in woken:
+            wait = ts - woken.pop(nxt)
+            latency[nxt].append(wait)
+            if wait > LONG_WAIT_S:
+                holders[nxt][rest.split("prev_comm=")[1].split(" prev_pid=")[0]] += 1
+    common = max(first.values(), default=0.0)  # both vCPUs' rings cover the trace from here
+    report = {"traced_s": round(end - common, 1), "threads": {}}
+    for tid, label in threads.items():
+        waits = sorted(latency[tid])
+        if not waits:
+            continue
+        n = len(waits)
+        last = sorted((d for d, at in stretches[tid] if at > end - LAST_S), reverse=True)[:5]
+        report["threads"][label] = {
+            "wake_ups": n, **{f"wake_{name}_us": round(waits[min(n - 1, int(n * q))] * 1e6, 1)
+                              for name, q in (("p50", 0.5), ("p99", 0.99), ("p999", 0.999))},
+            "wake_max_ms": round(waits[-1] * 1e3, 2), "waits_over_1ms_by_holder": dict(holders[tid].most_common()),
+            "longest_stretches_in_last_s_ms": [round(d * 1e3, 2) for d in last]}
+    return report
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=120.0, help="seconds of the HIL run (default 120)")
+    parser.add_argument("--ring-mb", type=int, default=64, help="trace ring per vCPU [MB] (default 64: ~100 s)")
+    args = parser.parse_args()
+    if os.geteuid() != 0:
+        sys.exit("sched_trace: needs root (tracefs and SCHED_FIFO)")
+    print(describe(), flush=True)
+    folder = HERE.parent / "runs" / time.strftime("sched-trace-%Y%m%d-%H%M%S")  # runs/ is ignored
+    folder.mkdir(parents=True)
+    threads = {}
+    with emulator(folder) as (port, rig):
+        command = [sys.executable, "-m", "nfal", "run", "fig7_hil", "--realtime", "--compiled", "--rt-priority", "50",
+                   "--param", f"proxy.port={port}", "--reference", hil_staircase(args.duration), "--stop-time",
+                   str(args.duration), "--out", str(folder / "hil"), "--no-plot"]
+        tracing(True, args.ring_mb)
+        with open(folder / "host.out", "w") as out:
+            host = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
+            while host.poll() is None:  # the threads' ids while they live; no process started meanwhile
+                for pid, label in ((rig.pid, "emulator"), (host.pid, "host")):
+                    for task in Path(f"/proc/{pid}/task").glob("*"):
+                        threads.setdefault(task.name, f"{label} {task.name}")
+                time.sleep(0.2)
+        tracing(False)
+    summary = json.loads((folder / "hil" / "summary.json").read_text())
+    with open(TRACING / "trace", encoding="utf-8", errors="replace") as trace:
+        report = analyse(trace, threads)
+    report["threads"] = {label: value for label, value in report["threads"].items() if value["wake_ups"] > 1000}
+    result = {"duration_s": args.duration, "status": summary["status"], "steps": summary["steps_completed"],
+              "error": summary.get("error"), "steal": (summary.get("realtime") or {}).get("steal"), **report}
+    print(json.dumps(result, indent=1), flush=True)
+    print(record.save("sched-trace", result), flush=True)
+
+
+def tables(result: dict) -> list[record.Table]:
+    return [record.Table(f"The last {result['traced_s']} s of a {result['duration_s']:g} s run ({result['status']}, "
+                         f"{result['steps']} steps); the real-time threads that woke at 2 kHz:",
+                         ["thread", "wake-ups", "wake-up p50 / p99 / p99.9 [µs]", "longest [ms]",
+                          "waits > 1 ms, by the task on the CPU", f"longest on the CPU in the last {LAST_S:g} s [ms]"],
+                         [[label, t["wake_ups"], f"{t['wake_p50_us']} / {t['wake_p99_us']} / {t['wake_p999_us']}",
+                           t["wake_max_ms"], ", ".join(f"{k} {v}" for k, v in t["waits_over_1ms_by_holder"].items())
+                           or "-", ", ".join(map(str, t["longest_stretches_in_last_s_ms"]))]
+                          for label, t in result["threads"].items()])]
+
+
+def findings(result: dict) -> list[str]:
+    steal = result.get("steal") or {}
+    return [f"The run: {result['error'] or 'completed'}. The hypervisor's steal: {steal.get('share_percent')} % over "
+            f"the loop, {steal.get('worst_second_percent')} % in its worst second, {steal.get('last_second_percent')} "
+            "% in its last (docs/hil.md, \"What holds the threads up\")."]
+
+
+if __name__ == "__main__":
+    main()
