@@ -138,10 +138,10 @@ def tables(result: dict) -> list[record.Table]:
 
 
 def findings(result: dict) -> list[str]:
-    steal = result.get("steal") or {}
-    return [f"The run: {result['error'] or 'completed'}. The hypervisor's steal: {steal.get('share_percent')} % over "
-            f"the loop, {steal.get('worst_second_percent')} % in its worst second, {steal.get('last_second_percent')} "
-            "% in its last (docs/hil.md, \"What holds the threads up\")."]
+    steal = {key: "-" if value is None else f"{value:.2f}" for key, value in (result.get("steal") or {}).items()}
+    return [f"The run: {result['error'] or 'completed'}. The hypervisor's steal: {steal.get('share_percent', '-')} % "
+            f"over the loop, {steal.get('worst_second_percent', '-')} % in its worst second, "
+            f"{steal.get('last_second_percent', '-')} % in its last (docs/hil.md, \"The compiled loop\")."]
 
 
 if __name__ == "__main__":
