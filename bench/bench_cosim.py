@@ -31,7 +31,7 @@ import record
 from machine import describe
 
 from nfal.fmus.bundle_loader import REGISTRY
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 from nfal.orchestration.libcosim import run_ssp
 from nfal.orchestration.master import Master

@@ -33,7 +33,7 @@ import record
 import timed_emulator
 
 from nfal.apps.build import build_all
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 from nfal.errors import FmuCallError
 from nfal.orchestration.pacing import RealTimePacer, realtime_priority, realtime_priority_refusal

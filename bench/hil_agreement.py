@@ -26,7 +26,7 @@ import record
 from nfal.apps.build import build_all
 from nfal.cli.commands.cosim import parse_parameter
 from nfal.apps.fig7 import HARDWARE, SIMULATED, loop_metrics
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 
 TRUTH = {"Plant.initial_height": 5e-6, "Plant.excess_damping_height": 137e-6, "Plant.excess_damping_exponent": 6.0,

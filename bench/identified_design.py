@@ -28,7 +28,7 @@ from nfal.apps.fig7 import PURE_LOOP_PARAMETERS, loop_metrics
 from nfal.cli.commands.cosim import parse_parameter
 from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.models.calibration import RigCalibration, paper_calibration, rig_record
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.damping import DampingCorrection
 from nfal.models.plant import RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping
 from nfal.models.rig import RigParameters

@@ -17,7 +17,7 @@ import record
 
 from nfal.apps.build import build_all
 from nfal.apps.fig7 import PURE_LOOP_PARAMETERS, SIMULATED, pure_python_loop
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 
 HEIGHT = SIMULATED.height

@@ -22,7 +22,7 @@ import record
 from nfal.apps.build import build_all
 from nfal.apps.fig7 import DEFAULT_STAIRCASES, loop_metrics, matched_design, reynolds_law
 from nfal.apps.fig7_names import PAPERS_LAW
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 
 FILM_STEPS = DEFAULT_STAIRCASES["fig7_reynolds"]

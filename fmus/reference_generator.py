@@ -22,7 +22,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.reference import StepSequence, numbers
 
 from nfal.errors import InvalidParameterError

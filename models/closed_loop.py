@@ -13,60 +13,16 @@ import logging
 
 import numpy as np
 
-from nfal.errors import InvalidParameterError, require_positive
+from nfal.errors import InvalidParameterError
 
 from .control_law import DiscreteControlLaw
 from .fixed_step_plant import FixedStepPlant
 from .plant import PlantState, SimplifiedPlant
-from .table2 import STAIRCASE_LEVELS_M
+from .reference import Staircase
 
 logger = logging.getLogger(__name__)
 
 INTEGRATORS = ("fixed_step", "adaptive")
-
-
-@dataclasses.dataclass(frozen=True)
-class Staircase:
-    """A piecewise-constant reference: ``levels_m`` [m], the first held ``lead_s`` [s], the others ``hold_s``."""
-
-    levels_m: tuple[float, ...] = STAIRCASE_LEVELS_M
-    hold_s: float = 0.6
-    lead_s: float = 0.1
-
-    def __post_init__(self) -> None:
-        levels = tuple(require_positive("levels_m", v) for v in self.levels_m)
-        if len(levels) < 2:
-            raise InvalidParameterError("levels_m", self.levels_m, "at least two levels")
-        object.__setattr__(self, "levels_m", levels)
-        require_positive("hold_s", self.hold_s)
-        require_positive("lead_s", self.lead_s)
-
-    @property
-    def duration_s(self) -> float:
-        return self.lead_s + self.hold_s * (len(self.levels_m) - 1)
-
-    @property
-    def step_times_s(self) -> np.ndarray:
-        """Times [s] of the steps (one fewer than the levels)."""
-        return self.lead_s + self.hold_s * np.arange(len(self.levels_m) - 1)
-
-    def completed_by(self, stop_time_s: float | None) -> "Staircase | None":
-        """The staircase cut to the steps whose holds end by ``stop_time_s`` [s] (None: no step does)."""
-        if stop_time_s is None or stop_time_s >= self.duration_s - 1e-9:
-            return self
-        levels = int((stop_time_s - self.lead_s) / self.hold_s + 1e-9) + 1
-        if levels < 2:
-            return None
-        return Staircase(self.levels_m[:levels], hold_s=self.hold_s, lead_s=self.lead_s)
-
-    def samples(self, sample_rate_hz: float) -> int:
-        """Number of controller samples in the run at ``sample_rate_hz`` [Hz]."""
-        return int(round(self.duration_s * require_positive("sample_rate_hz", sample_rate_hz)))
-
-    def __call__(self, time_s) -> np.ndarray:
-        """The reference [m] at ``time_s`` [s]."""
-        index = np.searchsorted(self.step_times_s, np.asarray(time_s, dtype=float), side="right")
-        return np.asarray(self.levels_m)[index]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 from .calibration import CalibrationFunction
-from .closed_loop import ClosedLoopRun, Staircase, simulate_closed_loop
+from .closed_loop import ClosedLoopRun, simulate_closed_loop
+from .reference import Staircase
 from .control_law import DiscreteControlLaw
 from .measurement_noise import coloured_noise
 from .pid_design import DesignSpec, GainSchedule, design_schedule, fixed_design

@@ -5,7 +5,7 @@ FMU (``fmus/reference_generator.py``) and the master's ``--reference`` (``nfal.o
 give the same value at every communication point. It is built from
 
 * the paper's staircase or any other (:meth:`StepSequence.from_staircase`, a
-  :class:`~nfal.models.closed_loop.Staircase`: levels [m], a lead and a hold [s]);
+  :class:`Staircase`: levels [m], a lead and a hold [s]);
 * explicit change times and levels (:meth:`StepSequence.from_text`, ``"0, 0.1, 0.7"`` and
   ``"60e-6, 100e-6, 140e-6"``);
 * a table of ``time_s,reference_m`` rows (:meth:`StepSequence.from_table`), rows separated by newlines,
@@ -25,14 +25,60 @@ import dataclasses
 import math
 import re
 
-from nfal.errors import DataFormatError, InvalidParameterError
+import numpy as np
 
-from .closed_loop import Staircase
+from nfal.errors import DataFormatError, InvalidParameterError, require_positive
+
+from .table2 import STAIRCASE_LEVELS_M
 
 #: Time tolerance [s] of a change (absolute and relative), see the module docstring.
 TIME_TOLERANCE = 1e-12
 #: What separates the rows of a table given as text.
 _ROW_SEPARATOR = re.compile(r"[;\s]+")
+
+
+@dataclasses.dataclass(frozen=True)
+class Staircase:
+    """A piecewise-constant reference: ``levels_m`` [m], the first held ``lead_s`` [s], the others ``hold_s``."""
+
+    levels_m: tuple[float, ...] = STAIRCASE_LEVELS_M
+    hold_s: float = 0.6
+    lead_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        levels = tuple(require_positive("levels_m", v) for v in self.levels_m)
+        if len(levels) < 2:
+            raise InvalidParameterError("levels_m", self.levels_m, "at least two levels")
+        object.__setattr__(self, "levels_m", levels)
+        require_positive("hold_s", self.hold_s)
+        require_positive("lead_s", self.lead_s)
+
+    @property
+    def duration_s(self) -> float:
+        return self.lead_s + self.hold_s * (len(self.levels_m) - 1)
+
+    @property
+    def step_times_s(self) -> np.ndarray:
+        """Times [s] of the steps (one fewer than the levels)."""
+        return self.lead_s + self.hold_s * np.arange(len(self.levels_m) - 1)
+
+    def completed_by(self, stop_time_s: float | None) -> "Staircase | None":
+        """The staircase cut to the steps whose holds end by ``stop_time_s`` [s] (None: no step does)."""
+        if stop_time_s is None or stop_time_s >= self.duration_s - 1e-9:
+            return self
+        levels = int((stop_time_s - self.lead_s) / self.hold_s + 1e-9) + 1
+        if levels < 2:
+            return None
+        return Staircase(self.levels_m[:levels], hold_s=self.hold_s, lead_s=self.lead_s)
+
+    def samples(self, sample_rate_hz: float) -> int:
+        """Number of controller samples in the run at ``sample_rate_hz`` [Hz]."""
+        return int(round(self.duration_s * require_positive("sample_rate_hz", sample_rate_hz)))
+
+    def __call__(self, time_s) -> np.ndarray:
+        """The reference [m] at ``time_s`` [s]."""
+        index = np.searchsorted(self.step_times_s, np.asarray(time_s, dtype=float), side="right")
+        return np.asarray(self.levels_m)[index]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Step-response metrics of a closed-loop run, per step of a step reference (Figs. 9-10).
 
 A step reference is anything with ``levels_m``, ``step_times_s`` and ``duration_s`` (a
-:class:`~nfal.models.closed_loop.Staircase`, or the steps found in a piecewise-constant reference): level
+:class:`~nfal.models.reference.Staircase`, or the steps found in a piecewise-constant reference): level
 n + 1 from ``step_times_s[n]`` until the next step (the last until ``duration_s``), level 0 before the first.
 For the step at t_s from level r0 to r1 (size D = r1 - r0), over its hold [t_s, next step) and on the
 *true* clearance h (the sensor noise is not part of the response):

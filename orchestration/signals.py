@@ -3,7 +3,7 @@
 Every signal here is a :class:`PiecewiseConstant` (zero-order hold: at time t the value of the
 last change at or before t), callable as ``signal(t) -> float`` in SI. A step sequence of an
 application (an object with ``levels_m``, ``step_times_s`` and ``duration_s``, such as the Fig. 7
-loop's :class:`nfal.models.closed_loop.Staircase`) becomes one with the same values, so that the
+loop's :class:`nfal.models.reference.Staircase`) becomes one with the same values, so that the
 co-simulation and the pure-Python loop see the same reference. The other way, :func:`steps_of` finds the steps
 of a piecewise-constant signal (a CSV reference), so that it gets the step metrics a staircase gets.
 

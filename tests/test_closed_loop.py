@@ -8,7 +8,8 @@ import pytest
 
 from nfal.errors import InvalidParameterError
 from nfal.models.calibration import paper_calibration
-from nfal.models.closed_loop import ClosedLoopRun, Staircase, simulate_closed_loop
+from nfal.models.closed_loop import ClosedLoopRun, simulate_closed_loop
+from nfal.models.reference import Staircase
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.measurement_noise import ColouredNoise, coloured_noise

@@ -16,7 +16,7 @@ from nfal.apps.compiled_run import run_compiled
 from nfal.cli import main
 from nfal.errors import InvalidParameterError, SimulationError, UnsupportedFeatureError
 from nfal.fmus.controller import Controller
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.control_law import LIFT_OFF_TIME_S, DiscreteControlLaw
 from nfal.models.calibration import paper_calibration
 from nfal.models.pid_design import DesignSpec, design_schedule, fixed_design

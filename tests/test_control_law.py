@@ -324,7 +324,7 @@ def test_the_feedforward_path_tracks_every_step_of_its_own_model_without_oversho
     """On the plant it was designed on (eq. 17; and the Fig. 3 stand-in's film, whose K falls so steeply that the
     PID alone drives |a| to 0 on 100 -> 60 um), the path and its feedforward step without overshoot, and the drive
     never reaches 0."""
-    from nfal.models.closed_loop import Staircase
+    from nfal.models.reference import Staircase
 
     model = PLANT if calibration == "eq17" else SimplifiedPlant(RigParameters(),
                                                                 perturbation_calibration(paper_shape()))

@@ -24,7 +24,7 @@ import pytest
 from fmpy import simulate_fmu
 from fmpy.validation import validate_fmu
 from nfal.fmus.reference_generator import PARAMETERS, ReferenceGenerator, reference_of
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.reference import StepSequence, staircase_of
 from nfal.orchestration import read_results, read_ssp, resolve
 from nfal.orchestration.signals import as_signal

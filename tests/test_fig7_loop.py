@@ -8,7 +8,7 @@ import pytest
 from nfal.errors import InvalidParameterError
 from nfal.apps.fig7 import (DEFAULT_STAIRCASES, PURE_LOOP_PARAMETERS, SIMULATED, loop_metrics, matched_design,
                             pure_python_loop, reference_staircase, reynolds_law)
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 
 pytestmark = pytest.mark.slow  # closed loops of FMUs

@@ -20,7 +20,7 @@ from helpers.rig import STEP, Emulator, run_hil, simulate_the_truth
 
 from nfal.cli import main
 from nfal.apps.fig7 import HARDWARE, SIMULATED, loop_metrics
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import SimulationError
 
 

@@ -23,7 +23,7 @@ from helpers.rig import run_hil, simulate_the_truth
 from nfal.cli import main
 from nfal.apps.fig7 import HARDWARE, SIMULATED, loop_metrics
 from nfal.models.calibration import calibration_from_dict, paper_calibration
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
 

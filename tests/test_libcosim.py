@@ -308,7 +308,7 @@ def fig7_slow_ssp(fig7_fmu_dir) -> Path:
 
 @pytest.fixture(scope="module")
 def libcosim_fig7(fig7_slow_ssp):
-    from nfal.models.closed_loop import Staircase
+    from nfal.models.reference import Staircase
 
     return run_ssp(fig7_slow_ssp, FIG7_STOP_S, inputs={"Controller.reference": Staircase()}, observe=FIG7_OBSERVED)
 
@@ -328,7 +328,7 @@ def test_fig7_archive_runs_in_libcosim_and_follows_the_first_step(libcosim_fig7)
 def test_fig7_reynolds_archive_runs_in_libcosim(fig7_fmu_dir):
     """The other structure: the plant swapped for the full squeeze film, same archive layout, same host."""
     from nfal.apps.build import structure_sources
-    from nfal.models.closed_loop import Staircase
+    from nfal.models.reference import Staircase
 
     archive = pack(structure_sources() / "fig7_reynolds.ssd", fig7_fmu_dir, fig7_fmu_dir / "fig7_reynolds.ssp")
     run = run_ssp(archive, 0.01, inputs={"Controller.reference": Staircase()},
@@ -362,7 +362,7 @@ HEIGHT_TOLERANCE_M = 1e-12
 
 def test_libcosim_matches_our_jacobi_run(fig7_slow_ssp, libcosim_fig7, tmp_path):
     """The same archive in OSP libcosim and in our orchestrator (algorithm="jacobi", libcosim's scheme)."""
-    from nfal.models.closed_loop import Staircase
+    from nfal.models.reference import Staircase
     from nfal.orchestration import run_structure
 
     ours = run_structure(fig7_slow_ssp, stop_time=FIG7_STOP_S, inputs={"Controller.reference": Staircase()},

@@ -11,7 +11,7 @@ from toy_fmus import build_toys, without_dependencies
 from toy_fmus.ssd import bindings, component, connection, connector, pack, parameter_set, ssd, system, write_folder
 
 from nfal.errors import UnknownConnectorError
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import (AlgebraicLoopError, CausalityError, Finding, FmuCallError, Master, PlotPanel,
                                 RunCheckError, read_ssp, resolve, run_structure, staircase)
 

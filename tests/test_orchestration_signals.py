@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import SignalError, csv_signal, signal_from_spec, staircase, step
 from nfal.orchestration.signals import PiecewiseConstant, as_signal, constant, is_step_sequence, steps_of
 

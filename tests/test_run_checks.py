@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nfal.apps.fig7 import HARDWARE, SATURATED_TIME, SIMULATED, loop_checks, loop_metrics, step_reference
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.reference import StepSequence
 from nfal.orchestration import PiecewiseConstant, ResultTable
 

@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nfal.errors import SweepError, SweepSpecError
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration.sweep import (ResultsTable, cached_structure, columns, localised, read_table, run_sweep,
                                       run_task, shipped_files)
 from nfal.orchestration.sweep_spec import expand

@@ -30,7 +30,8 @@ from nfal.apps.fig7_names import (  # noqa: F401
     LoopColumns,
 )
 from nfal.models.calibration import paper_calibration
-from nfal.models.closed_loop import ClosedLoopRun, Staircase, simulate_closed_loop
+from nfal.models.closed_loop import ClosedLoopRun, simulate_closed_loop
+from nfal.models.reference import Staircase
 from nfal.models.control_law import SATURATION_WARNING_S, DiscreteControlLaw
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule

@@ -38,7 +38,8 @@ from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitat
 from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.apps.rig_comparison import controller_on_rig
 from nfal.models.calibration import paper_calibration, perturbation_calibration
-from nfal.models.closed_loop import ClosedLoopRun, Staircase
+from nfal.models.closed_loop import ClosedLoopRun
+from nfal.models.reference import Staircase
 from nfal.models.comparison import GAIN_SCHEDULED, controller_name, simulate_comparison
 from nfal.models.excitation import paper_shape
 from nfal.models.measured_calibration import EquilibriumData, fit_calibration

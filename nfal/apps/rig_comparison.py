@@ -10,7 +10,8 @@ from pathlib import Path
 
 from nfal.apps.build import DEFAULT_BUILD_DIR, build_all
 from nfal.apps.fig7 import HARDWARE, REFERENCE, loop_run
-from nfal.models.closed_loop import ClosedLoopRun, Staircase
+from nfal.models.closed_loop import ClosedLoopRun
+from nfal.models.reference import Staircase
 from nfal.models.comparison import controller_design, controller_name
 from nfal.orchestration import run_structure
 

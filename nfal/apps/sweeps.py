@@ -22,7 +22,7 @@ from nfal.errors import InvalidParameterError, SweepSpecError
 from nfal.apps.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
 from nfal.fmus.rig_contract import CALIBRATION_CHOICES
 from nfal.models.calibration import perturbation_calibration
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.excitation import parse_shape
 from nfal.models.table1 import TABLE1, run_case
 from nfal.orchestration import sweep_spec

@@ -7,7 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 from nfal.orchestration.pacing import realtime_priority_refusal
 

@@ -18,7 +18,7 @@ from nfal.cli.commands.cosim import parse_parameter
 from nfal.errors import InvalidParameterError, optional_positive
 from nfal.fmus.rig_contract import rig_parameter_values
 from nfal.models.calibration import RigCalibration, load_rig_calibration, paper_calibration
-from nfal.models.closed_loop import Staircase
+from nfal.models.reference import Staircase
 from nfal.models.comparison import simulate_comparison
 from nfal.models.pid_design import DesignSpec, design_schedule
 from nfal.models.plausibility import require_clearances
