@@ -33,8 +33,14 @@ class ContentKeyedCacheLocator(_IN_TREE_LOCATOR):
         # numba checks a cache against its own function's file only: the kernels of other files it calls
         # (the module's KERNEL_DEPENDENCIES, beside it) are part of the key too
         files = [source, *(source.with_name(name) for name in py_func.__globals__.get("KERNEL_DEPENDENCIES", ()))]
-        digest = hashlib.sha256(b"".join(path.read_bytes() for path in files)).hexdigest()[:24]
-        self._cache_path = str(cache_root() / "numba" / f"{Path(py_file).stem}-{digest}")
+        self._digest = hashlib.sha256(b"".join(path.read_bytes() for path in files)).hexdigest()
+        self._cache_path = str(cache_root() / "numba" / f"{Path(py_file).stem}-{self._digest[:24]}")
+
+    def get_source_stamp(self) -> str:
+        """The sources' content, not the file's mtime and size as numba 0.60 (the Windows Python's,
+        fmus/windows_python.py) stamps it (0.68 hashes the content): every host extracts an FMU anew, with new
+        mtimes, so such a numba found the cache stale and compiled the kernels again in every run."""
+        return self._digest
 
     @classmethod
     def from_function(cls, py_func, py_file):

@@ -1,5 +1,6 @@
 """The film kernels' numba cache is keyed by source content, so an FMU's unpacked copy of nfal reuses it."""
 
+import os
 import shutil
 from pathlib import Path
 
@@ -49,3 +50,20 @@ def test_a_kernel_s_cache_follows_the_kernels_it_calls_in_other_files(tmp_path, 
     before = ContentKeyedCacheLocator(kernel, str(folder / "coupled.py")).get_cache_path()
     (folder / "film_kernel.py").write_text((folder / "film_kernel.py").read_text() + "\n# the solver edited\n")
     assert ContentKeyedCacheLocator(kernel, str(folder / "coupled.py")).get_cache_path() != before
+
+
+def test_the_stamp_is_the_content_not_the_files_time(tmp_path, monkeypatch):
+    """A host unpacks an FMU anew each run, with new mtimes: a numba that stamps a cache by mtime and size (0.60, the
+    Windows Python's) would compile the kernels again every time, unless the locator stamps the content."""
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(numba_cache._IN_TREE_LOCATOR, "get_source_stamp",  # numba 0.60's
+                        lambda self: (os.stat(self._py_file).st_mtime, os.stat(self._py_file).st_size))
+    kernel, source = slow_kernels.curve_value.py_func, Path(slow_kernels.__file__)
+    copy = tmp_path / "unpacked" / "nfal" / "models" / source.name
+    copy.parent.mkdir(parents=True)
+    shutil.copy(source, copy)
+    os.utime(copy, (1e9, 1e9))
+    stamps = [ContentKeyedCacheLocator(kernel, str(path)).get_source_stamp() for path in (source, copy)]
+    assert stamps[0] == stamps[1]
+    copy.write_text(source.read_text() + "\n# edited\n")
+    assert ContentKeyedCacheLocator(kernel, str(copy)).get_source_stamp() != stamps[0]
