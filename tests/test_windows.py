@@ -172,10 +172,11 @@ def test_a_missing_windows_python_is_one_line_and_an_error(windows_build, bench,
 
 @pytest.mark.slow
 def test_the_override_names_another_windows_python(windows_build, bench, python_root, tmp_path):
-    """The Python the FMU recorded is gone; NFAL_FMU_PYTHON names one that is there (asked for its settings)."""
+    """The Python the FMU recorded is gone; NFAL_FMU_PYTHON names one that is there (asked for its settings). The
+    FMU that imports least: the settings are what is tested."""
     version, out, _ = windows_build
-    recorded = zipfile.ZipFile(out / "SlowPlant.fmu").read("resources/python-win64.cfg")
-    moved = _with_config(out / "SlowPlant.fmu", tmp_path / "SlowPlant.fmu",
+    recorded = zipfile.ZipFile(out / "ReferenceGenerator.fmu").read("resources/python-win64.cfg")
+    moved = _with_config(out / "ReferenceGenerator.fmu", tmp_path / "ReferenceGenerator.fmu",
                          re.sub(rb"(?m)^(executable|libpython)=.*$", rb"\1=Z:\\gone\\python.exe", recorded))
     host = compile_c_host(tmp_path, version, windows=True)
     result = run_in_c_host(host, moved, tmp_path / "c", runs=1, stop_time=STOP_S,
