@@ -16,7 +16,6 @@ import numpy as np
 from nfal.errors import InvalidParameterError
 
 from .control_law import DiscreteControlLaw
-from .fixed_step_plant import FixedStepPlant
 from .plant import PlantState, SimplifiedPlant
 from .reference import Staircase
 
@@ -56,6 +55,9 @@ def simulate_closed_loop(law: DiscreteControlLaw, plant: SimplifiedPlant, refere
     reference = reference or Staircase()
     if integrator not in INTEGRATORS:
         raise InvalidParameterError("integrator", integrator, f"one of {INTEGRATORS}")
+    from .fixed_step_plant import FixedStepPlant  # here: its numba kernels take 0.65 s to load, and a command that
+    # only reads a run (``nfal run`` in its master process, whose FMUs carry their own) never needs them
+
     advance = FixedStepPlant(plant).advance if integrator == "fixed_step" else plant.advance
     samples = reference.samples(law.sample_rate_hz)
     if noise_m is None:
