@@ -22,7 +22,7 @@ from pathlib import Path
 
 import record
 from machine import describe
-from realtime import HERE, emulator, hil_staircase
+from realtime import HERE, emulator, hil_staircase, neighbour
 
 TRACING = Path("/sys/kernel/debug/tracing")
 #: A wake-up that waited longer than this is listed with the task that held the CPU [s].
@@ -51,9 +51,11 @@ def tracing(on: bool, ring_mb: int = 0) -> None:
 
 
 def analyse(lines, threads: dict[str, str]) -> dict:
-    """``threads``: tid -> label. Wake-up latencies, the long waits' holders, the last stretches on the CPU."""
+    """``threads``: tid -> label. Wake-up latencies, the long waits' holders, the stretches on the CPU (the longest,
+    and the last ones), the longest sleeps in the kernel (state D: a syscall waiting on a lock or a worker)."""
     woken, latency, holders = {}, collections.defaultdict(list), collections.defaultdict(collections.Counter)
     running, stretches, first, end = {}, collections.defaultdict(list), {}, 0.0
+    left, blocked = {}, collections.defaultdict(list)  # tid -> (when it left the CPU, its state); D sleeps
     for line in lines:
         m = EVENT.match(line)
         if not m:
@@ -70,6 +72,10 @@ def analyse(lines, threads: dict[str, str]) -> dict:
         prev, nxt = field(rest, "prev_pid"), field(rest, "next_pid")
         if prev in threads and running.get(cpu, (None,))[0] == prev:
             stretches[prev].append((ts - running[cpu][1], ts))
+        if prev in threads:
+            left[prev] = (ts, field(rest, "prev_state"))
+        if nxt in left and left[nxt][1].startswith("D"):
+            blocked[nxt].append(ts - left[nxt][0])
         running[cpu] = (nxt, ts)
         if nxt in threads and nxt in woken:
             wait = ts - woken.pop(nxt)
@@ -84,10 +90,14 @@ def analyse(lines, threads: dict[str, str]) -> dict:
             continue
         n = len(waits)
         last = sorted((d for d, at in stretches[tid] if at > end - LAST_S), reverse=True)[:5]
+        on_cpu = sorted((d for d, _ in stretches[tid]), reverse=True)
         report["threads"][label] = {
             "wake_ups": n, **{f"wake_{name}_us": round(waits[min(n - 1, int(n * q))] * 1e6, 1)
                               for name, q in (("p50", 0.5), ("p99", 0.99), ("p999", 0.999))},
             "wake_max_ms": round(waits[-1] * 1e3, 2), "waits_over_1ms_by_holder": dict(holders[tid].most_common()),
+            "longest_stretches_ms": [round(d * 1e3, 2) for d in on_cpu[:5]],
+            "stretches_over_5ms": sum(d > 5e-3 for d in on_cpu),
+            "longest_blocked_in_kernel_ms": [round(d * 1e3, 2) for d in sorted(blocked[tid], reverse=True)[:5]],
             "longest_stretches_in_last_s_ms": [round(d * 1e3, 2) for d in last]}
     return report
 
@@ -96,6 +106,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=120.0, help="seconds of the HIL run (default 120)")
     parser.add_argument("--ring-mb", type=int, default=64, help="trace ring per vCPU [MB] (default 64: ~100 s)")
+    parser.add_argument("--neighbour", action="store_true",
+                        help="a CPU-bound process at normal priority beside the run (sched-trace-neighbour.json)")
     args = parser.parse_args()
     if os.geteuid() != 0:
         sys.exit("sched_trace: needs root (tracefs and SCHED_FIFO)")
@@ -103,7 +115,7 @@ def main() -> None:
     folder = HERE.parent / "runs" / time.strftime("sched-trace-%Y%m%d-%H%M%S")  # runs/ is ignored
     folder.mkdir(parents=True)
     threads = {}
-    with emulator(folder) as (port, rig):
+    with neighbour(args.neighbour), emulator(folder) as (port, rig):
         command = [sys.executable, "-m", "nfal", "run", "fig7_hil", "--realtime", "--compiled", "--rt-priority", "50",
                    "--param", f"proxy.port={port}", "--reference", hil_staircase(args.duration), "--stop-time",
                    str(args.duration), "--out", str(folder / "hil"), "--no-plot"]
@@ -120,21 +132,36 @@ def main() -> None:
     with open(TRACING / "trace", encoding="utf-8", errors="replace") as trace:
         report = analyse(trace, threads)
     report["threads"] = {label: value for label, value in report["threads"].items() if value["wake_ups"] > 1000}
-    result = {"duration_s": args.duration, "status": summary["status"], "steps": summary["steps_completed"],
+    result = {"duration_s": args.duration, "neighbour": args.neighbour, "status": summary["status"],
+              "steps": summary["steps_completed"],
               "error": summary.get("error"), "steal": (summary.get("realtime") or {}).get("steal"), **report}
     print(json.dumps(result, indent=1), flush=True)
-    print(record.save("sched-trace", result), flush=True)
+    print(record.save("sched-trace-neighbour" if args.neighbour else "sched-trace", result), flush=True)
 
 
 def tables(result: dict) -> list[record.Table]:
     return [record.Table(f"The last {result['traced_s']} s of a {result['duration_s']:g} s run ({result['status']}, "
                          f"{result['steps']} steps); the real-time threads that woke at 2 kHz:",
                          ["thread", "wake-ups", "wake-up p50 / p99 / p99.9 [µs]", "longest [ms]",
-                          "waits > 1 ms, by the task on the CPU", f"longest on the CPU in the last {LAST_S:g} s [ms]"],
+                          "waits > 1 ms, by the task on the CPU", "longest on the CPU [ms] (over 5 ms)",
+                          "longest asleep in the kernel, state D [ms]",
+                          f"longest on the CPU in the last {LAST_S:g} s [ms]"],
                          [[label, t["wake_ups"], f"{t['wake_p50_us']} / {t['wake_p99_us']} / {t['wake_p999_us']}",
                            t["wake_max_ms"], ", ".join(f"{k} {v}" for k, v in t["waits_over_1ms_by_holder"].items())
-                           or "-", ", ".join(map(str, t["longest_stretches_in_last_s_ms"]))]
+                           or "-", _listed(t, "longest_stretches_ms") + (f" ({t['stretches_over_5ms']})"
+                                                                          if "stretches_over_5ms" in t else ""),
+                           _listed(t, "longest_blocked_in_kernel_ms"), _listed(t, "longest_stretches_in_last_s_ms")]
                           for label, t in result["threads"].items()])]
+
+
+def _listed(thread: dict, key: str) -> str:
+    """The values, "-" for none, "not recorded" in a result from before the bench measured them."""
+    return ", ".join(map(str, thread[key])) or "-" if key in thread else "not recorded"
+
+
+def title(result: dict) -> str:
+    return ("What holds the compiled HIL loop's real-time threads up, seen by the kernel's scheduler"
+            + (", beside a CPU-bound process" if result.get("neighbour") else "") + " (docs/hil.md)")
 
 
 def findings(result: dict) -> list[str]:
