@@ -1,4 +1,6 @@
-"""The loop's height reference as a step sequence: change times and levels, held between changes (SI).
+"""The loop's height reference: the paper's staircase (:class:`Staircase`) and any step sequence, change times and
+levels held between changes (SI). Plain numbers and numpy only, so that the ReferenceGenerator FMU imports nothing
+heavier.
 
 :class:`StepSequence` is the reference of the Fig. 7 loop in plain numbers, so that the ReferenceGenerator
 FMU (``fmus/reference_generator.py``) and the master's ``--reference`` (``nfal.orchestration.signals``)
