@@ -132,9 +132,11 @@ def main() -> None:
     with open(TRACING / "trace", encoding="utf-8", errors="replace") as trace:
         report = analyse(trace, threads)
     report["threads"] = {label: value for label, value in report["threads"].items() if value["wake_ups"] > 1000}
+    realtime, link = summary.get("realtime") or {}, summary.get("link") or {}
     result = {"duration_s": args.duration, "neighbour": args.neighbour, "status": summary["status"],
-              "steps": summary["steps_completed"],
-              "error": summary.get("error"), "steal": (summary.get("realtime") or {}).get("steal"), **report}
+              "steps": summary["steps_completed"], "error": summary.get("error"), "overruns": realtime.get("overruns"),
+              "drive_gap_max_ms": None if link.get("drive_gap_max_s") is None else link["drive_gap_max_s"] * 1e3,
+              "steal": realtime.get("steal"), **report}
     print(json.dumps(result, indent=1), flush=True)
     print(record.save("sched-trace-neighbour" if args.neighbour else "sched-trace", result), flush=True)
 
@@ -166,7 +168,10 @@ def title(result: dict) -> str:
 
 def findings(result: dict) -> list[str]:
     steal = {key: "-" if value is None else f"{value:.2f}" for key, value in (result.get("steal") or {}).items()}
-    return [f"The run: {result['error'] or 'completed'}. The hypervisor's steal: {steal.get('share_percent', '-')} % "
+    late = ("" if result.get("overruns") is None else
+            f" {result['overruns']} steps late, the longest gap between DRIVEs {result['drive_gap_max_ms']:.2f} ms.")
+    return [f"The run: {result['error'] or 'completed'}.{late} "
+            f"The hypervisor's steal: {steal.get('share_percent', '-')} % "
             f"over the loop, {steal.get('worst_second_percent', '-')} % in its worst second, "
             f"{steal.get('last_second_percent', '-')} % in its last (docs/hil.md, \"The compiled loop\")."]
 
