@@ -113,16 +113,22 @@ def hil_staircase(duration_s: float) -> str:
     return "staircase:" + ",".join(f"{level:g}" for level in levels) + ":0.6:1.0"
 
 
+def hil_command(port: str, duration_s: float, out: Path, *pacing: str) -> list[str]:
+    """``nfal run fig7_hil`` against the rig at ``port`` for ``duration_s`` into ``out``, paced by ``pacing``
+    (``--realtime``, ``--compiled``, ...)."""
+    return [sys.executable, "-m", "nfal", "run", "fig7_hil", *pacing, "--param", f"proxy.port={port}", "--reference",
+            hil_staircase(duration_s), "--stop-time", str(duration_s), "--out", str(out), "--no-plot"]
+
+
 def run_hil(args, folder: Path) -> list[dict]:
-    spec, run_start = hil_staircase(args.duration), provenance()
+    run_start = provenance()
     out = folder / "hil"
     with emulator(folder, *(["--lockstep"] if args.lockstep else [])) as (port, rig):
         pacing = ["--param", "proxy.lockstep=true"] if args.lockstep else ["--realtime"]
         pacing += ["--compiled"] if args.compiled else []
         if args.host_rt_priority is not None:
             pacing += ["--rt-priority", str(args.host_rt_priority)]
-        command = [sys.executable, "-m", "nfal", "run", "fig7_hil", *pacing, "--param", f"proxy.port={port}",
-                   "--reference", spec, "--stop-time", str(args.duration), "--out", str(out), "--json", "--no-plot"]
+        command = hil_command(port, args.duration, out, *pacing, "--json")
         # to files, not pipes: the summary of a 10-minute run (300 KB of JSON) would fill a pipe nobody reads yet
         # (a run of 2026-11-26 completed, then waited on its own print until killed)
         host_output = open(folder / "host.out", "w+", encoding="utf-8")  # noqa: SIM115 - closed below

@@ -4,8 +4,9 @@ Runs ``nfal run fig7_hil --realtime --compiled --rt-priority 50`` against ``nfal
 ftrace recording sched_switch and sched_wakeup (the mono clock, a ring of --ring-mb per vCPU: the last minutes are
 kept), stops the trace when the host exits, and reports for each real-time thread (the loop's, the emulator's): its
 wake-up latency (wake-up to running) at p50 / p99 / p99.9 / max, the wake-ups that waited more than 1 ms and the task
-that held the CPU meanwhile, and its longest stretches on the CPU in the last seconds before the end. Needs root
-(tracefs, SCHED_FIFO).
+that held the CPU meanwhile, its longest stretches on the CPU (over the trace, and in its last seconds) and its longest
+sleeps in the kernel (state D: from leaving the CPU so to running again). ``--neighbour`` runs a CPU-bound process
+beside. Needs root (tracefs, SCHED_FIFO).
 """
 
 from __future__ import annotations
@@ -20,9 +21,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import record
 from machine import describe
-from realtime import HERE, emulator, hil_staircase, neighbour
+from realtime import HERE, emulator, hil_command, neighbour
 
 TRACING = Path("/sys/kernel/debug/tracing")
 #: A wake-up that waited longer than this is listed with the task that held the CPU [s].
@@ -85,16 +87,17 @@ def analyse(lines, threads: dict[str, str]) -> dict:
     common = max(first.values(), default=0.0)  # both vCPUs' rings cover the trace from here
     report = {"traced_s": round(end - common, 1), "threads": {}}
     for tid, label in threads.items():
-        waits = sorted(latency[tid])
-        if not waits:
+        waits = np.array(latency[tid])
+        if not waits.size:
             continue
-        n = len(waits)
         last = sorted((d for d, at in stretches[tid] if at > end - LAST_S), reverse=True)[:5]
         on_cpu = sorted((d for d, _ in stretches[tid]), reverse=True)
         report["threads"][label] = {
-            "wake_ups": n, **{f"wake_{name}_us": round(waits[min(n - 1, int(n * q))] * 1e6, 1)
-                              for name, q in (("p50", 0.5), ("p99", 0.99), ("p999", 0.999))},
-            "wake_max_ms": round(waits[-1] * 1e3, 2), "waits_over_1ms_by_holder": dict(holders[tid].most_common()),
+            "wake_ups": waits.size,
+            **{f"wake_{name}_us": round(float(percentile) * 1e6, 1) for name, percentile in
+               zip(("p50", "p99", "p999"), np.percentile(waits, [50, 99, 99.9], method="higher"))},
+            "wake_max_ms": round(float(waits.max()) * 1e3, 2),
+            "waits_over_1ms_by_holder": dict(holders[tid].most_common()),
             "longest_stretches_ms": [round(d * 1e3, 2) for d in on_cpu[:5]],
             "stretches_over_5ms": sum(d > 5e-3 for d in on_cpu),
             "longest_blocked_in_kernel_ms": [round(d * 1e3, 2) for d in sorted(blocked[tid], reverse=True)[:5]],
@@ -116,9 +119,7 @@ def main() -> None:
     folder.mkdir(parents=True)
     threads = {}
     with neighbour(args.neighbour), emulator(folder) as (port, rig):
-        command = [sys.executable, "-m", "nfal", "run", "fig7_hil", "--realtime", "--compiled", "--rt-priority", "50",
-                   "--param", f"proxy.port={port}", "--reference", hil_staircase(args.duration), "--stop-time",
-                   str(args.duration), "--out", str(folder / "hil"), "--no-plot"]
+        command = hil_command(port, args.duration, folder / "hil", "--realtime", "--compiled", "--rt-priority", "50")
         tracing(True, args.ring_mb)
         with open(folder / "host.out", "w") as out:
             host = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
@@ -158,7 +159,9 @@ def tables(result: dict) -> list[record.Table]:
 
 def _listed(thread: dict, key: str) -> str:
     """The values, "-" for none, "not recorded" in a result from before the bench measured them."""
-    return ", ".join(map(str, thread[key])) or "-" if key in thread else "not recorded"
+    if key not in thread:
+        return "not recorded"
+    return ", ".join(map(str, thread[key])) or "-"
 
 
 def title(result: dict) -> str:
