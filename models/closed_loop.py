@@ -55,8 +55,10 @@ def simulate_closed_loop(law: DiscreteControlLaw, plant: SimplifiedPlant, refere
     reference = reference or Staircase()
     if integrator not in INTEGRATORS:
         raise InvalidParameterError("integrator", integrator, f"one of {INTEGRATORS}")
-    from .fixed_step_plant import FixedStepPlant  # here: its numba kernels take 0.65 s to load, and a command that
-    # only reads a run (``nfal run`` in its master process, whose FMUs carry their own) never needs them
+    # imported here: its numba kernels take 0.65 s to load (``python -X importtime -c "import
+    # nfal.models.fixed_step_plant"``), and what only reads a run (``nfal run``'s master: its FMUs carry their own)
+    # never needs them
+    from .fixed_step_plant import FixedStepPlant
 
     advance = FixedStepPlant(plant).advance if integrator == "fixed_step" else plant.advance
     samples = reference.samples(law.sample_rate_hz)

@@ -134,7 +134,7 @@ def lightest(tmp_path_factory):
     """The FMU whose Python imports least (numpy, not scipy or numba): under valgrind the embedded interpreter's
     imports are most of the run, so the lightest FMU is the quickest to check (the runtime and the loader are the
     same in all). ``python -X importtime -c "import nfal.fmus.reference_generator"``: 0.18 s (1.3 s while it
-    imported numba's kernels, 43 s under valgrind against 12 s now)."""
+    imported numba's kernels; this test 41-45 s against 11-12 s now, ``python -m pytest --durations=0``)."""
     folder = tmp_path_factory.mktemp("lightest")
     return {version: build.build_fmu("ReferenceGenerator", folder / f"fmi{version}", fmi_version=version)
             for version in (2, 3)}
