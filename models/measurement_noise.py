@@ -11,11 +11,16 @@ noise: the standard deviation is peak / 3 before clipping (0.997 peak / 3 after:
 are clipped). Unlike a record normalised to its own maximum, this needs no look-ahead, so a streaming
 source (the SensorChain FMU) and a whole record give the same numbers.
 
-The generator works in fixed blocks of ``BLOCK`` white numbers, filtered by ``sosfilt`` with the filter
-state carried from block to block, after a burn-in (filtered from zero state and discarded) long enough
+The generator works in fixed blocks of ``BLOCK`` white numbers, filtered as ``scipy.signal.sosfilt`` does with
+the filter state carried from block to block, after a burn-in (filtered from zero state and discarded) long enough
 for the start-up transient to decay below 1e-12 of the impulse response's peak (at least ``BURN_IN``
 samples). Because the blocks do not depend on how the samples are consumed, ``next_sample()`` one at a
 time, ``take(n)`` in any chunks, and :func:`coloured_noise` give bit-identical sequences for one seed.
+
+The filter's design (:func:`butterworth_biquad`) and its recursion (:func:`_filter`) are written here, not taken
+from ``scipy.signal``: importing it takes 0.6-1 s (``python -X importtime -c "import scipy.signal"``), paid by
+every process that sets up a SensorChain (each ``nfal run``, each rig emulator, each foreign host), for one
+biquad. tests/test_closed_loop.py checks both against ``scipy.signal.butter`` and ``sosfilt``.
 """
 
 from __future__ import annotations
@@ -24,7 +29,6 @@ import copy
 import math
 
 import numpy as np
-import scipy
 
 from nfal.errors import InvalidParameterError, require_amplitude, require_positive
 
@@ -46,6 +50,30 @@ def _check_settings(sample_rate_hz, cutoff_hz, peak_m) -> tuple[float, float, fl
         raise InvalidParameterError("cutoff_hz", cutoff_hz, f"below the Nyquist frequency {rate / 2:g} Hz")
     peak = require_amplitude("peak_m", peak_m)
     return rate, cutoff, require_plausible("peak_m", peak, MAX_CLEARANCE_M, "m")
+
+
+def butterworth_biquad(cutoff_hz: float, sample_rate_hz: float) -> np.ndarray:
+    """The second-order Butterworth low-pass at ``cutoff_hz`` as one second-order section ``[[b0, b1, b2, 1, a1,
+    a2]]``: the bilinear transform with the cut-off prewarped, as ``scipy.signal.butter(2, cutoff_hz,
+    fs=sample_rate_hz, output="sos")`` designs it."""
+    k = math.tan(math.pi * cutoff_hz / sample_rate_hz)
+    norm = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b0 = k * k * norm
+    return np.array([[b0, 2.0 * b0, b0, 1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm]])
+
+
+def _filter(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``scipy.signal.sosfilt(sos, x, zi=zi)`` for one section: the transposed direct form II, operation for
+    operation, so the same numbers to the bit."""
+    b0, b1, b2, _, a1, a2 = sos[0].tolist()
+    z0, z1 = zi[0].tolist()
+    out = []
+    for value in x.tolist():
+        y = b0 * value + z0
+        z0 = b1 * value - a1 * y + z1
+        z1 = b2 * value - a2 * y
+        out.append(y)
+    return np.array(out), np.array([[z0, z1]])
 
 
 class ColouredNoise:
@@ -76,21 +104,21 @@ class ColouredNoise:
         if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0):
             raise InvalidParameterError("seed", seed, "a whole number >= 0 or None")
         self.seed = None if seed is None else int(seed)
-        self._sos = scipy.signal.butter(2, self.cutoff_hz, fs=self.sample_rate_hz, output="sos")
-        pole_radius = float(np.max(np.abs(scipy.signal.sos2zpk(self._sos)[1])))
+        self._sos = butterworth_biquad(self.cutoff_hz, self.sample_rate_hz)
+        pole_radius = float(np.max(np.abs(np.roots([1.0, *self._sos[0, 4:]]))))
         #: Samples discarded at the start: the transient (pole radius ** n) falls below 1e-12.
         self.burn_in = max(BURN_IN, int(math.ceil(math.log(1e-12) / math.log(pole_radius))))
         impulse = np.zeros(max(4 * self.burn_in, 1000))
         impulse[0] = 1.0
         #: Standard deviation of the filtered unit white noise: sqrt(sum h_j^2), the impulse response h.
-        self.filter_gain = float(np.sqrt(np.sum(scipy.signal.sosfilt(self._sos, impulse) ** 2)))
+        self.filter_gain = float(np.sqrt(np.sum(_filter(self._sos, impulse, np.zeros((1, 2)))[0] ** 2)))
         self._scale = self.peak_m / PEAK_SIGMAS / self.filter_gain
         self._rng = np.random.default_rng(self.seed)
         self._zi = np.zeros((self._sos.shape[0], 2))
         self._buffer = np.empty(0)
         self._position = 0
         if self.peak_m > 0:
-            _, self._zi = scipy.signal.sosfilt(self._sos, self._rng.standard_normal(self.burn_in), zi=self._zi)
+            _, self._zi = _filter(self._sos, self._rng.standard_normal(self.burn_in), self._zi)
 
     @property
     def std_m(self) -> float:
@@ -99,7 +127,7 @@ class ColouredNoise:
 
     def _refill(self) -> None:
         white = self._rng.standard_normal(BLOCK)
-        filtered, self._zi = scipy.signal.sosfilt(self._sos, white, zi=self._zi)
+        filtered, self._zi = _filter(self._sos, white, self._zi)
         self._buffer = np.clip(filtered * self._scale, -self.peak_m, self.peak_m)
         self._position = 0
 
