@@ -50,6 +50,18 @@ def test_open_rig_plays_rig_slow_in_process_exactly_as_the_master_does(rig_slow)
     assert heights[0] == REST_GAP and max(heights) > 20 * REST_GAP  # it did lift off: the comparison means something
 
 
+def test_both_rigs_report_the_same_excitation_amplitude(rig_slow):
+    with open_rig(rig_slow, PERIOD) as fast, StructureRig(rig_slow, PERIOD) as master:
+        amplitudes = []
+        for v in voltages(300):
+            for rig in (fast, master):
+                rig.apply(v)
+            amplitudes.append((fast.excitation_amplitude, master.excitation_amplitude))
+            for rig in (fast, master):
+                rig.advance()
+    assert all(a == b for a, b in amplitudes) and amplitudes[-1][0] > 1e-6  # equal, and the tracker drove it
+
+
 def test_at_0_v_the_truth_rests_at_the_rest_gap(rig_slow):
     with open_rig(rig_slow, PERIOD) as rig:
         played = play(rig, [0.0] * 200)

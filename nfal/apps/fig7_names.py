@@ -49,8 +49,9 @@ HARDWARE = LoopColumns(f"{PROXY}.measured_height", f"{PROXY}.measured_height", E
                                      (((f"{PROXY}.measurement_age",), 1e3, "sample age [ms]"))))
 
 #: The rig structures (the loop without the Controller): the input the emulator's drive voltage goes to, the
-#: outputs a rig reports (nfal.apps.rig_model), and the true height.
+#: outputs a rig reports (nfal.apps.rig_model), the true height and the excitation amplitude.
 RIG_DRIVE_INPUT = "ResonanceTracker.drive_voltage"
 RIG_READINGS = {"height": SIMULATED.measured, "drive_frequency": SIMULATED.frequency,
                 "locked": "ResonanceTracker.locked", "resting": SIMULATED.resting}
 RIG_TRUE_HEIGHT = SIMULATED.height
+RIG_EXCITATION = SIMULATED.excitation

@@ -37,6 +37,7 @@ from nfal.apps.figures.physics import plot_table1
 from nfal.apps.figures.reproduce import plot_calibrations, plot_constant_excitation, shown, write_html
 from nfal.apps.fig7_names import PAPERS_LAW
 from nfal.apps.rig_comparison import controller_on_rig
+from nfal.apps.rig_model import open_rig
 from nfal.models.calibration import paper_calibration, perturbation_calibration
 from nfal.models.closed_loop import ClosedLoopRun
 from nfal.models.reference import Staircase
@@ -53,7 +54,6 @@ from nfal.models.step_metrics import step_metrics
 from nfal.models.table1 import TABLE1, run_case
 from nfal.models.table2 import MAX_EXCITATION_M, SAMPLING_RATE_HZ
 from nfal.models.transducer import METRES_PER_VOLT
-from nfal.orchestration import run_structure
 
 #: The paper's numbers that do not hold here, and why (each measured; docs/controller.md and docs/hil.md say more).
 KNOWN_DIFFERENCES = {
@@ -232,13 +232,7 @@ def fig6(context: _Context) -> Section:
     steps = Staircase(tuple(heights), hold_s=FIG6_HOLD_S, lead_s=FIG6_LIFT_OFF_S)
     drive = Staircase(tuple(excitation / METRES_PER_VOLT), hold_s=FIG6_HOLD_S, lead_s=FIG6_LIFT_OFF_S)
     archive = build_all(context.build_dir, structures=("rig_slow",))["rig_slow"]
-    result = run_structure(archive, stop_time=steps.duration_s, step_size=1.0 / SAMPLING_RATE_HZ,
-                           inputs={"ResonanceTracker.drive_voltage": drive}, plot=False, progress=False,
-                           out_dir=context.out_dir / "runs" / "fig6_rig", overwrite=True)
-    table = result.table()
-    time_s = np.asarray(table.time)
-    measured = np.asarray(table["SensorChain.measured_height"])
-    amplitude = np.asarray(table["ResonanceTracker.excitation_amplitude"])
+    time_s, measured, amplitude = _play_rig(archive, drive, steps.duration_s)
     ends = np.r_[steps.step_times_s, steps.duration_s]
     windows = [(time_s > end - STEADY_WINDOW_S) & (time_s <= end) for end in ends]
     steady = np.array([measured[w].mean() for w in windows])
@@ -272,6 +266,20 @@ def fig6(context: _Context) -> Section:
          _compare("fig6.rise_time_ratio_190um", ratio,
                   note=f"rise time {rise['emulated rig'] * 1e3:.1f} ms on the rig, "
                   f"{rise['eq. (13),(17)'] * 1e3:.1f} ms by eq. (13)")])
+
+
+def _play_rig(archive: Path, drive: Staircase, duration_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The emulator's truth (the rig structure at ``archive``, as ``nfal rig-emulator`` plays it) driven by ``drive``
+    [V] for ``duration_s``: the sample times, the measured heights and the excitation amplitudes."""
+    period = 1.0 / SAMPLING_RATE_HZ
+    time_s = np.arange(round(duration_s / period) + 1) * period
+    measured, amplitude = np.empty_like(time_s), np.empty_like(time_s)
+    with open_rig(archive, period) as rig:
+        for i, t in enumerate(time_s):
+            rig.apply(float(drive(t)))
+            measured[i], amplitude[i] = rig.reading().height, rig.excitation_amplitude
+            rig.advance()
+    return time_s, measured, amplitude
 
 
 def _rise_time(run: ClosedLoopRun, steps: Staircase, step_m: tuple[float, float]) -> float:

@@ -4,7 +4,7 @@ The rig is played by the simulation's own blocks, wired by a rig structure (``ss
 ``ssp/rig_reynolds.ssd``, or a user's): ResonanceTracker -> Plant -> SensorChain, with the tracker's
 ``drive_voltage`` input left for the emulator to drive. So "the truth" the emulator plays is a structure
 that ``nfal run`` can simulate too, parameter for parameter. Two ways to run it, one interface
-(``apply``, ``reading``, ``advance``, ``time``, ``true_height``, ``close``):
+(``apply``, ``reading``, ``advance``, ``time``, ``true_height``, ``excitation_amplitude``, ``close``):
 
 * :class:`InProcessRig`: the nfal FMUs' own slave classes as Python objects, wired as the structure says
   (no FMI calls: 77 against 110 us a tick for rig_slow, ``python bench/bench_rig_truth.py``; a 2 kHz emulator
@@ -21,7 +21,7 @@ import os
 from collections.abc import Mapping
 
 from nfal.errors import InvalidParameterError, require_positive
-from nfal.apps.fig7_names import RIG_DRIVE_INPUT, RIG_READINGS, RIG_TRUE_HEIGHT
+from nfal.apps.fig7_names import RIG_DRIVE_INPUT, RIG_EXCITATION, RIG_READINGS, RIG_TRUE_HEIGHT
 from nfal.fmus.resonance_tracker import ResonanceTracker
 from nfal.fmus.reynolds_plant import ReynoldsPlant
 from nfal.fmus.sensor_chain import SensorChain
@@ -45,7 +45,7 @@ class StructureRig:
 
     def __init__(self, path: str | os.PathLike, period_s: float,
                  parameters: Mapping[str, object] | None = None) -> None:
-        self.voltage = 0.0
+        self.voltage, self._name = 0.0, str(path)
         self._stack = contextlib.ExitStack()
         try:
             structure = self._stack.enter_context(read_ssp(path))
@@ -58,6 +58,7 @@ class StructureRig:
                 raise InvalidParameterError("rig structure", str(path), f"one with the outputs {', '.join(missing)}")
             self._index = {key: columns[name] for key, name in RIG_READINGS.items()}
             self._true_height = columns[RIG_TRUE_HEIGHT]
+            self._excitation = columns.get(RIG_EXCITATION)  # a user's structure may not name it
             self.master.instantiate()
             self.master.initialize(0.0)
         except BaseException:
@@ -74,6 +75,13 @@ class StructureRig:
     def true_height(self) -> float:
         """The object's true clearance now [m] (no sensor)."""
         return float(self.master.row[self._true_height])
+
+    @property
+    def excitation_amplitude(self) -> float:
+        """The transducer's excitation amplitude ||a|| now [m], the plant's input."""
+        if self._excitation is None:
+            raise InvalidParameterError("rig structure", self._name, f"one with the output {RIG_EXCITATION}")
+        return float(self.master.row[self._excitation])
 
     @property
     def time(self) -> float:
@@ -171,6 +179,10 @@ class InProcessRig:
     @property
     def true_height(self) -> float:
         return float(self.plant.value("height"))
+
+    @property
+    def excitation_amplitude(self) -> float:
+        return float(self.tracker.value("excitation_amplitude"))
 
     def advance(self) -> None:
         t, dt = self.time, self.period_s
