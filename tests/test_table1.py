@@ -1,4 +1,9 @@
-"""Table 1 of the paper, reproduced with the Fig. 3 stand-in shape (docs/assumptions.md)."""
+"""Table 1's runs (models/table1.py): each lasts long enough for both models to settle.
+
+Table 1's numbers themselves (δ to 0.5 % of the paper's, the errors within a factor 2, the errors growing with δ) are
+judged by ``nfal reproduce`` on the full model's grid, and tests/test_reproduce.py asserts that they hold. What is
+asked here holds on a coarser grid too (51 nodes, 64 steps a period), in a fifth of the report's time.
+"""
 
 import numpy as np
 import pytest
@@ -8,31 +13,10 @@ from nfal.models.table1 import TABLE1, run_case
 
 @pytest.fixture(scope="module")
 def results():
-    return {case.name: run_case(case) for case in TABLE1}
+    return {case.name: run_case(case, nodes=51, steps_per_period=64) for case in TABLE1}
 
 
-@pytest.mark.slow  # Table 1: eight Reynolds runs
-@pytest.mark.parametrize("case", TABLE1, ids=lambda c: c.name)
-def test_delta_column_within_2_percent(results, case):
-    result = results[case.name]
-    assert result.delta_simplified == pytest.approx(case.paper_delta, rel=0.02)
-    assert result.delta_full == pytest.approx(case.paper_delta, rel=0.02)
-
-
-@pytest.mark.slow  # Table 1: eight Reynolds runs
-@pytest.mark.parametrize("case", TABLE1, ids=lambda c: c.name)
-def test_steady_state_error_of_the_papers_order(results, case):
-    assert case.paper_error_percent / 3 < results[case.name].error_percent < 3 * case.paper_error_percent
-
-
-@pytest.mark.slow  # Table 1: eight Reynolds runs
-def test_error_grows_with_delta(results):
-    ordered = sorted(results.values(), key=lambda r: r.delta_full)
-    errors = [r.error_percent for r in ordered]
-    assert errors == sorted(errors)
-
-
-@pytest.mark.slow  # Table 1: eight Reynolds runs
+@pytest.mark.slow  # four runs of the full model
 @pytest.mark.parametrize("case", TABLE1, ids=lambda c: c.name)
 def test_both_responses_settle(results, case):
     result = results[case.name]
@@ -40,3 +24,5 @@ def test_both_responses_settle(results, case):
     assert np.ptp(tail) / tail.mean() < 2e-3
     # ten slow time constants from a 25 % offset leave at most exp(-10) * 0.25 = 1.1e-5 (overdamped cases)
     assert result.height_simplified[-1] == pytest.approx(case.excitation / result.delta_simplified, rel=2e-5)
+    # the full model's steady state near the simplified one's: the paper gives up to 2.3 %, the coarse grid 2.7 %
+    assert result.delta_full == pytest.approx(result.delta_simplified, rel=0.04)
