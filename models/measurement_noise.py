@@ -17,7 +17,7 @@ for the start-up transient to decay below 1e-12 of the impulse response's peak (
 samples). Because the blocks do not depend on how the samples are consumed, ``next_sample()`` one at a
 time, ``take(n)`` in any chunks, and :func:`coloured_noise` give bit-identical sequences for one seed.
 
-The filter's design (:func:`butterworth_biquad`) and its recursion (:func:`_filter`) are written here, not taken
+The filter's design (:func:`butterworth_biquad`) and its recursion (:func:`biquad_filter`) are written here, not taken
 from ``scipy.signal``: importing it takes 0.6-1 s (``python -X importtime -c "import scipy.signal"``), paid by
 every process that sets up a SensorChain (each ``nfal run``, each rig emulator, each foreign host), for one
 biquad. tests/test_closed_loop.py checks both against ``scipy.signal.butter`` and ``sosfilt``.
@@ -62,7 +62,7 @@ def butterworth_biquad(cutoff_hz: float, sample_rate_hz: float) -> np.ndarray:
     return np.array([[b0, 2.0 * b0, b0, 1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm]])
 
 
-def _filter(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def biquad_filter(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``scipy.signal.sosfilt(sos, x, zi=zi)`` for one section: the transposed direct form II, operation for
     operation, so the same numbers to the bit."""
     b0, b1, b2, _, a1, a2 = sos[0].tolist()
@@ -111,14 +111,14 @@ class ColouredNoise:
         impulse = np.zeros(max(4 * self.burn_in, 1000))
         impulse[0] = 1.0
         #: Standard deviation of the filtered unit white noise: sqrt(sum h_j^2), the impulse response h.
-        self.filter_gain = float(np.sqrt(np.sum(_filter(self._sos, impulse, np.zeros((1, 2)))[0] ** 2)))
+        self.filter_gain = float(np.sqrt(np.sum(biquad_filter(self._sos, impulse, np.zeros((1, 2)))[0] ** 2)))
         self._scale = self.peak_m / PEAK_SIGMAS / self.filter_gain
         self._rng = np.random.default_rng(self.seed)
         self._zi = np.zeros((self._sos.shape[0], 2))
         self._buffer = np.empty(0)
         self._position = 0
         if self.peak_m > 0:
-            _, self._zi = _filter(self._sos, self._rng.standard_normal(self.burn_in), self._zi)
+            _, self._zi = biquad_filter(self._sos, self._rng.standard_normal(self.burn_in), self._zi)
 
     @property
     def std_m(self) -> float:
@@ -127,7 +127,7 @@ class ColouredNoise:
 
     def _refill(self) -> None:
         white = self._rng.standard_normal(BLOCK)
-        filtered, self._zi = _filter(self._sos, white, self._zi)
+        filtered, self._zi = biquad_filter(self._sos, white, self._zi)
         self._buffer = np.clip(filtered * self._scale, -self.peak_m, self.peak_m)
         self._position = 0
 
