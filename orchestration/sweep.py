@@ -311,8 +311,10 @@ def _client(scheduler: str | None, workers: int | None):
         except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address (no port, unknown protocol)
             raise SweepError(f"cannot reach the Dask scheduler at {scheduler!r} (expected tcp://host:port): "
                              f"{exc}") from None
+    # the scheduler's HTTP server starts whatever dashboard_address says (None does not stop it: dask/distributed
+    # issue 8136); ":0" takes a free port, so a second cluster (another sweep, a notebook's) does not warn of 8787
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address=":0", silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
