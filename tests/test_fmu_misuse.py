@@ -1,9 +1,10 @@
 """Every FMI 3.0 FMU survives misuse as its FMI 2.0 twin does (issue 24, item 4).
 
 Each case is one sequence of calls a careless host makes (a second free, a step before initialisation, a
-call on a freed instance, bad values), run in its own FMPy process on the FMI 2.0 and on the FMI 3.0
-build of the same slave. Both must end the process cleanly (exit code 0: no crash at the call or at exit)
-and answer every call alike: ok where the twin says ok, an error where it says error. The guard against a
+call on a freed instance, bad values), on a new instance of the FMI 2.0 and of the FMI 3.0 build of the same
+slave. One FMPy process per version runs every case in turn, as a careless host goes on after its mistakes: it
+must end cleanly (exit code 0: no crash at a call or at exit), and both versions must answer every call alike: ok
+where the twin says ok, an error where it says error. The guard against a
 call on an instance that is not live (freed, or never made) is the loader's (fmus/loader/loader.c), the
 same for both versions; everything else reaches the slave, whose errors are fmi2Error / fmi3Error.
 """
@@ -36,9 +37,7 @@ if fmi3:
 else:
     from fmpy.fmi2 import FMU2Slave as Slave
 refs = {v.name: v.valueReference for v in md.modelVariables}
-fmu = Slave(guid=md.guid, unzipDirectory=extract(spec["fmu"]), modelIdentifier=md.coSimulation.modelIdentifier,
-            instanceName="misuse")
-t = 0.0
+unzipped = extract(spec["fmu"])
 def handle():
     return fmu.component
 def get(name):
@@ -68,19 +67,22 @@ operations = {
     "terminate": lambda: fmu.terminate(),
     "free": free,
 }
-answers = []
-for operation in spec["calls"]:
-    name, _, argument = operation.partition(":")
-    try:
-        if name == "set":
-            variable, value = argument.split("=")
-            set_(variable, float(value))
-        else:
-            operations[name]()
-        answers.append("ok")
-    except FMICallException:
-        answers.append("error")
-print(json.dumps(answers))
+for case, calls in spec["cases"].items():
+    fmu = Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                instanceName=case)
+    t, answers = 0.0, []
+    for operation in calls:
+        name, _, argument = operation.partition(":")
+        try:
+            if name == "set":
+                variable, value = argument.split("=")
+                set_(variable, float(value))
+            else:
+                operations[name]()
+            answers.append("ok")
+        except FMICallException:
+            answers.append("error")
+    print(json.dumps({"case": case, "answers": answers}), flush=True)
 '''
 
 #: Case -> the calls (``set:<variable>=<value>`` sets a Float64/Real variable).
@@ -106,16 +108,23 @@ def twins(tmp_path_factory):
     return {version: build.build_fmu("SlowPlant", folder / f"fmi{version}", fmi_version=version) for version in (2, 3)}
 
 
-def answers(fmu, calls) -> list[str]:
-    done = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps({"fmu": str(fmu), "calls": calls})],
-                          capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, f"{fmu.parent.name}: exit code {done.returncode}\n{done.stdout}\n{done.stderr[-3000:]}"
-    return json.loads(done.stdout.strip().splitlines()[-1])
+@pytest.fixture(scope="module")
+def answers(twins) -> dict[int, subprocess.CompletedProcess]:
+    """Per FMI version, the process that ran every case (its answers: one JSON line a case)."""
+    return {version: subprocess.run([sys.executable, "-c", SCRIPT, json.dumps({"fmu": str(fmu), "cases": CASES})],
+                                    capture_output=True, text=True, timeout=300) for version, fmu in twins.items()}
+
+
+def _answers(done: subprocess.CompletedProcess, case: str) -> list[str]:
+    """The case's answers; a process that crashed (at a case or at exit) fails every case, saying where."""
+    assert done.returncode == 0, f"exit code {done.returncode}\n{done.stdout}\n{done.stderr[-3000:]}"
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith('{"case": ')]  # not the FMU's log
+    return next(line["answers"] for line in lines if line["case"] == case)
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
-def test_fmi3_survives_misuse_as_its_fmi2_twin(case, twins):
-    fmi2, fmi3 = answers(twins[2], CASES[case]), answers(twins[3], CASES[case])
+def test_fmi3_survives_misuse_as_its_fmi2_twin(case, answers):
+    fmi2, fmi3 = _answers(answers[2], case), _answers(answers[3], case)
     assert fmi3 == fmi2
     if case in ("free-twice", "calls-on-a-freed-instance"):  # the loader's guard: nothing reaches a freed instance
         assert fmi2[CASES[case].index("free") + 1:] == ["ok" if c == "free" else "error"
