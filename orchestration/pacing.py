@@ -176,11 +176,15 @@ class RealTimePacer:
         instead of following in a burst to catch up (counted as resyncs, and the time given up is summed).
         Default: never (the schedule is kept). For a process that plays hardware, whose clock cannot run
         faster than real time to make up for a stall.
+    min_sleep_s : float
+        The least this thread sleeps before each release [s], even when it is late (0: none). For a thread at a
+        real-time priority: one that is late runs its steps back to back and, without it, holds its CPU for as long
+        as it stays late, while the kernel work queued there (a pty's, for the process on the other end) waits.
     """
 
     def __init__(self, step_size: float, *, speed: float = 1.0, spin_s: float = 1e-4,
                  clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep,
-                 resync_after_s: float | None = None) -> None:
+                 resync_after_s: float | None = None, min_sleep_s: float = 0.0) -> None:
         self.period = require_positive("step_size", step_size) / require_positive("speed", speed)
         if not 0.0 <= spin_s < 1.0:
             raise InvalidParameterError("spin_s", spin_s, "in [0, 1) s")
@@ -190,6 +194,9 @@ class RealTimePacer:
         if resync_after_s is not None and not resync_after_s > 0:
             raise InvalidParameterError("resync_after_s", resync_after_s, "> 0 s, or None")
         self.resync_after_s = resync_after_s
+        if not 0.0 <= min_sleep_s < self.period:
+            raise InvalidParameterError("min_sleep_s", min_sleep_s, f"in [0, {self.period:g}) s (the step's period)")
+        self.min_sleep_s = float(min_sleep_s)
         self.resyncs = 0
         self.time_given_up = 0.0
         self._started_at = 0.0
@@ -209,8 +216,10 @@ class RealTimePacer:
         """Block until step ``k``'s release time; return (and record) its lateness [s] (>= 0)."""
         deadline = self.release_time(k)
         remaining = deadline - self.clock()
-        if remaining > self.spin_s:
+        if remaining - self.spin_s > self.min_sleep_s:
             self.sleep(remaining - self.spin_s)
+        elif self.min_sleep_s:
+            self.sleep(self.min_sleep_s)
         now = self.clock()
         while now < deadline:
             now = self.clock()

@@ -150,6 +150,21 @@ def test_pacer_releases_on_the_grid_and_counts_overruns():
     assert clock.now == pytest.approx(100.04)
 
 
+def test_a_pacer_with_a_least_sleep_sleeps_it_when_late_too():
+    """min_sleep_s: on time, the wait until the release; late (the step before overran), the least sleep anyway."""
+    clock = FakeClock()
+    slept = []
+    pacer = RealTimePacer(0.01, spin_s=0.0, clock=clock, sleep=lambda s: (slept.append(s), clock.sleep(s)),
+                          min_sleep_s=1e-4)
+    pacer.start()
+    for k, duration in enumerate([0.002, 0.015, 0.001]):  # the second step ends 5 ms after the third's release
+        pacer.wait(k)
+        clock.now += duration
+        pacer.done(k)
+    assert slept == [1e-4, pytest.approx(0.0079), 1e-4]  # step 0's release is now: the least sleep too
+    assert pacer.report()["jitter_max_s"] == pytest.approx(0.0051)  # the 5 ms overrun and the least sleep
+
+
 def test_pacer_keeps_nothing_per_step():
     """A paced loop of hours keeps bounded statistics: its memory does not grow with the steps."""
     import tracemalloc
@@ -189,7 +204,8 @@ def test_pacer_on_the_real_clock():
     assert pacer.report()["jitter_p95_s"] < 0.005
 
 
-@pytest.mark.parametrize("kwargs", [{"step_size": 0}, {"step_size": 0.1, "speed": -1}, {"step_size": 0.1, "spin_s": 2}])
+@pytest.mark.parametrize("kwargs", [{"step_size": 0}, {"step_size": 0.1, "speed": -1}, {"step_size": 0.1, "spin_s": 2},
+                                    {"step_size": 0.1, "min_sleep_s": 0.1}, {"step_size": 0.1, "min_sleep_s": -1e-4}])
 def test_pacer_rejects_bad_arguments(kwargs):
     with pytest.raises(InvalidParameterError):
         RealTimePacer(**kwargs)

@@ -46,6 +46,10 @@ logger = logging.getLogger(__name__)
 RECORD_HEADER = "timestamp_us,height_m,drive_frequency_hz,applied_voltage_v,true_height_m"
 #: A tick later than this [s] restarts the rig's schedule from now (RealTimePacer's resync_after_s).
 RESYNC_AFTER_S = 0.002
+#: The least the paced ticks sleep between them [s], late or not: the emulator runs at a real-time priority, and a late
+#: one ran its ticks back to back (for 22-105 ms in issue 23's traced runs), while the kernel work that delivers its
+#: frames to the host, queued on the same CPU, waited (docs/hil.md, "Limits").
+MIN_SLEEP_S = 1e-4
 #: In lockstep, wall time the rig waits for the host's next DRIVE before ticking on its own clock again [s].
 LOCKSTEP_WAIT_S = 5.0
 #: In lockstep, the longest the rig waits without looking whether it was asked to stop [s].
@@ -260,9 +264,10 @@ class Emulator:
     def run(self, duration_s: float | None = None) -> EmulatorReport:
         """Tick in real time until ``duration_s`` of wall time (None: until :meth:`stop`)."""
         period = self.timing.sample_period_s
-        # sleep only (no busy wait): the rig needs no microsecond release, and the host beside it needs the CPU;
-        # after a stall the rig's clock goes on from now (a burst of ticks would run its physics too fast)
-        pacer = RealTimePacer(period, spin_s=0.0, resync_after_s=RESYNC_AFTER_S)
+        # sleep only (no busy wait), and at least MIN_SLEEP_S a tick: the rig needs no microsecond release, and the
+        # host beside it needs the CPU; after a stall the rig's clock goes on from now (a burst of ticks would run its
+        # physics too fast)
+        pacer = RealTimePacer(period, spin_s=0.0, resync_after_s=RESYNC_AFTER_S, min_sleep_s=MIN_SLEEP_S)
         ticks = None if duration_s is None else max(1, round(duration_s / period))
         k = 0
         with realtime_section() as collector:  # the collector runs between ticks only (nfal.realtime)
