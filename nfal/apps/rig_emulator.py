@@ -48,7 +48,7 @@ RECORD_HEADER = "timestamp_us,height_m,drive_frequency_hz,applied_voltage_v,true
 RESYNC_AFTER_S = 0.002
 #: The least the paced ticks sleep between them [s], late or not: the emulator runs at a real-time priority, and a late
 #: one ran its ticks back to back (for 22-105 ms in issue 23's traced runs), while the kernel work that delivers its
-#: frames to the host, queued on the same CPU, waited (docs/hil.md, "Limits").
+#: frames to the host, queued on the same CPU, waited (docs/hil.md, "The emulator made to yield").
 MIN_SLEEP_S = 1e-4
 #: In lockstep, wall time the rig waits for the host's next DRIVE before ticking on its own clock again [s].
 LOCKSTEP_WAIT_S = 5.0
