@@ -215,11 +215,9 @@ class RealTimePacer:
     def wait(self, k: int) -> float:
         """Block until step ``k``'s release time; return (and record) its lateness [s] (>= 0)."""
         deadline = self.release_time(k)
-        remaining = deadline - self.clock()
-        if remaining - self.spin_s > self.min_sleep_s:
-            self.sleep(remaining - self.spin_s)
-        elif self.min_sleep_s:
-            self.sleep(self.min_sleep_s)
+        pause = max(deadline - self.clock() - self.spin_s, self.min_sleep_s)
+        if pause > 0:
+            self.sleep(pause)
         now = self.clock()
         while now < deadline:
             now = self.clock()
