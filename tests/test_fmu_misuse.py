@@ -118,8 +118,10 @@ def answers(twins) -> dict[int, subprocess.CompletedProcess]:
 def _answers(done: subprocess.CompletedProcess, case: str) -> list[str]:
     """The case's answers; a process that crashed (at a case or at exit) fails every case, saying where."""
     assert done.returncode == 0, f"exit code {done.returncode}\n{done.stdout}\n{done.stderr[-3000:]}"
-    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith('{"case": ')]  # not the FMU's log
-    return next(line["answers"] for line in lines if line["case"] == case)
+    answered = {line["case"]: line["answers"] for line in map(json.loads, (
+        text for text in done.stdout.splitlines() if text.startswith('{"case": ')))}  # not the FMU's log
+    assert case in answered, f"no answers for {case}\n{done.stdout}\n{done.stderr[-3000:]}"
+    return answered[case]
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
