@@ -37,6 +37,9 @@ from .table2 import NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
 
 #: Least number of samples filtered and discarded so that the stream starts in the filter's steady state.
 BURN_IN = 200
+#: The lowest cut-off, as a fraction of the sample rate: the burn-in grows as 1 / cut-off (62 192 samples at this
+#: bound; a 1e-6 Hz cut-off at 2 kHz would need 371 GiB for its impulse response).
+MIN_CUTOFF_RATIO = 1e-4
 #: White numbers drawn and filtered at a time (part of the definition of the sequence: do not change).
 BLOCK = 256
 #: The noise's peak is this many standard deviations (the clip level).
@@ -48,6 +51,10 @@ def _check_settings(sample_rate_hz, cutoff_hz, peak_m) -> tuple[float, float, fl
     cutoff = require_positive("cutoff_hz", cutoff_hz)
     if cutoff >= rate / 2:
         raise InvalidParameterError("cutoff_hz", cutoff_hz, f"below the Nyquist frequency {rate / 2:g} Hz")
+    if cutoff < rate * MIN_CUTOFF_RATIO:
+        raise InvalidParameterError("cutoff_hz", cutoff_hz, f"at least {rate * MIN_CUTOFF_RATIO:g} Hz (the sample rate "
+                                    f"x {MIN_CUTOFF_RATIO:g}: a slower filter's start-up transient, filtered away at "
+                                    f"set-up, grows as 1 / cut-off)")
     peak = require_amplitude("peak_m", peak_m)
     return rate, cutoff, require_plausible("peak_m", peak, MAX_CLEARANCE_M, "m")
 

@@ -12,7 +12,8 @@ from nfal.models.closed_loop import ClosedLoopRun, simulate_closed_loop
 from nfal.models.reference import Staircase
 from nfal.models.control_law import DiscreteControlLaw
 from nfal.models.fixed_step_plant import FixedStepPlant
-from nfal.models.measurement_noise import ColouredNoise, biquad_filter, butterworth_biquad, coloured_noise
+from nfal.models.measurement_noise import (MIN_CUTOFF_RATIO, ColouredNoise, biquad_filter, butterworth_biquad,
+                                           coloured_noise)
 from nfal.models.pid_design import design_schedule, fixed_design
 from nfal.models.plant import PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
@@ -99,6 +100,15 @@ def test_noise_is_coloured_at_300hz():
         band = (f >= low) & (f < low + 100)
         assert np.mean(p[band]) == pytest.approx(np.mean(designed[band]), rel=0.06), low
     assert abs(response[np.argmin(np.abs(f - 300.0))]) ** 2 == pytest.approx(0.5, rel=0.02)
+
+
+def test_the_slowest_noise_filter_allowed_starts_in_its_steady_state():
+    """At the lowest cut-off (the sample rate x MIN_CUTOFF_RATIO) the burn-in still brings the transient below 1e-12."""
+    noise = ColouredNoise(cutoff_hz=2000.0 * MIN_CUTOFF_RATIO)
+    pole_radius = float(np.max(np.abs(np.roots([1.0, *noise._sos[0, 4:]]))))
+    assert pole_radius ** noise.burn_in <= 1e-12 and noise.burn_in == 62_192
+    with pytest.raises(InvalidParameterError, match="at least 0.2 Hz"):
+        ColouredNoise(cutoff_hz=0.999 * 2000.0 * MIN_CUTOFF_RATIO)
 
 
 def test_noise_of_zero_peak_is_zero():

@@ -120,6 +120,7 @@ def test_sensor_slave_is_the_closed_loop_measurement():
     (ResonanceTracker, {"quality_factor": 0.3}), (ResonanceTracker, {"pll_bandwidth": 500.0}),
     (ResonanceTracker, {"lock_threshold": 2.0}), (ResonanceTracker, {"lock_samples": 0}),
     (ResonanceTracker, {"pll_rate": -1.0}), (SensorChain, {"seed": -1}), (SensorChain, {"noise_cutoff": 1500.0}),
+    (SensorChain, {"noise_cutoff": 1e-6}),
     (SensorChain, {"analog_cutoff": -5.0}), (SensorChain, {"resolution": -1e-6})])
 def test_bad_parameters_fail_at_the_end_of_initialisation(cls, parameters):
     driver = Driver(cls, **parameters)

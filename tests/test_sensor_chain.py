@@ -96,7 +96,8 @@ def test_state_save_and_restore_repeats_the_run():
 
 
 @pytest.mark.parametrize("kwargs", [{"analog_cutoff_hz": -1.0}, {"resolution_m": float("nan")}, {"sample_rate_hz": 0.0},
-                                    {"noise_cutoff_hz": 1500.0}, {"seed": -2}, {"noise_peak_m": -1e-6}])
+                                    {"noise_cutoff_hz": 1500.0}, {"noise_cutoff_hz": 0.19}, {"seed": -2},
+                                    {"noise_peak_m": -1e-6}])
 def test_bad_settings_raise(kwargs):
     with pytest.raises(InvalidParameterError):
         SensorChain(**kwargs)
