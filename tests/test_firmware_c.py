@@ -24,7 +24,7 @@ from nfal.hil.link import RigLink
 from nfal.hil.plant_channel import (ExternalFirmware, FirmwareProcess, build, require_tools)
 from nfal.hil.protocol import PROTOCOL_VERSION, Drive, FrameEncoder, Hello, HelloAck, StatusFlags
 
-pytestmark = pytest.mark.realtime  # on the wall clock: runs alone when the suite runs on both cores (conftest.py)
+pytestmark = pytest.mark.realtime  # on the wall clock: one at a time, on one worker (conftest.py)
 
 READING = RigReading(1e-4, 28_500.0, True, False)
 #: The serial tests' rig: 1 ms ticks, a watchdog of 500 ticks (a reconnecting host has 0.5 s of rig time), a ramp

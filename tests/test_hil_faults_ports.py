@@ -14,7 +14,7 @@ from nfal.hil.faults import FaultInjector, FaultSettings
 from nfal.hil.ports import PtyPort, UrlPort
 from nfal.hil.protocol import RIG_TO_HOST, FrameDecoder, FrameEncoder, Measurement, Received
 
-pytestmark = pytest.mark.realtime  # on the wall clock: runs alone when the suite runs on both cores (conftest.py)
+pytestmark = pytest.mark.realtime  # on the wall clock: one at a time, on one worker (conftest.py)
 
 
 def measurements(n: int) -> tuple[list[Measurement], list[bytes]]:

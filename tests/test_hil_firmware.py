@@ -25,7 +25,7 @@ from nfal.hil.protocol import (PROTOCOL_VERSION, RIG_TO_HOST, Drive, Fault, Faul
                                Hello, HelloAck, HostHeartbeat, Measurement, Message, RigHeartbeat, StatusFlags, Stop,
                                encode)
 
-pytestmark = pytest.mark.realtime  # the QEMU firmware's serial line (a frame garbled under load): runs alone
+pytestmark = pytest.mark.realtime  # the QEMU firmware's serial line: one at a time, on one worker (conftest.py)
 
 #: Short, round timing: watchdog 5 ticks, ramp 4 ticks, heartbeat every 10 ticks (1 ms ticks).
 FAST = RigTiming(sample_period_s=1e-3, watchdog_timeout_s=5e-3, ramp_down_s=4e-3, max_drive_voltage=150.0,

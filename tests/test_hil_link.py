@@ -26,7 +26,7 @@ from nfal.hil.ports import PtyPort
 from nfal.hil.protocol import (HOST_TO_RIG, PROTOCOL_VERSION, DecoderCounters, FaultCode, FrameDecoder, Hello, HelloAck,
                                Measurement, StatusFlags)
 
-pytestmark = pytest.mark.realtime  # on the wall clock: runs alone when the suite runs on both cores (conftest.py)
+pytestmark = pytest.mark.realtime  # on the wall clock: one at a time, on one worker (conftest.py)
 
 #: 1 kHz rig; a long watchdog so that a busy machine never trips it in a test that drives.
 TIMING = RigTiming(sample_period_s=1e-3, watchdog_timeout_s=0.5, ramp_down_s=0.05, max_drive_voltage=150.0,

@@ -153,9 +153,10 @@ def test_a_lockstep_proxy_without_an_answer_stops_saying_what_lockstep_needs(rig
     from nfal.fmus.hardware_proxy import HardwareProxy
 
     slave = HardwareProxy(instance_name="proxy")
-    slave.port, slave.lockstep, slave.connect_timeout = str(rig[0].port.path), True, 0.3
+    slave.port, slave.lockstep = str(rig[0].port.path), True
     slave.setup_experiment(0.0)
-    slave.exit_initialization_mode()
+    slave.exit_initialization_mode()  # the session opened within the default 2 s (a busy machine's rig thread is slow)
+    slave.connect_timeout = 0.3
     rig[0].stop()  # the rig's clock stops: no answer comes, as when a frame is lost on the wire
     time.sleep(0.05)
     with pytest.raises(LinkError, match="did not report the DRIVE of t = 0 s applied within connect_timeout = 0.3 s"

@@ -16,7 +16,7 @@ from nfal.apps.sample_recorder import SampleRecorder
 from nfal.realtime import (BINS_PER_DECADE, YOUNG_THRESHOLD, BackgroundWriter, GapStats, LatencyStats,
                            realtime_section)
 
-pytestmark = pytest.mark.realtime  # on the wall clock: runs alone when the suite runs on both cores (conftest.py)
+pytestmark = pytest.mark.realtime  # on the wall clock: one at a time, on one worker (conftest.py)
 
 #: A percentile from the histogram is within half a bin of the exact one (plus the spacing of the sample).
 BIN_TOLERANCE = 10 ** (1 / BINS_PER_DECADE) - 1

@@ -11,7 +11,7 @@ from nfal.errors import InvalidParameterError, RealtimePriorityError
 from nfal.orchestration import run_structure
 from nfal.orchestration.pacing import realtime_priority, realtime_priority_refusal
 
-pytestmark = pytest.mark.realtime  # on the wall clock: runs alone when the suite runs on both cores (conftest.py)
+pytestmark = pytest.mark.realtime  # on the wall clock: one at a time, on one worker (conftest.py)
 
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="SCHED_FIFO is Linux's")
 

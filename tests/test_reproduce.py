@@ -11,6 +11,9 @@ from nfal.models.paper_numbers import paper_numbers, paper_value
 from nfal.models.table1 import TABLE1
 from nfal.apps.reproduce import KNOWN_DIFFERENCES, SECTIONS, _compare, reproduce
 
+#: One worker builds the report for all of them (a minute): with --dist loadgroup a test is handed out alone otherwise.
+pytestmark = pytest.mark.xdist_group("reproduce")
+
 
 def test_every_paper_number_says_where_it_is_from_and_what_it_is():
     numbers = paper_numbers()
