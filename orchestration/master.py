@@ -95,6 +95,24 @@ _FMI2_CALLS = {"Real": ("Real", fmi2Real), "Integer": ("Integer", fmi2Integer), 
                "Boolean": ("Boolean", fmi2Boolean)}
 
 
+
+#: The highest status an FMI call may return and still have succeeded (fmi2Warning, fmi3Warning).
+_WARNING = 1
+
+
+def _direct(slave: "_Slave", name: str) -> Callable:
+    """The FMI function ``name`` of ``slave``'s library as ctypes calls it, typed by fmpy, for the calls of every
+    step: fmpy's wrapper around it (call logging, the status check) took 5 % of a fig7 loop. :func:`_checked` checks
+    the status as the wrapper does."""
+    return getattr(slave.fmu.dll, name)
+
+
+def _checked(name: str, status: int) -> None:
+    """fmpy's check of a call's status: an error (or discard, or fatal) raised as fmpy raises it."""
+    if status > _WARNING:
+        raise FMICallException(function=name, status=status)
+
+
 def _route_log(environment, instance, status, category, message) -> None:
     """The one logger callback of every instance: fmpy's native proxy (which formats the variadic
     message) keeps a single, process-wide Python logger, so messages are routed here by the
@@ -161,6 +179,7 @@ class _Slave:
         except Exception as exc:
             raise FmuCallError(self.name, "fmi2Instantiate", 3, float("nan"), [*self.messages, str(exc)]) from None
         self.component = self.fmu.component
+        self._do_step = _direct(self, f"fmi{self.fmi}DoStep")
         self.state = "instantiated"
 
     def calls(self, type_: str) -> tuple[str, type]:
@@ -182,7 +201,7 @@ class _Slave:
         self.fmu.enterInitializationMode()
 
     def do_step(self, t: float, dt: float) -> None:
-        self.fmu.fmi2DoStep(self.component, t, dt, fmi2True)
+        _checked("fmi2DoStep", self._do_step(self.component, t, dt, fmi2True))
 
 
 class _Slave3(_Slave):
@@ -219,6 +238,7 @@ class _Slave3(_Slave):
             raise FmuCallError(self.name, "fmi3InstantiateCoSimulation", 3, float("nan"),
                                [*self.messages, str(exc)]) from None
         self.component = self.fmu.component
+        self._do_step = _direct(self, f"fmi{self.fmi}DoStep")
         self.state = "instantiated"
 
     def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
@@ -230,7 +250,7 @@ class _Slave3(_Slave):
 
     def do_step(self, t: float, dt: float) -> float | None:
         """One fmi3DoStep; None, or the last successful time when the FMU asks to terminate the simulation."""
-        self.fmu.fmi3DoStep(self.component, t, dt, fmi3True, *self._step_flags)
+        _checked("fmi3DoStep", self._do_step(self.component, t, dt, fmi3True, *self._step_flags))
         return self._last.value if self._terminate.value else None
 
 
@@ -261,8 +281,8 @@ def _slave(element: Element, unzip_dir: str, fmu_logging: str) -> _Slave:
 class _Transfer:
     """One fmi2Set<Type> or fmi2Get<Type> call: value references, a value buffer and row columns."""
 
-    __slots__ = ("slave", "kind", "type", "names", "vr", "n", "buffer", "function", "component", "pairs", "scaled",
-                 "run", "count", "boolean")
+    __slots__ = ("slave", "kind", "type", "names", "vr", "n", "buffer", "name", "function", "component", "pairs",
+                 "scaled", "run", "count", "boolean")
 
     def __init__(self, slave: _Slave, kind: str, type_: str, names: tuple[str, ...], columns: tuple[int, ...],
                  immediate: bool, transformations: tuple[LinearTransformation | None, ...] = ()) -> None:
@@ -273,7 +293,8 @@ class _Transfer:
         reference = fmi3ValueReference if slave.fmi == 3 else fmi2ValueReference
         self.vr = (reference * self.n)(*(variables[n].valueReference for n in names))
         self.buffer = (value_type * self.n)()
-        self.function = getattr(slave.fmu, f"fmi{slave.fmi}{kind.capitalize()}{suffix}")
+        self.name = f"fmi{slave.fmi}{kind.capitalize()}{suffix}"
+        self.function = _direct(slave, self.name)
         self.count = (self.n,) if slave.fmi == 3 else ()  # FMI 3.0's nValues
         self.boolean = slave.fmi == 3 and value_type is ctypes.c_bool  # read as 0/1, as FMI 2.0's fmi2Boolean
         transformations = transformations or (None,) * self.n
@@ -290,7 +311,7 @@ class _Transfer:
 
     def get(self, row: list) -> None:
         buffer = self.buffer
-        self.function(self.component, self.vr, self.n, buffer, *self.count)
+        _checked(self.name, self.function(self.component, self.vr, self.n, buffer, *self.count))
         if self.boolean:
             for j, column in self.pairs:
                 row[column] = int(buffer[j])
@@ -306,11 +327,11 @@ class _Transfer:
             buffer[j] = factor * row[column] + offset
 
     def push(self, row: list | None = None) -> None:
-        self.function(self.component, self.vr, self.n, self.buffer, *self.count)
+        _checked(self.name, self.function(self.component, self.vr, self.n, self.buffer, *self.count))
 
     def load_and_push(self, row: list) -> None:
         self.load(row)
-        self.function(self.component, self.vr, self.n, self.buffer, *self.count)
+        self.push()
 
 
 _FMI2_LAST_SUCCESSFUL_TIME, _FMI2_TERMINATED = 2, 3  # fmi2StatusKind
