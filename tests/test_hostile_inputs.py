@@ -42,7 +42,7 @@ IN_PROCESS = {
                        "design-calibration-damping-um", "design-calibration-version-true",
                        "design-calibration-factor-true", "design-calibration-rig-khz",
                        "design-calibration-entry-misspelt", "design-frequency-khz", "compare-noise-um",
-                       # refused as the FMUs are set up, or a short run: nfal run in this process
+                       # refused as the FMUs are set up, or a short run (SETS_UP_FMUS)
                        "run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
                        "run-param-seed-2pow32", "ssv-misspelt-parameter", "ssd-stop-time-honoured",
                        "ssd-source-absolute-in-archive", "run-generator-levels-mm", "run-generator-table-outside",
@@ -53,6 +53,11 @@ IN_PROCESS = {
                             "run-param-mass-negative-cause-first"],
     "valid refused": ["design-calibration-identified"],
 }
+#: The in-process cases that load the FMUs and set them up (0.5-2 s each): slow, as the suite's other nfal runs.
+SETS_UP_FMUS = {"run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
+                "ssd-stop-time-honoured", "run-generator-levels-mm", "run-generator-table-outside",
+                "run-param-calibration-damping-um", "run-param-calibration-short",
+                "run-param-mass-negative-cause-first"}
 
 #: Cases that start processes or threads, write under a limit, may hang, or may crash (an FMU's library, a foreign
 #: file's parser, a signal): each in its own process.
@@ -73,7 +78,8 @@ OWN_PROCESS = {
 
 
 def _ids(groups: dict[str, list[str]]) -> list:
-    return [pytest.param(case_id, id=f"{kind}: {case_id}") for kind, ids in groups.items() for case_id in ids]
+    return [pytest.param(case_id, id=f"{kind}: {case_id}", marks=[pytest.mark.slow] if case_id in SETS_UP_FMUS else [])
+            for kind, ids in groups.items() for case_id in ids]
 
 
 @pytest.fixture(scope="module")
