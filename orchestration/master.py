@@ -60,7 +60,7 @@ from fmpy import calloc, extract, free
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2Integer, fmi2Real, fmi2True,
-                       fmi2ValueReference)
+                       fmi2ValueReference, fmi2Warning)
 from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3True, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 
@@ -95,11 +95,6 @@ _FMI2_CALLS = {"Real": ("Real", fmi2Real), "Integer": ("Integer", fmi2Integer), 
                "Boolean": ("Boolean", fmi2Boolean)}
 
 
-
-#: The highest status an FMI call may return and still have succeeded (fmi2Warning, fmi3Warning).
-_WARNING = 1
-
-
 def _direct(slave: "_Slave", name: str) -> Callable:
     """The FMI function ``name`` of ``slave``'s library as ctypes calls it, typed by fmpy, for the calls of every
     step: fmpy's wrapper around it (call logging, the status check) took 5 % of a fig7 loop. :func:`_checked` checks
@@ -108,8 +103,9 @@ def _direct(slave: "_Slave", name: str) -> Callable:
 
 
 def _checked(name: str, status: int) -> None:
-    """fmpy's check of a call's status: an error (or discard, or fatal) raised as fmpy raises it."""
-    if status > _WARNING:
+    """fmpy's check of a call's status: an error (or discard, or fatal) raised as fmpy raises it (fmi3Warning is
+    fmi2Warning's 1 too)."""
+    if status > fmi2Warning:
         raise FMICallException(function=name, status=status)
 
 
@@ -178,8 +174,11 @@ class _Slave:
             self.fmu.instantiate(callbacks=self.callbacks, loggingOn=self.fmu_logging != "off")
         except Exception as exc:
             raise FmuCallError(self.name, "fmi2Instantiate", 3, float("nan"), [*self.messages, str(exc)]) from None
+        self._instantiated()
+
+    def _instantiated(self) -> None:
         self.component = self.fmu.component
-        self._do_step = _direct(self, f"fmi{self.fmi}DoStep")
+        self._do_step = _direct(self, f"fmi{self.fmi}DoStep")  # called every step: straight to the library
         self.state = "instantiated"
 
     def calls(self, type_: str) -> tuple[str, type]:
@@ -237,9 +236,7 @@ class _Slave3(_Slave):
         except Exception as exc:
             raise FmuCallError(self.name, "fmi3InstantiateCoSimulation", 3, float("nan"),
                                [*self.messages, str(exc)]) from None
-        self.component = self.fmu.component
-        self._do_step = _direct(self, f"fmi{self.fmi}DoStep")
-        self.state = "instantiated"
+        self._instantiated()
 
     def setup_experiment(self, start_time: float, stop_time: float | None) -> None:
         self._experiment = (start_time, stop_time)  # FMI 3.0 has no setupExperiment: they go with the next call
