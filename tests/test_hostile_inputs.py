@@ -42,22 +42,22 @@ IN_PROCESS = {
                        "design-calibration-damping-um", "design-calibration-version-true",
                        "design-calibration-factor-true", "design-calibration-rig-khz",
                        "design-calibration-entry-misspelt", "design-frequency-khz", "compare-noise-um",
-                       # refused as the FMUs are set up, or a short run (SETS_UP_FMUS)
-                       "run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
-                       "run-param-seed-2pow32", "ssv-misspelt-parameter", "ssd-stop-time-honoured",
-                       "ssd-source-absolute-in-archive", "run-generator-levels-mm", "run-generator-table-outside",
-                       "run-param-calibration-damping-um"],
+                       # nfal run, refused as its archive or parameters are read
+                       "run-param-seed-2pow32", "ssv-misspelt-parameter", "ssd-source-absolute-in-archive"],
     "data lost": ["sweep-name-escapes", "calibrate-out-existing-file"],
     "misleading messages": ["ssp-not-zip", "run-max-steps-0", "rig-emulator-c-firmware-with-faults",
-                            "design-calibration-short-identification", "run-param-calibration-short",
-                            "run-param-mass-negative-cause-first"],
+                            "design-calibration-short-identification"],
     "valid refused": ["design-calibration-identified"],
 }
-#: The in-process cases that load the FMUs and set them up (0.5-2 s each): slow, as the suite's other nfal runs.
-SETS_UP_FMUS = {"run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
-                "ssd-stop-time-honoured", "run-generator-levels-mm", "run-generator-table-outside",
-                "run-param-calibration-damping-um", "run-param-calibration-short",
-                "run-param-mass-negative-cause-first"}
+
+#: nfal run in this process too, refused as the FMUs are set up (or a 20-row run): 0.5-2 s each, so slow, as the
+#: suite's other nfal runs.
+IN_PROCESS_WITH_FMUS = {
+    "silently wrong": ["run-param-calibration-k-zero", "run-param-max-excitation-1m", "run-param-mass-grams",
+                       "ssd-stop-time-honoured", "run-generator-levels-mm", "run-generator-table-outside",
+                       "run-param-calibration-damping-um"],
+    "misleading messages": ["run-param-calibration-short", "run-param-mass-negative-cause-first"],
+}
 
 #: Cases that start processes or threads, write under a limit, may hang, or may crash (an FMU's library, a foreign
 #: file's parser, a signal): each in its own process.
@@ -77,9 +77,9 @@ OWN_PROCESS = {
 }
 
 
-def _ids(groups: dict[str, list[str]]) -> list:
-    return [pytest.param(case_id, id=f"{kind}: {case_id}", marks=[pytest.mark.slow] if case_id in SETS_UP_FMUS else [])
-            for kind, ids in groups.items() for case_id in ids]
+def _ids(groups: dict[str, list[str]], *marks) -> list:
+    return [pytest.param(case_id, id=f"{kind}: {case_id}", marks=marks) for kind, ids in groups.items()
+            for case_id in ids]
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +96,7 @@ def _skip_if_meaningless(case_id: str) -> None:
         pytest.skip("a read-only folder does not stop root")
 
 
-@pytest.mark.parametrize("case_id", _ids(IN_PROCESS))
+@pytest.mark.parametrize("case_id", _ids(IN_PROCESS) + _ids(IN_PROCESS_WITH_FMUS, pytest.mark.slow))
 def test_hostile_input_in_process(case_id, build, tmp_path):
     _skip_if_meaningless(case_id)
     outcome = run_case_in_process(CASES[case_id], tmp_path, build)
@@ -112,7 +112,8 @@ def test_hostile_input_in_its_own_process(case_id, build, tmp_path):
 
 
 def test_every_listed_case_exists_and_each_class_has_one():
-    listed = [case_id for groups in (IN_PROCESS, OWN_PROCESS) for ids in groups.values() for case_id in ids]
+    listed = [case_id for groups in (IN_PROCESS, IN_PROCESS_WITH_FMUS, OWN_PROCESS) for ids in groups.values()
+              for case_id in ids]
     assert not [case_id for case_id in listed if case_id not in CASES]
     assert {"data lost", "silently wrong", "crashes and hangs", "tracebacks"} <= set(IN_PROCESS) | set(OWN_PROCESS)
 
