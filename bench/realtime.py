@@ -4,6 +4,7 @@
     python bench/realtime.py hil --duration 600 [--neighbour] [--host-rt-priority 50] [--compiled]
     python bench/realtime.py hil --duration 120 --lockstep   # the host's memory over 240 000 steps, unpaced
     python bench/realtime.py tests --runs 20            # the suite's real-time tests; the neighbour in every other run
+    python bench/realtime.py suite --runs 2             # the whole suite, its real-time tests beside the rest
 
 The rig emulator stands for the rig, a separate machine: it runs under SCHED_FIFO (priority 50) where the system
 allows it, with its default 100 ms watchdog. The host (``nfal identify``, ``nfal run fig7_hil``) runs at normal
@@ -11,7 +12,9 @@ priority, unless ``--host-rt-priority N`` (hil) gives it SCHED_FIFO too (with ``
 the compiled loop's thread, docs/hil.md "The compiled loop"). ``--neighbour`` starts a CPU-bound process
 at normal priority beside them (``python -c "while True: pass"``). Each command prints one JSON line per run and
 writes the whole result, with the machine and the command, to
-``bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json``.
+``bench/results/realtime-<kind>[-compiled][-lockstep][-fifo][-neighbour].json``. ``tests`` and ``suite`` also
+record each run's wall time and the CPU time of its whole process tree (user + system, every pytest worker and what
+the tests start).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import contextlib
 import itertools
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -182,19 +186,30 @@ def run_hil(args, folder: Path) -> list[dict]:
     return [row]
 
 
+#: What each kind of test run selects.
+SELECTIONS = {"tests": ["-m", "realtime"], "suite": []}
+
+
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def run_tests(args, folder: Path) -> list[dict]:
     rows = []
     for run in range(args.runs):
         busy = run % 2 == 1
         with neighbour(busy):
-            started = time.perf_counter()
+            started, cpu = time.perf_counter(), _children_cpu_s()
             # CI=true: pytest's summary line keeps a failure's message whole (cut to the terminal's width otherwise,
             # which left no room for it); each failure's "E" lines are kept too
-            done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "realtime", "-p", "no:cacheprovider"],
+            done = subprocess.run([sys.executable, "-m", "pytest", "-q", *SELECTIONS[args.kind], "-p",
+                                   "no:cacheprovider"],
                                   cwd=HERE.parent, capture_output=True, text=True, env={**os.environ, "CI": "true"})
+            wall, cpu = time.perf_counter() - started, _children_cpu_s() - cpu  # the neighbour is not reaped yet
         last = done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr[-300:]
-        row = {"run": run, "neighbour": busy, "exit": done.returncode, "summary": last,
-               "wall_s": round(time.perf_counter() - started, 1),
+        row = {"run": run, "neighbour": busy, "exit": done.returncode, "summary": last, "wall_s": round(wall, 1),
+               "cpu_s": round(cpu, 1),
                "failed": [line[:600] for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))],
                "errors": [line[:300] for line in done.stdout.splitlines() if line.startswith("E ")][:40]}
         print(json.dumps(row), flush=True)
@@ -208,7 +223,7 @@ def result_path(args) -> Path:
     name = (f"realtime-{args.kind}" + ("-compiled" if args.kind == "hil" and args.compiled else "")
             + ("-lockstep" if args.kind == "hil" and args.lockstep else "")
             + ("-fifo" if args.kind == "hil" and args.host_rt_priority is not None else "")
-            + ("-neighbour" if args.neighbour and args.kind != "tests" else ""))
+            + ("-neighbour" if args.neighbour and args.kind not in SELECTIONS else ""))
     return record.RESULTS / f"{name}.json"
 
 
@@ -254,7 +269,8 @@ def title(result: dict) -> str:
                 + ("beside a CPU-bound process" if kind.endswith("-neighbour") else "against the emulator"))
     return {"identify": "Real time: `nfal identify` against the emulator, full length",
             "identify-neighbour": "Real time: `nfal identify` beside a CPU-bound process",
-            "tests": "Real time: the suite's real-time tests in a loop"}[kind]
+            "tests": "Real time: the suite's real-time tests in a loop",
+            "suite": "Real time: the whole suite in a loop, its real-time tests beside the rest"}[kind]
 
 
 def _ms_range(values: list[float]) -> str:
@@ -290,8 +306,10 @@ def tables(result: dict) -> list[record.Table]:
                                                                              "steal_worst_second_percent",
                                                                              "steal_last_second_percent"))]
                               for run in runs])]
-    return [record.Table("", ["run", "CPU-bound process beside", "result", "failed"],
-                         [[run["run"], "yes" if run["neighbour"] else "no", run["summary"],
+    return [record.Table("", ["run", "CPU-bound process beside", "result", "wall [s]", "CPU, the run's processes [s]",
+                              "failed"],
+                         [[run["run"], "yes" if run["neighbour"] else "no", run["summary"], run["wall_s"],
+                           run.get("cpu_s", "-"),
                            "; ".join(line.removeprefix("FAILED ").split(" - ")[0] for line in run["failed"]) or "-"]
                           for run in runs])]
 
@@ -321,7 +339,7 @@ def findings(result: dict) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("kind", choices=("identify", "hil", "tests"))
+    parser.add_argument("kind", choices=("identify", "hil", *SELECTIONS))
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--truths", nargs="+", default=list(TRUTHS), choices=list(TRUTHS))
     parser.add_argument("--duration", type=float, default=600.0, help="hil: seconds of the run (default 600)")
@@ -331,13 +349,14 @@ def main() -> None:
                         "(nfal run --rt-priority N); default: normal priority")
     parser.add_argument("--compiled", action="store_true", help="hil: the compiled loop runs the link and the law "
                         "(nfal run --compiled)")
-    parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests: every other run)")
+    parser.add_argument("--neighbour", action="store_true", help="a CPU-bound process beside (tests, suite: "
+                        "in every other run, whatever this says)")
     args = parser.parse_args()
     folder = HERE.parent / "runs" / time.strftime(f"realtime-{args.kind}-%Y%m%d-%H%M%S")  # runs/ is ignored
     folder.mkdir(parents=True)
     print(describe(), flush=True)
-    runner = {"identify": run_identify, "hil": run_hil, "tests": run_tests}[args.kind]
-    with neighbour(args.neighbour and args.kind != "tests"):
+    runner = {"identify": run_identify, "hil": run_hil, "tests": run_tests, "suite": run_tests}[args.kind]
+    with neighbour(args.neighbour and args.kind not in SELECTIONS):
         rows = runner(args, folder)  # each saves its rows as it goes
     print(f"{sum(1 for r in rows if r.get('exit') == 0)} of {len(rows)} completed; {result_path(args)}", flush=True)
 
