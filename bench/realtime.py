@@ -196,7 +196,18 @@ def _children_cpu_s() -> float:
 
 
 def run_tests(args, folder: Path) -> list[dict]:
+    """The runs; saved when the loop ends or is interrupted, not after each run: the suite checks that
+    docs/benchmarks.md is what bench/results/ gives, and a result file written between two runs would fail the next."""
     rows = []
+    try:
+        _test_runs(args, rows)
+    finally:
+        if rows:
+            save(args, rows)
+    return rows
+
+
+def _test_runs(args, rows: list[dict]) -> None:
     for run in range(args.runs):
         busy = run % 2 == 1
         with neighbour(busy):
@@ -214,8 +225,6 @@ def run_tests(args, folder: Path) -> list[dict]:
                "errors": [line[:300] for line in done.stdout.splitlines() if line.startswith("E ")][:40]}
         print(json.dumps(row), flush=True)
         rows.append(row)
-        save(args, rows)
-    return rows
 
 
 def result_path(args) -> Path:
@@ -229,9 +238,9 @@ def result_path(args) -> Path:
 
 def save(args, rows: list[dict]) -> Path:
     """The machine, the command, every run so far, at result_path(args); each runner saves after each of its runs (an
-    interrupted bench keeps what it measured). A long HIL run is one run a command: its file keeps the runs before it
-    (each with its date and commit), so that a run on a machine whose hypervisor took more than usual stands beside
-    the others, not instead of them."""
+    interrupted bench keeps what it measured; the test runs save once, run_tests says why). A long HIL run is one run
+    a command: its file keeps the runs before it (each with its date and commit), so that a run on a machine whose
+    hypervisor took more than usual stands beside the others, not instead of them."""
     path = result_path(args)
     if args.kind == "hil":
         rows = earlier_runs(path) + rows
