@@ -47,7 +47,7 @@ from pathlib import Path
 from nfal.errors import RuntimeBuildError
 from nfal.fmus.runtime_upstream import tree_files
 from nfal.fmus.windows_python import check_windows_python
-from nfal.models.disk_cache import cache_root
+from nfal.models.disk_cache import cache_root, exclusive
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,8 @@ WINDOWS_PYTHON_CONFIG = "python-win64.cfg"
 #: The environment variable that overrides it (a Python executable).
 PYTHON_OVERRIDE_ENV = "NFAL_FMU_PYTHON"
 BUILD_TIMEOUT_S = 600
+#: The lock file beside each cached build: one process builds it, the others wait (disk_cache.exclusive).
+BUILD_LOCK = ".build.lock"
 
 #: Prints a Python's settings as ``key=value`` lines: the build runs it in the Python that builds the
 #: FMU (recorded in resources/python.cfg), the loader in an override's Python. Standard library only.
@@ -325,7 +327,13 @@ def runtime_library(fmi_version: int = 2) -> Path:
     if shutil.which("cmake") is None or shutil.which("c++") is None:
         raise RuntimeBuildError("building the FMU runtime needs CMake and a C++ compiler: "
                                 "apt-get install cmake g++ (and python3-dev for the headers)")
-    target.parent.mkdir(parents=True, exist_ok=True)
+    with exclusive(target.parent / BUILD_LOCK):
+        if not target.is_file():
+            _build_runtime(runtime, target)
+    return target
+
+
+def _build_runtime(runtime: Runtime, target: Path) -> None:
     with tempfile.TemporaryDirectory(prefix="nfal_runtime_", dir=target.parent) as build:
         commands = [["cmake", "-S", str(runtime.sources), "-B", build, "-DCMAKE_BUILD_TYPE=Release",
                      f"-DPython3_EXECUTABLE={sys.executable}",
@@ -339,7 +347,6 @@ def runtime_library(fmi_version: int = 2) -> Path:
                 raise RuntimeBuildError(f"{' '.join(command[:2])} failed for the FMU runtime in {runtime.sources}:\n"
                                         f"{(done.stdout + done.stderr)[-2000:]}")
         os.replace(Path(build) / runtime.platform / LIBRARY_NAME, target)
-    return target
 
 
 def loader_library(fmi_version: int = 2) -> Path:
@@ -357,11 +364,12 @@ def _cached_loader(fmi_version: int, library: Path) -> Path:
     key = hashlib.sha256(source + PYTHON_INFO.encode() + _GENERATOR_VERSION + Path(__file__).read_bytes()
                          ).hexdigest()[:12]
     target = library.parent / f"{Path(LOADER_NAME).stem}-{key}{library.suffix}"
-    if not target.is_file():
-        with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
-            built = Path(build) / f"{Path(LOADER_NAME).stem}{library.suffix}"
-            _build_loader(RUNTIMES[fmi_version], library, built, Path(build), windows=windows)
-            os.replace(built, target)
+    with exclusive(target.parent / BUILD_LOCK):
+        if not target.is_file():
+            with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
+                built = Path(build) / f"{Path(LOADER_NAME).stem}{library.suffix}"
+                _build_loader(RUNTIMES[fmi_version], library, built, Path(build), windows=windows)
+                os.replace(built, target)
     return target
 
 
@@ -405,7 +413,13 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
     target = cache_root() / f"{runtime.cache_name}-win64" / digest.hexdigest()[:16] / "pythonfmu-export.dll"
     if target.is_file():
         return target
-    target.parent.mkdir(parents=True, exist_ok=True)
+    with exclusive(target.parent / BUILD_LOCK):
+        if not target.is_file():
+            _cross_compile_runtime(runtime, include, python3, target)
+    return target
+
+
+def _cross_compile_runtime(runtime: Runtime, include: Path, python3: Path, target: Path) -> None:
     sources = sorted(str(p) for p in (runtime.sources / "src").rglob("*.cpp"))
     partial = target.with_name(f".{target.name}.{os.getpid()}")
     command = [mingw_tool("g++"), *WINDOWS_RUNTIME_FLAGS, f"-I{runtime.sources / 'src'}", f"-I{include}", "-o",
@@ -415,7 +429,6 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
         raise RuntimeBuildError(f"cross-compiling the FMU runtime for Windows failed:\n"
                                 f"{(done.stdout + done.stderr)[-3000:]}")
     os.replace(partial, target)
-    return target
 
 
 def windows_loader_library(fmi_version: int, python_root: Path) -> Path:

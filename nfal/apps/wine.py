@@ -25,7 +25,6 @@ Windows' own std handles differ too: a Python started by wine 8.0 with a regular
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import os
@@ -42,7 +41,7 @@ from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import dll_exports, mingw_tool
 from nfal.fmus.windows_python import wine_path
 from nfal.apps.host_check import HostRuns
-from nfal.models.disk_cache import cache_root
+from nfal.models.disk_cache import cache_root, exclusive
 
 #: wine's own PE build of ucrtbase (Debian's wine64 8.0).
 WINE_WINDOWS_DLLS = Path("/usr/lib/x86_64-linux-gnu/wine/x86_64-windows")
@@ -78,9 +77,7 @@ def wine_bench(python_root: Path, prefix: Path | None = None) -> WineBench:
     environment = {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), "WINEPREFIX": str(prefix),
                    "WINEDEBUG": "-all", "WINEDLLOVERRIDES": "ucrtbase=n,b"}
     system32 = prefix / "drive_c" / "windows" / "system32"
-    prefix.parent.mkdir(parents=True, exist_ok=True)
-    with open(prefix.with_name(prefix.name + ".lock"), "a") as lock:  # one process sets the prefix up at a time
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with exclusive(prefix.with_name(prefix.name + ".lock")):  # one process sets the prefix up at a time
         if not (system32 / "kernel32.dll").is_file():
             prefix.mkdir(parents=True, exist_ok=True)
             _wine(["wine", "wineboot", "--init"], environment, "making the wine prefix")

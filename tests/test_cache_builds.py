@@ -1,0 +1,79 @@
+"""What the user-wide cache builds once (the FMU runtimes, the Windows Python) is built once when several processes
+ask at the same time, as two test workers or a sweep's workers do on a fresh machine: one builds, the others wait
+and find it built. Before, the second Windows Python failed to move into place ("Directory not empty")."""
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from nfal.fmus import export_runtime, windows_python
+from nfal.models.disk_cache import exclusive
+
+
+def _at_once(function, count=3):
+    """``function()`` in ``count`` threads started together: their results, in order (an exception is re-raised)."""
+    results, barrier = [None] * count, threading.Barrier(count)
+
+    def run(i):
+        barrier.wait()
+        try:
+            results[i] = function()
+        except Exception as exc:  # noqa: BLE001 - handed to the test
+            results[i] = exc
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(count)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=30)
+    for result in results:
+        if isinstance(result, Exception):
+            raise result
+    return results
+
+
+def _slow_build(calls: list, make):
+    def build(*args):
+        calls.append(args)
+        time.sleep(0.2)  # long enough for every other caller to arrive while it builds
+        make(*args)
+    return build
+
+
+def test_one_holder_at_a_time(tmp_path):
+    inside, most = [0], [0]
+
+    def hold():
+        with exclusive(tmp_path / "locks" / "x.lock"):
+            inside[0] += 1
+            most[0] = max(most[0], inside[0])
+            time.sleep(0.05)
+            inside[0] -= 1
+
+    _at_once(hold, 4)
+    assert most[0] == 1 and (tmp_path / "locks" / "x.lock").is_file()
+
+
+def test_the_windows_python_is_prepared_once_for_callers_at_once(tmp_path, monkeypatch):
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path))
+    calls = []
+
+    def make(root: Path):
+        root.mkdir(parents=True)
+        (root / "python.exe").write_bytes(b"MZ")
+
+    monkeypatch.setattr(windows_python, "_prepare", _slow_build(calls, make))
+    roots = _at_once(windows_python.windows_python)
+    assert len(calls) == 1 and len(set(roots)) == 1 and (roots[0] / "python.exe").is_file()
+
+
+@pytest.mark.parametrize("fmi_version", [2, 3])
+def test_the_runtime_is_built_once_for_callers_at_once(fmi_version, tmp_path, monkeypatch):
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path))
+    calls = []
+    monkeypatch.setattr(export_runtime, "_build_runtime",
+                        _slow_build(calls, lambda runtime, target: target.write_bytes(b"\x7fELF")))
+    libraries = _at_once(lambda: export_runtime.runtime_library(fmi_version))
+    assert len(calls) == 1 and len(set(libraries)) == 1 and libraries[0].read_bytes() == b"\x7fELF"
