@@ -114,6 +114,18 @@ def test_real_inputs_must_be_finite(scale_class):
     assert slave.log_queue and slave.log_queue[-1].msg.endswith("(in setReal)")
 
 
+def test_a_value_reference_of_another_type_is_refused_saying_so_once(scale_class):
+    """The exchange's fast path answers only what it can; the checked path raises and logs, once."""
+    slave = scale_class(instance_name="s")
+    vr = {v.name: v.value_reference for v in slave.vars.values()}
+    with pytest.raises(TypeError, match=f"valueReference={vr['repeat']} is not of type Real"):
+        slave.get_real([vr["u"], vr["repeat"]])
+    with pytest.raises(TypeError, match=f"valueReference={vr['u']} is not of type Integer"):
+        slave.set_integer([vr["repeat"], vr["u"]], [2, 1])
+    assert [m.msg.rsplit("(in ", 1)[-1] for m in slave.log_queue] == ["getReal)", "setInteger)"]
+    assert slave.get_integer([vr["repeat"]]) == [2] and slave.get_boolean([vr["enabled"]]) == [True]
+
+
 def test_parameters_are_checked_when_initialisation_ends(scale_class):
     slave = scale_class(instance_name="s")
     vr = {v.name: v.value_reference for v in slave.vars.values()}
