@@ -364,6 +364,8 @@ def _cached_loader(fmi_version: int, library: Path) -> Path:
     key = hashlib.sha256(source + PYTHON_INFO.encode() + _GENERATOR_VERSION + Path(__file__).read_bytes()
                          ).hexdigest()[:12]
     target = library.parent / f"{Path(LOADER_NAME).stem}-{key}{library.suffix}"
+    if target.is_file():
+        return target
     with exclusive(target.parent / BUILD_LOCK):
         if not target.is_file():
             with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
