@@ -370,10 +370,10 @@ class NfalSlave(Fmi2Slave):
         pass
 
     # Every step's gets and sets go through _fast_get and _fast_set: the declared getters and setters by value
-    # reference, no closure, no type test per value (half the time of pythonfmu's loop behind _guard). Whatever they
-    # cannot answer (a value reference of another type, a setter or getter that raises, initialisation's provisional
-    # set-up) goes the checked way, which raises saying why: getters have no side effects, and a set repeated from
-    # the first value sets the same values again.
+    # reference, no closure, no type test per value (0.2-0.6 us less a call than pythonfmu's loop behind _guard). What
+    # they cannot answer (a value reference of another type, a setter or getter that raises, initialisation's
+    # provisional set-up) goes the checked way, which raises saying why: getters have no side effects, and a set
+    # repeated from the first value sets the same values again.
     def _fast_get(self, kind: type, vrs) -> list | None:
         if self._in_initialization:
             return None
