@@ -23,25 +23,27 @@ from pathlib import Path
 
 #: The package every FMU carries its own copy of.
 PACKAGE = "nfal"
-#: The process-wide registry of loaded FMU folders: {(folder, module): module} (a module in
-#: sys.modules because every FMU's copy of this file must find the same one).
+#: The process-wide registry of loaded FMU folders: {(folder, module): module}, and the lock every load holds (a
+#: module in sys.modules because every FMU's copy of this file must find the same one: a lock of each copy's own let
+#: two FMUs load at once in two threads, each setting the other's nfal modules aside mid-import).
 REGISTRY = "_nfal_fmu_bundles"
 #: Import name -> pip name, where they differ.
 PIP_NAMES = {"serial": "pyserial", "yaml": "pyyaml"}
-
-_lock = threading.Lock()
 
 
 def _is_package_module(name: str) -> bool:
     return name == PACKAGE or name.startswith(PACKAGE + ".")
 
 
-def _registry() -> dict:
+def _registry() -> types.ModuleType:
+    """The process's registry: ``bundles`` and ``lock``, each made once (setdefault is atomic: the first one made
+    stays; an older FMU's registry, without a lock, gets one)."""
     holder = sys.modules.get(REGISTRY)
     if holder is None:
-        holder = sys.modules[REGISTRY] = types.ModuleType(REGISTRY, "nfal FMU bundles loaded in this process")
-        holder.bundles = {}
-    return holder.bundles
+        holder = sys.modules.setdefault(REGISTRY, types.ModuleType(REGISTRY, "nfal FMU bundles loaded in this process"))
+    holder.__dict__.setdefault("bundles", {})
+    holder.__dict__.setdefault("lock", threading.RLock())
+    return holder
 
 
 def _import_isolated(folder: Path, module_name: str) -> types.ModuleType:
@@ -84,8 +86,9 @@ def load_slave(anchor: str, module_name: str, class_name: str) -> type:
     """
     folder = Path(anchor).resolve().parent
     key = (str(folder), module_name)
-    with _lock:
-        bundles = _registry()
+    registry = _registry()
+    with registry.lock:
+        bundles = registry.bundles
         if key not in bundles:
             try:
                 bundles[key] = _import_isolated(folder, module_name)

@@ -50,6 +50,47 @@ def test_two_different_nfal_fmus_in_one_process(tmp_path_factory, tmp_path):
         assert int(samples) == 5 and 50e-6 < float(height) < 100e-6
 
 
+AT_ONCE = HIDE_EDITABLE_INSTALL + textwrap.dedent('''
+    import threading
+    import fmpy
+    from fmpy.fmi2 import FMU2Slave
+    barrier, failures = threading.Barrier(len(sys.argv) - 1), []
+
+    def instantiate(fmu):
+        md = fmpy.read_model_description(fmu)
+        slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(fmu), instanceName="x",
+                          modelIdentifier=md.coSimulation.modelIdentifier)
+        barrier.wait()
+        try:
+            slave.instantiate()
+            slave.freeInstance()
+        except Exception as exc:
+            failures.append(f"{fmu}: {exc}")
+
+    threads = [threading.Thread(target=instantiate, args=(fmu,)) for fmu in sys.argv[1:]]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    print(failures or "all instantiated")
+''')
+
+
+@pytest.mark.slow  # three FMUs built and loaded in a process of their own
+def test_nfal_fmus_instantiated_at_once_in_threads(tmp_path_factory, tmp_path):
+    """A Dask worker's threads each start a run, each run its FMUs in a folder of its own: one import of a slave
+    module at a time in the process, and one nfal bundle at a time set aside and imported. Before, a lock of each
+    FMU's own let three different FMUs fail in 8 of 8 processes (KeyError 'nfal'), and two instances of one FMU
+    deleted each other's module mid-import (KeyError 'nfal_sensor_chain'): 1-2 of 12 runs of every sweep on a new
+    two-thread Dask worker failed."""
+    fmus = build.build_fmus(tmp_path_factory.mktemp("three"), ["SlowPlant", "Controller", "SensorChain"])
+    order = [fmus["SlowPlant"], fmus["SensorChain"], fmus["Controller"], fmus["SensorChain"], fmus["SlowPlant"]]
+    for _ in range(2):  # a fresh process each: the first loads race (without the locks, half the processes failed)
+        done = subprocess.run([sys.executable, "-c", AT_ONCE, *map(str, order)], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0 and done.stdout.strip() == "all instantiated", done.stdout + done.stderr[-3000:]
+
+
 STAMP_SCRIPT = '''
 """Test slave: its output is the minor version of the nfal package the FMU carries."""
 from nfal import __version__

@@ -16,6 +16,46 @@
 namespace pythonfmu
 {
 
+namespace
+{
+// nfal: one slave-module import at a time in the process. Each instance deletes its module's name from
+// sys.modules and imports it (below); two instances doing so at once in two threads of one host (a Dask worker's)
+// deleted each other's module mid-import: "Failed to instantiate model", KeyError naming the module. The lock is
+// the process's, in sys (a capsule: every FMU's copy of this runtime, of either FMI version, finds the same one);
+// made and fetched with the GIL held and nothing that could release it in between.
+PyThread_type_lock slave_import_lock()
+{
+    static const char* const name = "_nfal_slave_import_lock";
+    PyObject* capsule = PySys_GetObject(name); // borrowed
+    if (capsule == nullptr || !PyCapsule_IsValid(capsule, name)) {
+        PyObject* made = PyCapsule_New(PyThread_allocate_lock(), name, nullptr); // lives as long as the process
+        PySys_SetObject(name, made);
+        Py_DECREF(made);
+        capsule = PySys_GetObject(name);
+    }
+    return static_cast<PyThread_type_lock>(PyCapsule_GetPointer(capsule, name));
+}
+
+// nfal: the import below under slave_import_lock(), waited for without the GIL.
+class SlaveImportLock
+{
+public:
+    SlaveImportLock()
+        : lock_(slave_import_lock())
+    {
+        Py_BEGIN_ALLOW_THREADS
+        PyThread_acquire_lock(lock_, WAIT_LOCK);
+        Py_END_ALLOW_THREADS
+    }
+    ~SlaveImportLock() { PyThread_release_lock(lock_); }
+    SlaveImportLock(const SlaveImportLock&) = delete;
+    SlaveImportLock& operator=(const SlaveImportLock&) = delete;
+
+private:
+    PyThread_type_lock lock_;
+};
+} // namespace
+
 inline std::string getline(const std::string& fileName)
 {
     std::string line;
@@ -73,10 +113,14 @@ PySlaveInstance::PySlaveInstance(std::string instanceName, std::string resources
         std::string moduleName = getline(resources_ + "/slavemodule.txt");
         // nfal: import this instance's own slave module. An FMU of the same name loaded earlier in the process
         // (from another, perhaps deleted, folder) left its module in sys.modules; its __file__ would name that folder.
-        if (PyDict_DelItemString(PyImport_GetModuleDict(), moduleName.c_str()) != 0) {
-            PyErr_Clear(); // not imported before
+        PyObject* pModule;
+        {
+            SlaveImportLock importing;
+            if (PyDict_DelItemString(PyImport_GetModuleDict(), moduleName.c_str()) != 0) {
+                PyErr_Clear(); // not imported before
+            }
+            pModule = PyImport_ImportModule(moduleName.c_str());
         }
-        PyObject* pModule = PyImport_ImportModule(moduleName.c_str());
         if (pModule == nullptr) {
             // nfal: upstream printed (and so cleared) the exception first, then went on with a null module
             handle_py_exception("[ctor] PyImport_ImportModule", gilState);
