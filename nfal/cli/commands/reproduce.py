@@ -27,8 +27,9 @@ def register(commands) -> None:
         "beside it, the tolerance and whether it holds) and the PNGs. The paper's numbers come from one data file, "
         "nfal/models/data/paper_numbers.json. Exit status 0 when every judged number holds or differs only where "
         "the report explains why (a known difference), 1 otherwise.",
-        epilog="About 1.5-2 minutes on a 2-core machine (the rig runs are most of it); the first run also builds "
-        "the FMUs. Example: nfal reproduce --out runs/paper && xdg-open runs/paper/report.html")
+        epilog="About 45 s on a 2-core machine (the rig runs and Table 1's full-model runs are most of it); the "
+        "first run also builds the FMUs and fills the cache (about 100 s). Example: nfal reproduce --out runs/paper "
+        "&& xdg-open runs/paper/report.html")
     reproduce.add_argument("--out", metavar="DIR", help="the report's folder (default runs/reproduce-<date-time>)")
     reproduce.add_argument("--overwrite", action="store_true", help="replace a report already in DIR")
     reproduce.add_argument("--quick", action="store_true", help="smaller grids for Fig. 4 and Fig. 8 (the "
