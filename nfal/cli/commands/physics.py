@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
@@ -96,7 +97,8 @@ def calibrate_numerical(args: argparse.Namespace) -> int:
         # matplotlib only when plotting
         from nfal.apps.figures.physics import plot_calibration
 
-        plot_calibration(args.plot, sigma, K, label=f"{args.method}, {shape.name}", reference=paper_calibration())
+        plot_calibration(args.plot, sigma, K, label=f"{args.method}, {Path(shape.name).name}",  # a scan: its file name
+                         reference=paper_calibration())
     if args.json:
         print_json({"shape": shape.name, "method": args.method, "sigma": sigma, "K": K})
     else:
