@@ -312,7 +312,8 @@ def load_rig_calibration(path: str | os.PathLike, rig: RigParameters | None = No
     try:
         data = json.loads(text)
     except (ValueError, RecursionError) as exc:  # not JSON, or nested deeper than the parser goes
-        raise DataFormatError(f"cannot read calibration {path}: {exc or 'nested too deeply'}") from None
+        raise DataFormatError(f"cannot read calibration {path}: not the JSON file that nfal calibrate --out or nfal "
+                              f"identify --out writes ({exc or 'nested too deeply'})") from None
     try:
         loaded = rig_calibration_from_dict(data)
         require_lift(loaded.calibration, "K")
