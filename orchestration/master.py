@@ -645,14 +645,14 @@ class Master:
             last = self.time
         ended = HorizonEnd(slave.name, last, abs(last - step_end) <= 1e-9 * max(1.0, abs(step_end)),
                            list(slave.messages))
-        logger.warning("%s", ended.note)
+        logger.info("%s", ended.note)  # not a failure: the run's summary carries the note
         return ended
 
     def _terminated(self, slave: _Slave, last: float, step_end: float) -> HorizonEnd:
         """FMI 3.0: fmi3DoStep asked to terminate the simulation, having reached ``last``."""
         ended = HorizonEnd(slave.name, last, abs(last - step_end) <= 1e-9 * max(1.0, abs(step_end)),
                            list(slave.messages), "terminateSimulation from fmi3DoStep")
-        logger.warning("%s", ended.note)
+        logger.info("%s", ended.note)  # not a failure: the run's summary carries the note
         return ended
 
     def refresh(self) -> None:
