@@ -174,7 +174,9 @@ def run_design(args: argparse.Namespace) -> int:
     print(f"map ({args.placement} placement, {discretisation}, {args.sample_rate:g} Hz): max |z| from "
           f"{grid.max_pole_modulus.min():.4f} to {grid.max_pole_modulus.max():.4f}")
     if realizable_from is not None:
-        print(f"{discretisation} loop stable on the diagonal from {realizable_from * 1e6:.1f} um up")
+        held = (f"; below, the Controller (realizable_only, its default) holds the gains of "
+                f"{realizable_from * 1e6:.1f} um" if realizable_from > heights[0] else "")
+        print(f"{discretisation} loop stable on the diagonal from {realizable_from * 1e6:.1f} um up{held}")
     return 0
 
 
