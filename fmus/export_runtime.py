@@ -47,7 +47,7 @@ from pathlib import Path
 from nfal.errors import RuntimeBuildError
 from nfal.fmus.runtime_upstream import tree_files
 from nfal.fmus.windows_python import check_windows_python
-from nfal.models.disk_cache import cache_root, exclusive
+from nfal.models.disk_cache import build_once, cache_root
 
 
 @dataclass(frozen=True)
@@ -322,18 +322,14 @@ def runtime_library(fmi_version: int = 2) -> Path:
     if not sys.platform.startswith("linux"):
         raise RuntimeBuildError(f"the patched FMU runtime is built for Linux only, not {sys.platform}")
     target = _cache_dir(runtime) / LIBRARY_NAME
-    if target.is_file():
-        return target
-    if shutil.which("cmake") is None or shutil.which("c++") is None:
-        raise RuntimeBuildError("building the FMU runtime needs CMake and a C++ compiler: "
-                                "apt-get install cmake g++ (and python3-dev for the headers)")
-    with exclusive(target.parent / BUILD_LOCK):
-        if not target.is_file():
-            _build_runtime(runtime, target)
+    build_once(target.is_file, target.parent / BUILD_LOCK, lambda: _build_runtime(runtime, target))
     return target
 
 
 def _build_runtime(runtime: Runtime, target: Path) -> None:
+    if shutil.which("cmake") is None or shutil.which("c++") is None:
+        raise RuntimeBuildError("building the FMU runtime needs CMake and a C++ compiler: "
+                                "apt-get install cmake g++ (and python3-dev for the headers)")
     with tempfile.TemporaryDirectory(prefix="nfal_runtime_", dir=target.parent) as build:
         commands = [["cmake", "-S", str(runtime.sources), "-B", build, "-DCMAKE_BUILD_TYPE=Release",
                      f"-DPython3_EXECUTABLE={sys.executable}",
@@ -364,14 +360,14 @@ def _cached_loader(fmi_version: int, library: Path) -> Path:
     key = hashlib.sha256(source + PYTHON_INFO.encode() + _GENERATOR_VERSION + Path(__file__).read_bytes()
                          ).hexdigest()[:12]
     target = library.parent / f"{Path(LOADER_NAME).stem}-{key}{library.suffix}"
-    if target.is_file():
-        return target
-    with exclusive(target.parent / BUILD_LOCK):
-        if not target.is_file():
-            with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as build:
-                built = Path(build) / f"{Path(LOADER_NAME).stem}{library.suffix}"
-                _build_loader(RUNTIMES[fmi_version], library, built, Path(build), windows=windows)
-                os.replace(built, target)
+
+    def build() -> None:
+        with tempfile.TemporaryDirectory(prefix="nfal_loader_", dir=target.parent) as folder:
+            built = Path(folder) / f"{Path(LOADER_NAME).stem}{library.suffix}"
+            _build_loader(RUNTIMES[fmi_version], library, built, Path(folder), windows=windows)
+            os.replace(built, target)
+
+    build_once(target.is_file, target.parent / BUILD_LOCK, build)
     return target
 
 
@@ -413,11 +409,8 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
         if path != LOADER_SOURCE:
             digest.update(path.name.encode() + path.read_bytes())
     target = cache_root() / f"{runtime.cache_name}-win64" / digest.hexdigest()[:16] / "pythonfmu-export.dll"
-    if target.is_file():
-        return target
-    with exclusive(target.parent / BUILD_LOCK):
-        if not target.is_file():
-            _cross_compile_runtime(runtime, include, python3, target)
+    build_once(target.is_file, target.parent / BUILD_LOCK,
+               lambda: _cross_compile_runtime(runtime, include, python3, target))
     return target
 
 

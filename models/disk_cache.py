@@ -47,6 +47,16 @@ def exclusive(lock: str | os.PathLike) -> Iterator[None]:
         yield
 
 
+def build_once(done: Callable[[], bool], lock: str | os.PathLike, build: Callable[[], None]) -> None:
+    """``build()`` unless ``done()``: under :func:`exclusive` ``lock``, asked again there, so that of several
+    processes asking at once one builds and the others find it built."""
+    if done():
+        return
+    with exclusive(lock):
+        if not done():
+            build()
+
+
 def digest(*parts: object) -> str:
     """A name for an entry: the SHA-256 of ``parts`` (bytes and arrays as their bytes, anything else as its repr)."""
     hasher = hashlib.sha256()
