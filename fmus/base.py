@@ -198,7 +198,7 @@ class NfalSlave(Fmi2Slave):
         self.initialized = False
         self._in_initialization = False
         self._settings_changed = True
-        # each variable type's getters and setters by value reference: the exchange's hot path (_fast_get, _fast_set)
+        # each variable type's getters and setters by value reference: the exchange's hot path (_get, _set)
         self._getters: dict[type, dict[int, Callable[[], Any]]] = {kind: {} for kind in _COERCE}
         self._setters: dict[type, dict[int, Callable[[Any], None]]] = {kind: {} for kind in _COERCE}
 
@@ -369,60 +369,51 @@ class NfalSlave(Fmi2Slave):
     def terminate(self) -> None:
         pass
 
-    # Every step's gets and sets go through _fast_get and _fast_set: the declared getters and setters by value
-    # reference, no closure, no type test per value (0.2-0.6 us less a call than pythonfmu's loop behind _guard). What
-    # they cannot answer (a value reference of another type, a setter or getter that raises, initialisation's
-    # provisional set-up) goes the checked way, which raises saying why: getters have no side effects, and a set
+    # Every step's gets and sets go through _get and _set: the declared getters and setters by value reference, no
+    # closure, no type test per value (0.2-0.6 us less a call than pythonfmu's loop behind _guard). What they cannot
+    # answer (a value reference of another type, a setter or getter that raises, initialisation's provisional set-up)
+    # goes the checked way, pythonfmu's ``checked``, which raises saying why: getters have no side effects, and a set
     # repeated from the first value sets the same values again.
-    def _fast_get(self, kind: type, vrs) -> list | None:
-        if self._in_initialization:
-            return None
-        try:
-            getters, convert = self._getters[kind], _COERCE[kind]
-            return [convert(getters[vr]()) for vr in vrs]
-        except Exception:  # noqa: BLE001 - answered by the checked path
-            return None
+    def _get(self, kind: type, vrs, what: str, checked: Callable) -> list:
+        if not self._in_initialization:
+            try:
+                getters, convert = self._getters[kind], _COERCE[kind]
+                return [convert(getters[vr]()) for vr in vrs]
+            except Exception:  # noqa: BLE001 - answered by the checked path
+                pass
+        return self._read(what, checked, vrs)
 
-    def _fast_set(self, kind: type, vrs, values) -> bool:
+    def _set(self, kind: type, vrs, values, what: str, checked: Callable) -> None:
         try:
             setters = self._setters[kind]
             for vr, value in zip(vrs, values):
                 setters[vr](value)
-            return True
         except Exception:  # noqa: BLE001 - answered by the checked path
-            return False
+            self._guard(what, checked, vrs, values)
 
     def set_real(self, vrs, values) -> None:
-        if not self._fast_set(Real, vrs, values):
-            self._guard("setReal", super().set_real, vrs, values)
+        self._set(Real, vrs, values, "setReal", super().set_real)
 
     def set_integer(self, vrs, values) -> None:
-        if not self._fast_set(Integer, vrs, values):
-            self._guard("setInteger", super().set_integer, vrs, values)
+        self._set(Integer, vrs, values, "setInteger", super().set_integer)
 
     def set_boolean(self, vrs, values) -> None:
-        if not self._fast_set(Boolean, vrs, values):
-            self._guard("setBoolean", super().set_boolean, vrs, values)
+        self._set(Boolean, vrs, values, "setBoolean", super().set_boolean)
 
     def set_string(self, vrs, values) -> None:
-        if not self._fast_set(String, vrs, values):
-            self._guard("setString", super().set_string, vrs, values)
+        self._set(String, vrs, values, "setString", super().set_string)
 
     def get_real(self, vrs):
-        values = self._fast_get(Real, vrs)
-        return self._read("getReal", super().get_real, vrs) if values is None else values
+        return self._get(Real, vrs, "getReal", super().get_real)
 
     def get_integer(self, vrs):
-        values = self._fast_get(Integer, vrs)
-        return self._read("getInteger", super().get_integer, vrs) if values is None else values
+        return self._get(Integer, vrs, "getInteger", super().get_integer)
 
     def get_boolean(self, vrs):
-        values = self._fast_get(Boolean, vrs)
-        return self._read("getBoolean", super().get_boolean, vrs) if values is None else values
+        return self._get(Boolean, vrs, "getBoolean", super().get_boolean)
 
     def get_string(self, vrs):
-        values = self._fast_get(String, vrs)
-        return self._read("getString", super().get_string, vrs) if values is None else values
+        return self._get(String, vrs, "getString", super().get_string)
 
     # --- FMU state ---------------------------------------------------------------------------------
     def _get_fmu_state(self) -> dict:
