@@ -19,12 +19,13 @@ using namespace pythonfmu;
 namespace
 {
 
-// nfal: one slave-module import at a time in the process. Each instance deletes its module's name from
-// sys.modules and imports it (below); two instances doing so at once in two threads of one host (a Dask worker's)
-// deleted each other's module mid-import: "Failed to instantiate model", KeyError naming the module. The lock is
-// the process's, in sys (a capsule: every FMU's copy of this runtime, of either FMI version, finds the same one);
-// made and fetched with the GIL held and nothing that could release it in between.
-PyThread_type_lock slave_import_lock()
+// nfal: import this instance's own slave module (its sys.modules entry dropped first: an FMU of the same name loaded
+// earlier in the process, from another, perhaps deleted, folder, left its module there, whose __file__ names that
+// folder), one instance at a time in the process: two threads of one host (a Dask worker's) doing so at once dropped
+// each other's module mid-import ("Failed to instantiate model", KeyError naming it). The lock lives in sys, in a
+// capsule, so that every copy of either FMI version's runtime finds the same one; it is made with the GIL held and
+// nothing in between that could release it, and waited for without the GIL.
+PyObject* import_slave_module(const std::string& moduleName)
 {
     static const char* const name = "_nfal_slave_import_lock";
     PyObject* capsule = PySys_GetObject(name); // borrowed
@@ -34,27 +35,18 @@ PyThread_type_lock slave_import_lock()
         Py_DECREF(made);
         capsule = PySys_GetObject(name);
     }
-    return static_cast<PyThread_type_lock>(PyCapsule_GetPointer(capsule, name));
+    auto lock = static_cast<PyThread_type_lock>(PyCapsule_GetPointer(capsule, name));
+    Py_BEGIN_ALLOW_THREADS
+    PyThread_acquire_lock(lock, WAIT_LOCK);
+    Py_END_ALLOW_THREADS
+    if (PyDict_DelItemString(PyImport_GetModuleDict(), moduleName.c_str()) != 0) {
+        PyErr_Clear(); // not imported before
+    }
+    PyObject* module = PyImport_ImportModule(moduleName.c_str());
+    PyThread_release_lock(lock);
+    return module;
 }
 
-// nfal: the import below under slave_import_lock(), waited for without the GIL.
-class SlaveImportLock
-{
-public:
-    SlaveImportLock()
-        : lock_(slave_import_lock())
-    {
-        Py_BEGIN_ALLOW_THREADS
-        PyThread_acquire_lock(lock_, WAIT_LOCK);
-        Py_END_ALLOW_THREADS
-    }
-    ~SlaveImportLock() { PyThread_release_lock(lock_); }
-    SlaveImportLock(const SlaveImportLock&) = delete;
-    SlaveImportLock& operator=(const SlaveImportLock&) = delete;
-
-private:
-    PyThread_type_lock lock_;
-};
 std::string getline(const std::filesystem::path& fileName)
 {
     std::string line;
@@ -87,17 +79,9 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
         fileContents << line << "\n";
     }
 
-    // nfal: import this instance's own slave module. An FMU of the same name loaded earlier in the process
-    // (from another, perhaps deleted, folder) left its module in sys.modules; its __file__ would name that folder.
-    PyObject* pyModule;
-    {
-        SlaveImportLock importing;
-        if (PyDict_DelItemString(PyImport_GetModuleDict(), moduleName.c_str()) != 0) {
-            PyErr_Clear(); // not imported before
-        }
-        // Compile python code so classes are added to the namespace
-        pyModule = PyImport_ImportModule(moduleName.c_str());
-    }
+    // nfal: the instance's own slave module, one import at a time (import_slave_module)
+    // Compile python code so classes are added to the namespace
+    PyObject* pyModule = import_slave_module(moduleName);
 
     if (pyModule == nullptr) {
         return nullptr;
