@@ -5,8 +5,8 @@ rig's watchdog stops the run after 100 ms; a loop written in Python must not pau
 The pauses that grow with a run are the cyclic garbage collector's: a full collection walks every object the
 process holds, so a loop that keeps a Python object per sample stalls longer the longer it runs. Hence:
 
-* :func:`realtime_section`: on entry everything built so far is collected once and frozen
-  (:func:`gc.freeze`: never scanned again) and the automatic collector is switched off; the loop calls
+* :func:`realtime_section`: on entry everything built so far is frozen (:func:`gc.freeze`: never scanned again; any
+  garbage among it is collected after the section) and the automatic collector is switched off; the loop calls
   :meth:`SlackCollector.safe_point` where it has slack (right after a DRIVE left), which collects the young
   generations only, when they have filled (a bounded cost: they hold what the last few hundred samples made).
   The process's pages are locked in memory where the system allows it (:func:`lock_memory`). On exit the
@@ -186,7 +186,8 @@ def realtime_section(*, lock: bool = True) -> Iterator[SlackCollector]:
     collector = SlackCollector()
     was_enabled, switch_interval = gc.isenabled(), sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, SWITCH_INTERVAL_S))
-    gc.collect()
+    # frozen as it is, not collected first: a full collection walks the whole heap (1.75 s once in a test worker whose
+    # thread ran the rig emulator), where freezing takes no time; settle() collects what set-up built since
     gc.freeze()
     gc.disable()
     if lock:
