@@ -186,8 +186,8 @@ def realtime_section(*, lock: bool = True) -> Iterator[SlackCollector]:
     collector = SlackCollector()
     was_enabled, switch_interval = gc.isenabled(), sys.getswitchinterval()
     sys.setswitchinterval(min(switch_interval, SWITCH_INTERVAL_S))
-    # frozen as it is, not collected first: a full collection walks the whole heap (1.75 s once in a test worker whose
-    # thread ran the rig emulator), where freezing takes no time; settle() collects what set-up built since
+    # frozen as it is, not collected first: a full collection walks every object the process holds (a late start in
+    # a process that holds much), where freezing takes no time; settle() collects what set-up built since
     gc.freeze()
     gc.disable()
     if lock:

@@ -37,10 +37,7 @@ def rig(tmp_path):
 
 @pytest.fixture
 def host(rig):
-    # the emulator's thread answers from its first tick, after its real-time section's set-up: when that collected
-    # this worker's whole heap, 2 s went by once on a loaded machine (both HELLOs answered in one tick, too late); no
-    # test here judges the handshake's time, so it has a margin
-    link = RigLink(str(rig[0].port.path), reader_thread=False, connect_timeout_s=10.0)
+    link = RigLink(str(rig[0].port.path), reader_thread=False, connect_timeout_s=2.0)
     link.open()
     assert link.wait_until(lambda: link.latest() is not None, 2.0)
     yield link

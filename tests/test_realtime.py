@@ -69,6 +69,18 @@ def test_section_turns_the_automatic_collector_off_and_restores_it():
     assert collector.report()["gc_pauses"]["count"] >= 1
 
 
+def test_entry_freezes_the_heap_as_it_is_without_walking_it():
+    """No full collection on entry: it walks every object the process holds, so a section started in a process that
+    holds much started late (the rig emulator's thread in a test worker); what was garbage then waits for the end."""
+    gc.collect()  # the young generation empty: nothing collects by itself before the section
+    garbage = weakref.ref(Node())
+    full_collections = gc.get_stats()[2]["collections"]
+    with realtime_section(lock=False):
+        assert gc.get_stats()[2]["collections"] == full_collections and garbage() is not None
+    gc.collect()
+    assert garbage() is None
+
+
 def test_settle_freezes_what_set_up_built_so_the_first_safe_point_is_cheap():
     with realtime_section(lock=False) as collector:
         built = [Node() for _ in range(3 * YOUNG_THRESHOLD)]  # set-up after the section began
