@@ -32,6 +32,7 @@ headers, :func:`fmi_functions`, :func:`forwarders_source`). docs/cosimulation.md
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -142,12 +143,19 @@ print("site=" + os.pathsep.join(paths))
 def python_settings(executable: str | os.PathLike | None = None) -> dict[str, str]:
     """The settings of the Python ``executable`` (default: this one) that an FMU records: executable,
     version, prefix, base_prefix, libpython ("" without a shared one), site (``os.pathsep``-joined)."""
-    done = subprocess.run([str(executable or sys.executable), "-c", PYTHON_INFO], capture_output=True, text=True,
-                          timeout=60)
+    if executable is None:
+        return dict(_this_pythons_settings())
+    done = subprocess.run([str(executable), "-c", PYTHON_INFO], capture_output=True, text=True, timeout=60)
     if done.returncode != 0:
-        raise RuntimeBuildError(f"cannot read the settings of the Python {executable or sys.executable}: "
-                                f"{done.stderr.strip()[-500:]}")
+        raise RuntimeBuildError(f"cannot read the settings of the Python {executable}: {done.stderr.strip()[-500:]}")
     return dict(line.split("=", 1) for line in done.stdout.splitlines() if "=" in line)
+
+
+@functools.cache
+def _this_pythons_settings() -> dict[str, str]:
+    """This interpreter's settings, asked once per process: every FMU a build packs records them, and asking is a
+    subprocess (seven in a build of every FMU)."""
+    return python_settings(sys.executable)
 
 
 def python_config(settings: dict[str, str], *, windows: bool = False) -> str:

@@ -21,6 +21,7 @@ matplotlib.use("Agg")
 
 import pytest  # noqa: E402
 
+from helpers import properties  # noqa: E402
 from helpers.xdist_groups import XdistGroups  # noqa: E402
 
 #: The xdist group of the real-time tests: ``--dist loadgroup`` (pyproject.toml) gives a group to one worker.
@@ -28,6 +29,7 @@ REALTIME_GROUP = "realtime"
 
 
 def pytest_configure(config):
+    properties.fast_path = "not slow" in (config.option.markexpr or "")  # fewer examples (helpers/properties.py)
     if config.pluginmanager.hasplugin("xdist"):
         config.pluginmanager.register(XdistGroups(config))  # loadgroup's grouping, restored (helpers/xdist_groups.py)
 

@@ -35,6 +35,7 @@ print("rig-emulator" in out.getvalue() and "reproduce" in out.getvalue())
 """
 
 
+@pytest.mark.slow  # a Python process per case
 @pytest.mark.parametrize("argv, imported", [
     (["--help"], []),  # lists every command, imports none
     (["run", "--help"], ["nfal.cli.commands.common", "nfal.cli.commands.cosim"]),

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 from cobs import cobs
-from hypothesis import given, settings
+from helpers.properties import examples
+from hypothesis import given
 from hypothesis import strategies as st
 
 from nfal.hil.protocol import (
@@ -22,7 +23,7 @@ from nfal.hil.protocol import (
 )
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
-EXAMPLES = settings(max_examples=250, deadline=None)
+EXAMPLES = examples(250)
 
 u16, u32, u64 = (st.integers(0, 2**bits - 1) for bits in (16, 32, 64))
 real = st.floats(width=32, allow_nan=False, allow_infinity=False)

@@ -68,27 +68,40 @@ def _syntax_tree(text: str) -> ast.Module:
     return ast.parse(text)
 
 
+def import_statements(path: Path) -> tuple[tuple[ast.Import | ast.ImportFrom, bool], ...]:
+    """Every import statement of a source file, in line order, and whether it is inside a function."""
+    return _import_statements(path.read_text(encoding="utf-8"))
+
+
+@functools.lru_cache(maxsize=None)
+def _import_statements(text: str) -> tuple[tuple[ast.Import | ast.ImportFrom, bool], ...]:
+    found, stack = [], [(_syntax_tree(text), False)]
+    while stack:  # one walk of the statements (an import is never inside an expression)
+        node, local = stack.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            found.append((node, local))
+            continue
+        local = local or isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+        stack.extend((child, local) for child in ast.iter_child_nodes(node) if not isinstance(child, ast.expr))
+    return tuple(sorted(found, key=lambda item: (item[0].lineno, item[0].col_offset)))
+
+
 def imports(module: str, path: Path) -> list[tuple[str, int, bool]]:
     """(imported nfal module, line, inside a function) for every import of nfal in ``path``."""
-    tree = parsed(path)[1]
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    local = {id(node) for function in ast.walk(tree) if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef))
-             for node in ast.walk(function)}
     found = []
-    for node in ast.walk(tree):
+    for node, local in import_statements(path):
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
+        else:
             base = node.module or ""
             if node.level:
                 anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
                 base = ".".join([*anchor, base] if base else anchor)
             names = [base] + [f"{base}.{alias.name}" for alias in node.names]  # a submodule or a name in it
-        else:
-            continue
         for name in names:
             if name.split(".")[0] == "nfal":
-                found.append((name, node.lineno, id(node) in local))
+                found.append((name, node.lineno, local))
     return found
 
 
@@ -122,20 +135,17 @@ def unexplained_local_imports(root: Path = ROOT) -> list[str]:
     block of imports they belong to: each needs its stated reason (an optional or slow dependency)."""
     found = []
     for module, path in modules(root).items():
-        lines, tree = parsed(path)
-        for function in ast.walk(tree):
-            if not isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+        lines = parsed(path)[0]
+        for node, local in import_statements(path):
+            if not local:
                 continue
-            for node in ast.walk(function):
-                if not isinstance(node, (ast.Import, ast.ImportFrom)):
-                    continue
-                first = node.lineno - 1
-                while first > 0 and lines[first - 1].strip().startswith(("import ", "from ")):
-                    first -= 1  # the block of imports this one is in
-                block = lines[first:node.end_lineno]
-                above = lines[first - 1] if first > 0 else ""
-                if not ("#" in above or any("#" in line for line in block)):
-                    found.append(f"{path.relative_to(root)}:{node.lineno}: {lines[node.lineno - 1].strip()}")
+            first = node.lineno - 1
+            while first > 0 and lines[first - 1].strip().startswith(("import ", "from ")):
+                first -= 1  # the block of imports this one is in
+            block = lines[first:node.end_lineno]
+            above = lines[first - 1] if first > 0 else ""
+            if not ("#" in above or any("#" in line for line in block)):
+                found.append(f"{path.relative_to(root)}:{node.lineno}: {lines[node.lineno - 1].strip()}")
     return found
 
 

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from helpers.properties import examples
+from hypothesis import given
 from hypothesis import strategies as st
 
 from nfal.csvdata import read_numeric_csv
@@ -91,7 +92,7 @@ def test_degree_too_high_for_the_data():
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 
-@settings(max_examples=60, deadline=None)
+@examples(60)
 @given(rows=st.lists(st.lists(finite, min_size=3, max_size=3), min_size=1, max_size=20), header=st.booleans(),
        comments=st.lists(st.text(alphabet=st.characters(blacklist_categories=("Cs", "Cc")), max_size=20), max_size=3))
 def test_csv_reader_round_trips(tmp_path_factory, rows, header, comments):
@@ -104,7 +105,7 @@ def test_csv_reader_round_trips(tmp_path_factory, rows, header, comments):
     assert names == (["a", "b", "c"] if header else ["col0", "col1", "col2"])
 
 
-@settings(max_examples=60, deadline=None)
+@examples(60)
 @given(text=st.text(max_size=200))
 def test_csv_reader_never_crashes_on_garbage(tmp_path_factory, text):
     path = tmp_path_factory.mktemp("csv") / "g.csv"

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers.properties import examples
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -33,6 +34,7 @@ def test_rows_are_readable_while_the_writer_is_still_open(tmp_path):
         "time [s],reference [m],Plant.height [m],Plant.resting,Sensor.count"
 
 
+@examples(100)
 @given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=3, max_size=3),
                 min_size=1, max_size=20))
 def test_csv_round_trip_is_exact(rows):
@@ -92,6 +94,7 @@ def test_blank_lines_in_a_results_file_are_skipped(tmp_path):
     assert list(read_results(tmp_path / "r.csv")["x"]) == [1.0, 2.0]
 
 
+@examples(100)
 @given(st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=300), st.integers(1, 40))
 def test_a_line_drawn_through_the_extremes_keeps_every_buckets_peak_and_dip(values, bucket):
     values = np.array(values)

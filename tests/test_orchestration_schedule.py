@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from hypothesis import given, settings
+from helpers.properties import examples
+from hypothesis import given
 from hypothesis import strategies as st
 
 from nfal.orchestration import AlgebraicLoopError
@@ -77,7 +78,7 @@ def test_the_loop_is_named_even_with_a_tail_hanging_off_it():
     assert set(caught.value.variables) == {"A.y", "B.u", "B.y", "A.u"}
 
 
-@settings(max_examples=60, deadline=None)
+@examples(60)
 @given(st.integers(2, 6).flatmap(lambda n: st.tuples(
     st.just(n), st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), max_size=8),
     st.lists(st.booleans(), min_size=n, max_size=n))))

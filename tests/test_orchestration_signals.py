@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.properties import examples
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -104,6 +105,7 @@ def test_anything_reasonable_becomes_a_signal():
         as_signal("not a signal")
 
 
+@examples(100)
 @given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=20, unique=True),
        st.floats(-2e6, 2e6, allow_nan=False))
 def test_zero_order_hold_is_the_value_of_the_last_change_at_or_before_t(times, t):

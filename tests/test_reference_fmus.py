@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.shared_builds import shared_build
 from reference_fmus.build import build_reference_fmus, compiler
 from toy_fmus.ssd import component, connection, ssd, system, write_folder
 
@@ -23,10 +24,11 @@ from nfal.orchestration import TypeMismatchError, UnsupportedFeatureError, read_
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> Path:
-    """The Reference FMUs built from their sources (tests/reference_fmus/), with the structures beside them."""
+    """The Reference FMUs built from their sources (tests/reference_fmus/), with the structures beside them: once for
+    the session's workers."""
     if compiler() is None:
         pytest.skip("building the FMI Reference FMUs needs a C compiler: apt-get install gcc")
-    return build_reference_fmus(tmp_path_factory.mktemp("reference_fmus"))
+    return shared_build(tmp_path_factory, "reference_fmus", build_reference_fmus)
 
 
 @pytest.fixture

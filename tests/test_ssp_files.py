@@ -9,7 +9,8 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from helpers.properties import examples
+from hypothesis import HealthCheck, given
 from hypothesis import strategies as st
 from lxml import etree
 
@@ -405,7 +406,7 @@ def test_validate_refuses_other_files(tmp_path, name):
         validate(tmp_path / name)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@examples(60, suppress_health_check=[HealthCheck.too_slow])
 @given(position=st.integers(min_value=0), replacement=st.sampled_from(list("<>&\"'=/x 0-") + ["", "ssd:"]))
 def test_any_corruption_yields_located_problems_not_exceptions(position, replacement):
     """The validator is total: any one-character edit of a valid SSD gives a list of 'file:line: message'."""

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 from dask.distributed import Client
-from hypothesis import given, settings
+from helpers.properties import examples
+from hypothesis import given
 from hypothesis import strategies as st
 
 from nfal.errors import SweepError, SweepSpecError
@@ -108,7 +109,7 @@ def test_bad_toml_is_a_spec_error(tmp_path):
         load_spec(path)
 
 
-@settings(max_examples=40, deadline=None)
+@examples(40)
 @given(grid=st.dictionaries(st.sampled_from(["Plant.mass", "Controller.kp", "SensorChain.seed"]),
                             st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=1, max_size=3, unique=True),
                             min_size=1, max_size=3),
