@@ -5,6 +5,7 @@ tests/test_host_compatibility.py (hosts with nothing set up) and tests/test_fmu_
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -80,7 +81,7 @@ def test_settings_of_a_python_that_does_not_run_are_an_error(tmp_path):
         python_settings(broken)
 
 
-@pytest.mark.slow  # CMake and a C++ build of the runtime: about 11 s
+@pytest.mark.slow  # CMake and a C++ build of the runtime
 @pytest.mark.parametrize("version", [2, 3])
 def test_the_runtime_builds_from_a_cold_cache_with_this_pythons_headers(version, tmp_path, monkeypatch):
     """A fresh machine has no cached runtime: it must build with the headers of the Python that runs the build, also
@@ -93,6 +94,11 @@ def test_the_runtime_builds_from_a_cold_cache_with_this_pythons_headers(version,
     monkeypatch.setenv("PATH", os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep)
                                                if not p.startswith(sys.prefix)))
     monkeypatch.delenv("VIRTUAL_ENV", raising=False)
+    # the compiler's output from ccache (.ci/run installs it) where these sources compiled before: CMake still
+    # configures and builds from the sources, the preprocessor still needs the headers (a build 11 s -> 1.4 s)
+    if shutil.which("ccache"):
+        for language in ("C", "CXX"):
+            monkeypatch.setenv(f"CMAKE_{language}_COMPILER_LAUNCHER", "ccache")
     library = runtime_library(version)
     assert library.is_file() and tmp_path in library.parents
     assert f"fmi{version}DoStep" in exported_functions(library)
