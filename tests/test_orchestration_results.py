@@ -194,17 +194,25 @@ def test_pacer_keeps_nothing_per_step():
     assert report["step_duration_max_s"] == pytest.approx(0.0016)
 
 
-def test_pacer_on_the_real_clock():
+def test_pacer_on_the_real_clock_releases_step_k_at_t0_plus_k_periods():
+    """What holds on a loaded machine too: no step before its release, the releases on the schedule t0 + k T however
+    late the steps before were (lateness does not add up), and each lateness as late as it was, not more. How late a
+    busy machine lets a step be is the benches' (bench/realtime.py)."""
     import time
 
     pacer = RealTimePacer(0.005)
-    started = time.perf_counter()
     pacer.start()
+    starts = []
     for k in range(20):
         pacer.wait(k)
+        starts.append(time.perf_counter())
         pacer.done(k)
-    assert 0.095 <= time.perf_counter() - started < 0.2
-    assert pacer.report()["jitter_p95_s"] < 0.005
+    releases = [pacer.release_time(k) for k in range(20)]
+    assert releases == [pacer.start_time + k * 0.005 for k in range(20)]
+    lateness = [start - release for start, release in zip(starts, releases)]
+    report = pacer.report()
+    assert min(lateness) >= 0 and report["steps"] == 20
+    assert 0 <= report["jitter_p50_s"] <= report["jitter_max_s"] <= max(lateness)
 
 
 @pytest.mark.parametrize("kwargs", [{"step_size": 0}, {"step_size": 0.1, "speed": -1}, {"step_size": 0.1, "spin_s": 2},
