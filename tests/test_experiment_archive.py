@@ -34,7 +34,8 @@ from nfal.apps.structure_run import _stop_time
 from nfal.errors import DataFormatError, InvalidParameterError
 from nfal.apps.fig7 import DEFAULT_STAIRCASES, generated_reference
 
-pytestmark = pytest.mark.slow  # whole experiments in FMPy and ecos
+pytestmark = [pytest.mark.slow,  # whole experiments in FMPy and ecos
+              pytest.mark.xdist_group("experiment_archive")]  # one worker: its module fixtures built once
 
 STEP = 5e-4
 ECOS_SSP_OUTPUTS = Path(__file__).parent / "hosts" / "ecos_ssp_outputs.py"

@@ -22,7 +22,8 @@ from fmpy.validation import validate_fmu
 from nfal.cli import main
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
 
-pytestmark = pytest.mark.slow  # the FMI 3.0 FMUs built, run in FMPy, ecos and a C host
+pytestmark = [pytest.mark.slow,  # the FMI 3.0 FMUs built, run in FMPy, ecos and a C host
+              pytest.mark.xdist_group("fmi3")]  # one worker: its module fixtures built once
 
 pytest.importorskip("pythonfmu3")
 

@@ -22,7 +22,8 @@ import pytest
 from nfal.apps import host_check
 from nfal.fmus import build
 
-pytestmark = [pytest.mark.slow,
+# one worker runs the module (its xdist group), so that its module fixtures are built once
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("fmu_misuse"),
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the loader is built for Linux only")]
 
 SCRIPT = r'''

@@ -29,7 +29,8 @@ from nfal.fmus.export_runtime import PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME
 from nfal.apps.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.orchestration.ssp_archive import pack
 
-pytestmark = [pytest.mark.slow,
+# one worker runs the module (its xdist group), so that its module fixtures are built once
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("host_compatibility"),
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the loader is built for Linux only")]
 
 FIG7_FMUS = list(build.SIMULATION_FMUS)

@@ -23,6 +23,9 @@ WITH_ZERO = DesignSpec(sample_rate_hz=2000.0, reference_zero=REFERENCE_ZERO_RATI
 STEP = RIG.omega / 2000.0
 HEIGHTS = [50e-6, 65e-6, 90e-6, 125e-6, 160e-6, 200e-6]
 
+#: One worker runs the module (its xdist group), so that its module fixtures are built once.
+pytestmark = pytest.mark.xdist_group("sampled_design")
+
 
 @pytest.fixture(scope="module", params=[None, ExcessDamping.rig_like()], ids=["eq6", "rig-like damping"])
 def damping(request):

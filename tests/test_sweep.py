@@ -213,6 +213,10 @@ def small_spec():
     return parse_spec(SMALL_SSP)
 
 
+#: The tests of the one local-cluster sweep, on one worker: the sweep runs once.
+LOCAL_SWEEP_GROUP = pytest.mark.xdist_group("local_sweep")
+
+
 @pytest.fixture(scope="module")
 def local_sweep(small_spec, fig7_archives, tmp_path_factory):
     """The one sweep on a local cluster of worker processes; the other tests run in this process (workers=0)."""
@@ -224,6 +228,7 @@ def _by_id(rows):
 
 
 @pytest.mark.slow  # a Dask cluster of worker processes
+@LOCAL_SWEEP_GROUP
 def test_local_sweep_writes_one_row_per_run(local_sweep, small_spec):
     rows = local_sweep.rows()
     assert [r["run_id"] for r in rows] == [r.run_id for r in small_spec.runs()]
@@ -237,6 +242,7 @@ def test_local_sweep_writes_one_row_per_run(local_sweep, small_spec):
 
 
 @pytest.mark.slow  # a Dask cluster of worker processes
+@LOCAL_SWEEP_GROUP
 def test_a_run_that_raises_in_a_worker_is_a_row(local_sweep):
     failed = [r for r in local_sweep.rows() if r["status"] == "failed"]
     assert [r["param:Plant.mass"] for r in failed] == [-1.0, -1.0]
@@ -244,6 +250,7 @@ def test_a_run_that_raises_in_a_worker_is_a_row(local_sweep):
 
 
 @pytest.mark.slow  # a Dask cluster of worker processes
+@LOCAL_SWEEP_GROUP
 def test_heavier_plant_rises_slower(local_sweep):
     rows = [r for r in local_sweep.rows() if r["status"] == "ok" and r["param:SensorChain.seed"] == 0]
     by_mass = sorted(rows, key=lambda r: r["param:Plant.mass"])
@@ -251,6 +258,7 @@ def test_heavier_plant_rises_slower(local_sweep):
 
 
 @pytest.mark.slow  # a Dask cluster of worker processes
+@LOCAL_SWEEP_GROUP
 def test_interrupted_sweep_resumes_without_repeating(small_spec, fig7_archives, tmp_path, local_sweep):
     first: list[str] = []
 
@@ -338,6 +346,7 @@ def dask_cluster(tmp_path):
 
 
 @pytest.mark.slow  # a Dask cluster of worker processes
+@LOCAL_SWEEP_GROUP
 def test_scheduler_sweep_gives_the_local_table(dask_cluster, small_spec, fig7_archives, local_sweep, tmp_path):
     result = run_sweep(small_spec, tmp_path / "remote", scheduler=dask_cluster, archives=fig7_archives, plot=False)
     assert result.summary["workers"] == 2 and result.summary["scheduler"] == dask_cluster

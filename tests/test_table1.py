@@ -10,6 +10,9 @@ import pytest
 
 from nfal.models.table1 import TABLE1, run_case
 
+#: One worker runs the module (its xdist group), so that the four cases are run once.
+pytestmark = pytest.mark.xdist_group("table1")
+
 
 @pytest.fixture(scope="module")
 def results():

@@ -25,6 +25,9 @@ from nfal.apps.wine import ecos_windows, run_in_fmpy_remoting, wine_bench
 
 STOP_S = 0.05
 
+#: One worker runs the module (its xdist group), so that its module fixtures are built once.
+pytestmark = pytest.mark.xdist_group("windows")
+
 
 def test_wine_paths_and_the_windows_config():
     assert wine_path("/tmp/a b/python.exe") == "Z:\\tmp\\a b\\python.exe"
