@@ -23,7 +23,7 @@ from pathlib import Path
 
 from fmpy import read_model_description
 
-from nfal.errors import HostUnavailableError
+from nfal.errors import DataFormatError, HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import RUNTIMES, mingw_tool
 from nfal.fmus.windows_python import wine_path
@@ -192,7 +192,11 @@ def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: 
         result.exit_codes.append(run.returncode)
         result.texts.append((run.stdout, run.stderr))
         if run.returncode == 0:
-            result.outputs.append(read_ecos_csv(folder / f"{ssp.stem}.csv"))
+            written = folder / f"{ssp.stem}.csv"
+            if not written.is_file():  # seen once under wine, beside a loaded machine: say what ecos said
+                raise DataFormatError(f"ecos exited with 0 but wrote no {written.name}; it said: "
+                                           f"{(run.stdout + run.stderr)[-3000:]}")
+            result.outputs.append(read_ecos_csv(written))
         elif not result.first_failure:
             result.first_failure = run.stdout + run.stderr
     return result
