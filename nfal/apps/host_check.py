@@ -195,7 +195,7 @@ def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: 
             written = folder / f"{ssp.stem}.csv"
             if not written.is_file():  # seen once under wine, beside a loaded machine: say what ecos said
                 raise DataFormatError(f"ecos exited with 0 but wrote no {written.name}; it said: "
-                                           f"{(run.stdout + run.stderr)[-3000:]}")
+                                      f"{(run.stdout + run.stderr)[-3000:]}")
             result.outputs.append(read_ecos_csv(written))
         elif not result.first_failure:
             result.first_failure = run.stdout + run.stderr
