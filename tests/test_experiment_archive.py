@@ -327,7 +327,10 @@ def test_the_ecos_command_line_runs_the_whole_staircase(fig7_archives, fmi3_arch
     assert rows >= round(stop_time / STEP)  # ecos may stop one step short of the stop time
     np.testing.assert_allclose(theirs["time"], jacobi_run.time[:rows], rtol=0, atol=1e-9)
     levels = set(theirs["ReferenceGenerator::reference"])
-    assert levels == set(Staircase().levels_m) if fmi == 2 else len(levels) >= 3
+    if fmi == 2:
+        assert levels == set(Staircase().levels_m)
+    else:
+        assert len(levels) >= 3  # the first steps: each value held to nfal run's below
     for ecos_name, ours in (("Plant::height", "Plant.height"),
                             ("SensorChain::measured_height", "SensorChain.measured_height"),
                             ("ReferenceGenerator::reference", "ReferenceGenerator.reference")):

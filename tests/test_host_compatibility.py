@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from fmpy import simulate_fmu
 
-from nfal.errors import HostUnavailableError
+from nfal.errors import DataFormatError, HostUnavailableError
 from nfal.fmus import build
 from nfal.fmus.export_runtime import PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME_SUFFIX, RUNTIMES, exported_functions
 from nfal.apps.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
@@ -224,6 +224,17 @@ def test_the_fig7_archive_runs_in_ecos_without_a_crash(environment, fmus, ecos, 
         theirs = np.array(run["ResonanceTracker::drive_voltage"])
         assert len(theirs) >= len(voltage) - 1  # ecos may stop one step short of the stop time
         np.testing.assert_allclose(theirs, voltage[:len(theirs)], rtol=0, atol=5e-7 * (1 + 1e-9))
+
+
+def test_an_ecos_that_exits_with_0_and_writes_no_results_is_an_error_saying_what_it_said(tmp_path):
+    """Seen once from ecos.exe under wine beside a loaded machine: exit 0, no CSV. The run is not read as a success,
+    nor fails on the missing file: the error carries what ecos printed."""
+    silent = tmp_path / "ecos"
+    silent.write_text("#!/bin/sh\necho 'simulation ended early' >&2\nexit 0\n")
+    silent.chmod(0o755)
+    with pytest.raises(DataFormatError, match=r"ecos exited with 0 but wrote no fig7_slow\.csv; it said: simulation "
+                                              r"ended early"):
+        run_in_ecos(silent, tmp_path / "fig7_slow.ssp", tmp_path / "runs", runs=1, stop_time=0.01)
 
 
 @pytest.mark.parametrize("fmi_version", [2, 3])
