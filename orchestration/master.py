@@ -18,7 +18,8 @@ Two algorithms (docs/cosimulation.md, "The loop and the step order"), one class 
     exit initialisation, read the outputs again and move them once more, so the first step starts
     from the outputs of the running FMUs at t0.
 
-Every run: extract each FMU (once per file, unless it can be instantiated only once per process),
+Every run: extract each FMU (once per process and content, :mod:`~nfal.orchestration.fmu_folders`; for each run
+if it can be instantiated only once per process),
 instantiate it with a logger that keeps its last messages, set the start values (typed), set up the
 experiment, enter initialisation, set the external inputs at t0 and propagate (per algorithm), exit
 initialisation. The master's ``row`` holds every recorded value at the current communication point:
@@ -67,6 +68,7 @@ from fmpy.logging import addLoggerProxy
 from nfal.errors import (CausalityError, FmuCallError, FmuLoadError, InvalidParameterError,
                          TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive, shown)
 
+from . import fmu_folders
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
 from .results import Column
 from .exchange import EXCHANGES
@@ -492,16 +494,18 @@ class Master:
         folders: dict[Path, str] = {}
         for element in self.system.elements:
             source = element.source
+            once = element.model_description.coSimulation.canBeInstantiatedOnlyOncePerProcess
             if source.is_dir():
                 folder = str(source)
-            elif source in folders and not element.model_description.coSimulation.canBeInstantiatedOnlyOncePerProcess:
+            elif source in folders and not once:
                 folder = folders[source]
             else:
                 try:
-                    folder = extract(str(source))
+                    folder = extract(str(source)) if once else fmu_folders.extracted(source)
                 except Exception as exc:
                     raise FmuLoadError(f"element {element.name!r}: cannot extract {source}: {exc}") from None
-                self._folders.append(folder)
+                if once:
+                    self._folders.append(folder)
                 folders[source] = folder
             slave = _slave(element, folder, self.fmu_logging)
             self._slaves[element.name] = slave
@@ -688,6 +692,9 @@ class Master:
                 logger.warning("%s: terminate/free failed: %s%s", slave.name, exc,
                                f"; {slave.messages[-1]}" if slave.messages else "")
             slave.state = "freed"
+        for source in fatal:  # FMI allows no further call to any instance of it: the next run extracts it anew
+            if source.is_file():
+                fmu_folders.forget(source)
         for folder in self._folders:  # a library still mapped after fmi2Fatal survives its files' removal
             shutil.rmtree(folder, ignore_errors=True)
         self._folders.clear()
