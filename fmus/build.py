@@ -41,8 +41,11 @@ fmi2Instantiate with a logged line naming it and its pip command. Every FMU runs
 carries, whatever else the host process has imported (``fmus/bundle_loader.py``).
 
 An FMU is rebuilt only when it is missing or older than one of its sources (the script, the copied
-files, this file); ``force=True`` rebuilds regardless. Builds go to a temporary file that replaces
-the FMU in one step, so a reader never sees half an archive.
+files, this file); ``force=True`` rebuilds regardless. What is built is kept in the nfal cache
+(``fmus/<digest>/``, by the sources' content, the builders' versions and the Python the FMU records), and a build of
+the same is a copy from there (5 ms, not 0.25-0.36 s once the modules are loaded: pythonfmu imports the slave to
+describe it). Builds go to a temporary file that replaces the FMU in one step, so a reader never sees half an
+archive.
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ from pathlib import Path
 from typing import Iterable
 
 import pythonfmu
+import pythonfmu3
 from pythonfmu import FmuBuilder as Fmi2Builder
 from pythonfmu3 import FmuBuilder as Fmi3Builder
 
@@ -70,6 +74,7 @@ from nfal.fmus.export_runtime import (LOADER_WINDOWS_HEADER, PYTHON_CONFIG, PYTH
                                       windows_runtime_library)
 from nfal.fmus.windows_python import windows_settings
 from nfal.fmus.fmi3 import fmi3_script
+from nfal.models.disk_cache import cache_root, digest
 
 logger = logging.getLogger(__name__)
 
@@ -253,6 +258,11 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     if not force and is_up_to_date(target, name, fmi_version, windows=windows_python):
         logger.info("%s is up to date", target)
         return target
+    cached = cache_root() / "fmus" / _build_key(name, fmi_version, windows_python) / target.name
+    if not force and cached.is_file():
+        _copy_in_one_step(cached, target)
+        logger.info("built %s (from the cache: %s)", target, cached.parent)
+        return target
     with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:
         stage = Path(temp) / "stage"
         stage.mkdir()
@@ -269,9 +279,30 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
             sys.modules.pop(staged.stem, None)
         partial = out / f".{name}.fmu.partial-{os.getpid()}"
         _with_runtime(built, name, partial, fmi_version, windows_python)
+        _copy_in_one_step(partial, cached)
         os.replace(partial, target)
     logger.info("built %s", target)
     return target
+
+
+def _build_key(name: str, fmi_version: int, windows_python: Path | None) -> str:
+    """What an FMU built now would be made of: every source (:func:`sources`) by content, the nfal version it
+    carries, the builders' versions and the Python (and Windows Python) it records."""
+    files = sources(name, fmi_version) + ([LOADER_WINDOWS_HEADER, FMUS_DIR / "windows_python.py"]
+                                          if windows_python else [])
+    recorded = [python_config(python_settings())]
+    if windows_python is not None:
+        recorded.append(python_config(windows_settings(windows_python), windows=True))
+    return digest(name, fmi_version, _minimal_package_init(), pythonfmu.__version__, pythonfmu3.__version__,
+                  *recorded, *(part for path in files for part in (path.name, path.read_bytes())))
+
+
+def _copy_in_one_step(source: Path, target: Path) -> None:
+    """Copy ``source`` to ``target`` (its folder made) through a temporary file, so that no reader sees half."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(f".{target.name}.partial-{os.getpid()}")
+    shutil.copy2(source, partial)
+    os.replace(partial, target)
 
 
 def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *, force: bool = False,

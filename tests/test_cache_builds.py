@@ -1,14 +1,18 @@
 """What the user-wide cache builds once (the FMU runtimes, the Windows Python) is built once when several processes
 ask at the same time, as two test workers or a sweep's workers do on a fresh machine: one builds, the others wait
-and find it built. Before, the second Windows Python failed to move into place ("Directory not empty")."""
+and find it built. Before, the second Windows Python failed to move into place ("Directory not empty"). An FMU and
+the C host are built once per content and copied after that."""
 
+import os
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from nfal.fmus import export_runtime, windows_python
+import nfal
+from nfal.apps import host_check
+from nfal.fmus import build, export_runtime, windows_python
 from nfal.models.disk_cache import exclusive
 
 
@@ -77,3 +81,29 @@ def test_the_runtime_is_built_once_for_callers_at_once(fmi_version, tmp_path, mo
                         _slow_build(calls, lambda runtime, target: target.write_bytes(b"\x7fELF")))
     libraries = _at_once(lambda: export_runtime.runtime_library(fmi_version))
     assert len(calls) == 1 and len(set(libraries)) == 1 and libraries[0].read_bytes() == b"\x7fELF"
+
+
+def test_a_build_of_the_same_sources_is_a_copy_and_another_nfal_version_a_new_build(tmp_path, monkeypatch):
+    monkeypatch.setattr(build, "cache_root", lambda: tmp_path / "cache")  # the FMUs' (the runtime's stays warm)
+    first = build.build_fmu("ReferenceGenerator", tmp_path / "a")
+    monkeypatch.setattr(build.Fmi2Builder, "build_FMU", _refuse)
+    again = build.build_fmu("ReferenceGenerator", tmp_path / "b")
+    assert again != first and again.read_bytes() == first.read_bytes()
+    monkeypatch.setattr(nfal, "__version__", "9.9.9")  # carried by the FMU: another build
+    with pytest.raises(AssertionError, match="the builder ran"):
+        build.build_fmu("ReferenceGenerator", tmp_path / "c")
+
+
+def test_the_c_host_is_compiled_once_and_copied(tmp_path, monkeypatch):
+    monkeypatch.setattr(host_check, "cache_root", lambda: tmp_path / "cache")
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+    first = host_check.compile_c_host(tmp_path / "a", 2)
+    monkeypatch.setattr(host_check.subprocess, "run", _refuse)
+    again = host_check.compile_c_host(tmp_path / "b", 2)
+    assert again.parent == tmp_path / "b" and again.read_bytes() == first.read_bytes()
+    assert os.access(again, os.X_OK)
+
+
+def _refuse(*args, **kwargs):
+    raise AssertionError("the builder ran")

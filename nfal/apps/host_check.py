@@ -27,6 +27,7 @@ from nfal.errors import DataFormatError, HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import RUNTIMES, mingw_tool
 from nfal.fmus.windows_python import wine_path
+from nfal.models.disk_cache import build_once, cache_root, digest
 
 #: The C hosts' sources, per FMI version.
 C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
@@ -71,18 +72,29 @@ def bare_environment(**extra: str) -> dict[str, str]:
 
 def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False) -> Path:
     """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable (``windows``: a
-    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`)."""
+    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`). Compiled once per source, compiler
+    and flags into the nfal cache (:func:`~nfal.models.disk_cache.cache_root`), and copied from there."""
     source = C_HOST_SOURCES[fmi_version]
     if windows:
-        executable = Path(out_dir) / f"{source.stem}.exe"
-        command = [mingw_tool("gcc"), "-O1", "-Wall", "-o", str(executable), str(source), "-static"]
+        compiler, flags, name = mingw_tool("gcc"), ["-static"], f"{source.stem}.exe"
     else:
-        compiler = shutil.which("cc") or shutil.which("gcc")
+        compiler, flags, name = shutil.which("cc") or shutil.which("gcc"), ["-ldl"], source.stem
         if compiler is None:
             raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
-        executable = Path(out_dir) / source.stem
-        command = [compiler, "-O1", "-Wall", "-o", str(executable), str(source), "-ldl"]
-    subprocess.run(command, check=True, capture_output=True, text=True)
+    compiled = Path(compiler).resolve().stat()
+    key = digest(source.read_bytes(), str(Path(compiler).resolve()), compiled.st_size, compiled.st_mtime_ns, flags)
+    cached = cache_root() / "c-hosts" / key / name
+
+    def build() -> None:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        partial = cached.with_name(f".{name}.{os.getpid()}")
+        subprocess.run([compiler, "-O1", "-Wall", "-o", str(partial), str(source), *flags], check=True,
+                       capture_output=True, text=True)
+        os.replace(partial, cached)
+
+    build_once(cached.is_file, cached.parent.with_name(f"{key}.lock"), build)
+    executable = Path(out_dir) / name
+    shutil.copy2(cached, executable)
     return executable
 
 
