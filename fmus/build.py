@@ -42,7 +42,8 @@ carries, whatever else the host process has imported (``fmus/bundle_loader.py``)
 
 An FMU is rebuilt only when it is missing or older than one of its sources (the script, the copied
 files, this file); ``force=True`` rebuilds regardless. What is built is kept in the nfal cache
-(``fmus/<digest>/``, by the sources' content, the builders' versions and the Python the FMU records), and a build of
+(``fmus/<digest>/``, by the sources' content, the builders' versions and the Python the FMU records; the newest
+:data:`KEPT_BUILDS` of each FMU), and a build of
 the same is a copy from there (5 ms, not 0.25-0.36 s once the modules are loaded: pythonfmu imports the slave to
 describe it). Builds go to a temporary file that replaces the FMU in one step, so a reader never sees half an
 archive.
@@ -208,10 +209,6 @@ def _with_runtime(built: Path, name: str, target: Path, fmi_version: int, window
     platform = RUNTIMES[fmi_version].platform
     binary = f"binaries/{platform}/{name}.so"
     settings = python_settings()
-    if not settings.get("libpython"):
-        logger.warning("the Python building %s (%s) has no shared libpython: a host without Python cannot run "
-                       "the FMU until %s (or override= in resources/%s) names one that has", name,
-                       settings.get("executable"), PYTHON_OVERRIDE_ENV, PYTHON_CONFIG)
     with zipfile.ZipFile(built) as source, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as out:
         replaced = False
         for item in source.infolist():
@@ -258,11 +255,19 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     if not force and is_up_to_date(target, name, fmi_version, windows=windows_python):
         logger.info("%s is up to date", target)
         return target
+    settings = python_settings()
+    if not settings.get("libpython"):
+        logger.warning("the Python building %s (%s) has no shared libpython: a host without Python cannot run "
+                       "the FMU until %s (or override= in resources/%s) names one that has", name,
+                       settings.get("executable"), PYTHON_OVERRIDE_ENV, PYTHON_CONFIG)
     cached = cache_root() / "fmus" / _build_key(name, fmi_version, windows_python) / target.name
     if not force and cached.is_file():
-        _copy_in_one_step(cached, target)
-        logger.info("built %s (from the cache: %s)", target, cached.parent)
-        return target
+        try:
+            _copy_in_one_step(cached, target)
+            logger.info("built %s (from the cache: %s)", target, cached.parent)
+            return target
+        except FileNotFoundError:  # pruned by another process meanwhile: built below
+            pass
     with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:
         stage = Path(temp) / "stage"
         stage.mkdir()
@@ -279,7 +284,11 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
             sys.modules.pop(staged.stem, None)
         partial = out / f".{name}.fmu.partial-{os.getpid()}"
         _with_runtime(built, name, partial, fmi_version, windows_python)
-        _copy_in_one_step(partial, cached)
+        try:
+            _copy_in_one_step(partial, cached)
+            _prune(cached.parent.parent, target.name)
+        except OSError as exc:  # a cache that cannot be written is no reason to fail the build
+            logger.warning("the FMU %s is not kept in the nfal cache: %s", name, exc)
         os.replace(partial, target)
     logger.info("built %s", target)
     return target
@@ -298,11 +307,29 @@ def _build_key(name: str, fmi_version: int, windows_python: Path | None) -> str:
 
 
 def _copy_in_one_step(source: Path, target: Path) -> None:
-    """Copy ``source`` to ``target`` (its folder made) through a temporary file, so that no reader sees half."""
+    """Copy ``source`` to ``target`` (its folder made) through a temporary file, so that no reader sees half. The
+    copy is new (its modification time now, not the cached build's): newer than its sources, so up to date, and than
+    the archives packed from its predecessor, so they are packed again (nfal/apps/build.py)."""
     target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_name(f".{target.name}.partial-{os.getpid()}")
-    shutil.copy2(source, partial)
-    os.replace(partial, target)
+    handle, partial = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
+    os.close(handle)
+    try:
+        shutil.copyfile(source, partial)
+        os.replace(partial, target)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
+
+
+#: Builds the cache keeps of each FMU file name (every edit of a source makes a new one; the oldest go).
+KEPT_BUILDS = 8
+
+
+def _prune(root: Path, file_name: str) -> None:
+    """Remove all but the newest :data:`KEPT_BUILDS` cached builds named ``file_name`` under ``root``."""
+    builds = sorted(root.glob(f"*/{file_name}"), key=lambda path: path.exists() and path.stat().st_mtime, reverse=True)
+    for old in builds[KEPT_BUILDS:]:
+        shutil.rmtree(old.parent, ignore_errors=True)
 
 
 def build_fmus(out_dir: str | os.PathLike, names: Iterable[str] | None = None, *, force: bool = False,

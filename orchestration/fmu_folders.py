@@ -17,59 +17,65 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import io
 import os
 import shutil
 import tempfile
 import threading
+from pathlib import Path
 
 from fmpy import extract
 
 _lock = threading.Lock()
-#: {SHA-256 of an FMU file: its extracted folder}, and the folder holding them, made by process ``_owner``.
+#: {SHA-256 of an FMU file: its extracted folder}, and the folder holding them, made by this process (a forked child
+#: makes its own for what it extracts: :func:`_after_fork`).
 _folders: dict[str, str] = {}
 _root: str | None = None
-_owner: int | None = None
-
-
-def content_key(fmu: str | os.PathLike) -> str:
-    """The SHA-256 of the FMU file ``fmu``."""
-    digest = hashlib.sha256()
-    with open(fmu, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def extracted(fmu: str | os.PathLike) -> str:
     """The folder of the FMU file ``fmu``, extracted on first use in this process (its content's folder after
-    that); fmpy's errors as :func:`fmpy.extract` raises them."""
-    key = content_key(fmu)
+    that); fmpy's errors as :func:`fmpy.extract` raises them. The content is read once: what is extracted is what
+    was hashed, whatever replaces the file meanwhile."""
+    data = Path(fmu).read_bytes()
+    key = hashlib.sha256(data).hexdigest()
     with _lock:
         folder = _folders.get(key)
         if folder is None or not os.path.isdir(folder):
-            folder = str(extract(str(fmu), unzipdir=tempfile.mkdtemp(dir=_cache_root(), prefix=f"{key[:16]}-")))
+            folder = str(extract(io.BytesIO(data), unzipdir=tempfile.mkdtemp(dir=_cache_root(), prefix=f"{key[:16]}-")))
             _folders[key] = folder
         return folder
 
 
-def forget(fmu: str | os.PathLike) -> None:
-    """Extract ``fmu`` afresh, into a new folder, on its next use (the old folder stays: a library mapped from it is
-    never unmapped)."""
-    key = content_key(fmu)
+def forget(folder: str) -> None:
+    """Extract the FMU of ``folder`` (one :func:`extracted` gave) afresh, into a new folder, on its next use (the old
+    folder stays: a library loaded from it may still be in use)."""
     with _lock:
-        _folders.pop(key, None)
+        for key in [key for key, held in _folders.items() if held == folder]:
+            del _folders[key]
 
 
 def _cache_root() -> str:
-    """This process's folder of extracted FMUs. A forked child uses the FMUs its parent extracted and puts those it
-    extracts itself in a folder of its own: the parent's is the parent's to remove."""
-    global _root, _owner
-    if _root is None or _owner != os.getpid():
-        _root, _owner = tempfile.mkdtemp(prefix="nfal-fmus-"), os.getpid()
-        atexit.register(_remove, _root, _owner)
+    """This process's folder of extracted FMUs, removed at its exit (not after ``os._exit`` or a kill: such a
+    process's folder stays in the temporary folder)."""
+    global _root
+    if _root is None or not os.path.isdir(_root):
+        _root = tempfile.mkdtemp(prefix="nfal-fmus-")
+        atexit.register(_remove, _root, os.getpid())
     return _root
 
 
 def _remove(root: str, owner: int) -> None:
-    if os.getpid() == owner:
+    if os.getpid() == owner:  # a forked child runs its parent's exit handlers too
         shutil.rmtree(root, ignore_errors=True)
+
+
+def _after_fork() -> None:
+    """A forked child: uses the FMUs its parent extracted, puts what it extracts in a folder of its own (the parent's
+    is the parent's to remove), and gets a lock no thread of the parent may hold."""
+    global _lock, _root
+    _lock, _root = threading.Lock(), None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)

@@ -146,7 +146,7 @@ class _Slave:
     CALLS = _FMI2_CALLS  #: variable type -> (suffix of its get/set functions, C value type)
 
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
-        self.element, self.name = element, element.name
+        self.element, self.name, self.folder = element, element.name, unzip_dir
         self.messages: collections.deque[str] = collections.deque(maxlen=20)
         #: The error-status messages: an error's cause, said first (pythonfmu's generic follow-up to one adds nothing)
         self.reasons: collections.deque[str] = collections.deque(maxlen=5)
@@ -212,7 +212,7 @@ class _Slave3(_Slave):
     CALLS = _FMI3_CALLS
 
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
-        self.element, self.name = element, element.name
+        self.element, self.name, self.folder = element, element.name, unzip_dir
         self.messages = collections.deque(maxlen=20)
         self.reasons = collections.deque(maxlen=5)
         self.state = "loaded"
@@ -678,10 +678,11 @@ class Master:
 
     def close(self) -> None:
         """Terminate and free every instance that FMI allows to, then remove the extracted FMUs."""
-        fatal = {s.element.source for s in self._slaves.values() if s.state == "fatal"}
+        # after fmi2Fatal FMI allows no further call to any instance of that FMU: of its library, its folder
+        fatal = {s.folder for s in self._slaves.values() if s.state == "fatal"}
         for slave in reversed(list(self._slaves.values())):
-            if slave.state in ("loaded", "freed") or slave.element.source in fatal:
-                if slave.state == "fatal" or slave.element.source in fatal:
+            if slave.state in ("loaded", "freed") or slave.folder in fatal:
+                if slave.state == "fatal" or slave.folder in fatal:
                     logger.info("%s: not freed (fmi2Fatal: FMI allows no further call)", slave.name)
                 continue
             try:
@@ -692,9 +693,8 @@ class Master:
                 logger.warning("%s: terminate/free failed: %s%s", slave.name, exc,
                                f"; {slave.messages[-1]}" if slave.messages else "")
             slave.state = "freed"
-        for source in fatal:  # FMI allows no further call to any instance of it: the next run extracts it anew
-            if source.is_file():
-                fmu_folders.forget(source)
+        for folder in fatal:  # the next run extracts it anew
+            fmu_folders.forget(folder)
         for folder in self._folders:  # a library still mapped after fmi2Fatal survives its files' removal
             shutil.rmtree(folder, ignore_errors=True)
         self._folders.clear()

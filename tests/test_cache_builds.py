@@ -4,6 +4,8 @@ and find it built. Before, the second Windows Python failed to move into place (
 the C host are built once per content and copied after that."""
 
 import os
+import shutil
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -85,10 +87,17 @@ def test_the_runtime_is_built_once_for_callers_at_once(fmi_version, tmp_path, mo
 
 def test_a_build_of_the_same_sources_is_a_copy_and_another_nfal_version_a_new_build(tmp_path, monkeypatch):
     monkeypatch.setattr(build, "cache_root", lambda: tmp_path / "cache")  # the FMUs' (the runtime's stays warm)
+    touched = tmp_path / "touched.py"  # a source, saved again after the first build with its content unchanged
+    touched.write_text("")
+    sources = build.sources
+    monkeypatch.setattr(build, "sources", lambda *args: [*sources(*args), touched])
     first = build.build_fmu("ReferenceGenerator", tmp_path / "a")
+    os.utime(touched, (first.stat().st_mtime + 1e-3,) * 2)
     monkeypatch.setattr(build.Fmi2Builder, "build_FMU", _refuse)
     again = build.build_fmu("ReferenceGenerator", tmp_path / "b")
     assert again != first and again.read_bytes() == first.read_bytes()
+    # a new file, not as old as the cached build: newer than its sources (and than what was packed from an older one)
+    assert build.is_up_to_date(again, "ReferenceGenerator")
     monkeypatch.setattr(nfal, "__version__", "9.9.9")  # carried by the FMU: another build
     with pytest.raises(AssertionError, match="the builder ran"):
         build.build_fmu("ReferenceGenerator", tmp_path / "c")
@@ -107,3 +116,30 @@ def test_the_c_host_is_compiled_once_and_copied(tmp_path, monkeypatch):
 
 def _refuse(*args, **kwargs):
     raise AssertionError("the builder ran")
+
+
+def test_a_c_host_whose_header_changed_is_compiled_again(tmp_path, monkeypatch):
+    monkeypatch.setattr(host_check, "cache_root", lambda: tmp_path / "cache")
+    sources = tmp_path / "hosts"
+    shutil.copytree(host_check.C_HOST_SOURCES[2].parent, sources)
+    monkeypatch.setitem(host_check.C_HOST_SOURCES, 2, sources / "fmi2_host.c")
+    compiled, run = [], subprocess.run
+    monkeypatch.setattr(host_check.subprocess, "run", lambda command, **kw: compiled.append(1) or run(command, **kw))
+    for edit in ("", "", "/* edited */\n"):
+        with open(sources / "host_common.h", "a") as header:
+            header.write(edit)
+        host_check.compile_c_host(tmp_path, 2)
+    assert len(compiled) == 2  # the first time, and after the edit
+
+
+def test_the_newest_builds_of_each_fmu_are_kept(tmp_path):
+    for k in range(build.KEPT_BUILDS + 3):
+        entry = tmp_path / f"key{k}" / "X.fmu"
+        entry.parent.mkdir()
+        entry.write_bytes(b"x")
+        os.utime(entry, (1000 + k,) * 2)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "Y.fmu").write_bytes(b"y")
+    build._prune(tmp_path, "X.fmu")
+    assert sorted(p.parent.name for p in tmp_path.glob("*/X.fmu")) == sorted(f"key{k}" for k in range(3, 11))
+    assert (tmp_path / "other" / "Y.fmu").is_file()

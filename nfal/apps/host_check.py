@@ -16,6 +16,7 @@ import os
 import shutil
 import stat
 import subprocess
+import threading
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -31,6 +32,8 @@ from nfal.models.disk_cache import build_once, cache_root, digest
 
 #: The C hosts' sources, per FMI version.
 C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
+#: How every C host is compiled (beside the platform's libraries).
+C_HOST_FLAGS = ("-O1", "-Wall")
 HOST_TIMEOUT_S = 600
 
 
@@ -72,29 +75,40 @@ def bare_environment(**extra: str) -> dict[str, str]:
 
 def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False) -> Path:
     """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable (``windows``: a
-    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`). Compiled once per source, compiler
-    and flags into the nfal cache (:func:`~nfal.models.disk_cache.cache_root`), and copied from there."""
+    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`). Compiled once per source (the headers
+    beside it included), compiler and command line into the nfal cache
+    (:func:`~nfal.models.disk_cache.cache_root`), and copied from there; where the cache cannot be written, into
+    ``out_dir`` directly."""
     source = C_HOST_SOURCES[fmi_version]
     if windows:
-        compiler, flags, name = mingw_tool("gcc"), ["-static"], f"{source.stem}.exe"
+        compiler, flags, name = mingw_tool("gcc"), ("-static",), f"{source.stem}.exe"
     else:
-        compiler, flags, name = shutil.which("cc") or shutil.which("gcc"), ["-ldl"], source.stem
+        compiler, flags, name = shutil.which("cc") or shutil.which("gcc"), ("-ldl",), source.stem
         if compiler is None:
             raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
-    compiled = Path(compiler).resolve().stat()
-    key = digest(source.read_bytes(), str(Path(compiler).resolve()), compiled.st_size, compiled.st_mtime_ns, flags)
+    executable = Path(out_dir) / name
+
+    def compile_to(path: Path) -> None:
+        subprocess.run([compiler, *C_HOST_FLAGS, "-o", str(path), str(source), *flags], check=True,
+                       capture_output=True, text=True)
+
+    binary = Path(compiler).resolve()
+    headers = sorted(source.parent.glob("*.h"))
+    key = digest(source.read_bytes(), *(h.read_bytes() for h in headers), str(binary), binary.stat().st_size,
+                 binary.stat().st_mtime_ns, C_HOST_FLAGS, flags)
     cached = cache_root() / "c-hosts" / key / name
 
     def build() -> None:
         cached.parent.mkdir(parents=True, exist_ok=True)
-        partial = cached.with_name(f".{name}.{os.getpid()}")
-        subprocess.run([compiler, "-O1", "-Wall", "-o", str(partial), str(source), *flags], check=True,
-                       capture_output=True, text=True)
+        partial = cached.with_name(f".{name}.{os.getpid()}.{threading.get_ident()}")
+        compile_to(partial)
         os.replace(partial, cached)
 
-    build_once(cached.is_file, cached.parent.with_name(f"{key}.lock"), build)
-    executable = Path(out_dir) / name
-    shutil.copy2(cached, executable)
+    try:
+        build_once(cached.is_file, cached.parent.with_name(f"{key}.lock"), build)
+        shutil.copy2(cached, executable)
+    except OSError:  # the cache cannot be written
+        compile_to(executable)
     return executable
 
 
