@@ -43,10 +43,10 @@ carries, whatever else the host process has imported (``fmus/bundle_loader.py``)
 An FMU is rebuilt only when it is missing or older than one of its sources (the script, the copied
 files, this file); ``force=True`` rebuilds regardless. What is built is kept in the nfal cache
 (``fmus/<digest>/``, by the sources' content, the builders' versions and the Python the FMU records; the newest
-:data:`KEPT_BUILDS` of each FMU), and a build of
-the same is a copy from there (5 ms, not 0.25-0.36 s once the modules are loaded: pythonfmu imports the slave to
-describe it). Builds go to a temporary file that replaces the FMU in one step, so a reader never sees half an
-archive.
+:data:`KEPT_BUILDS` of each FMU), and a build of the same is a copy from there: 5 ms, not 0.25-0.36 s once the
+modules are loaded (pythonfmu imports the slave to describe it; ``build_fmu(name, folder, force=True)``, then
+``build_fmu(name, another_folder)``, in one Python). Builds go to a temporary file that replaces the FMU in one
+step, so a reader never sees half an archive.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ from nfal.fmus.export_runtime import (LOADER_WINDOWS_HEADER, PYTHON_CONFIG, PYTH
                                       windows_runtime_library)
 from nfal.fmus.windows_python import windows_settings
 from nfal.fmus.fmi3 import fmi3_script
-from nfal.models.disk_cache import cache_root, digest
+from nfal.models.disk_cache import cache_root, digest, write_in_one_step
 
 logger = logging.getLogger(__name__)
 
@@ -262,8 +262,8 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
                        settings.get("executable"), PYTHON_OVERRIDE_ENV, PYTHON_CONFIG)
     cached = cache_root() / "fmus" / _build_key(name, fmi_version, windows_python) / target.name
     if not force and cached.is_file():
-        try:
-            _copy_in_one_step(cached, target)
+        try:  # a new file (modification time now): newer than its sources, and than archives packed before it
+            write_in_one_step(target, lambda path: shutil.copyfile(cached, path))
             logger.info("built %s (from the cache: %s)", target, cached.parent)
             return target
         except FileNotFoundError:  # pruned by another process meanwhile: built below
@@ -282,14 +282,12 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
         finally:
             sys.path[:] = path_before  # the builder inserts the script's folder for good
             sys.modules.pop(staged.stem, None)
-        partial = out / f".{name}.fmu.partial-{os.getpid()}"
-        _with_runtime(built, name, partial, fmi_version, windows_python)
-        try:
-            _copy_in_one_step(partial, cached)
-            _prune(cached.parent.parent, target.name)
-        except OSError as exc:  # a cache that cannot be written is no reason to fail the build
-            logger.warning("the FMU %s is not kept in the nfal cache: %s", name, exc)
-        os.replace(partial, target)
+        write_in_one_step(target, lambda path: _with_runtime(built, name, path, fmi_version, windows_python))
+    try:
+        write_in_one_step(cached, lambda path: shutil.copyfile(target, path))
+        _prune(cached.parent.parent, target.name)
+    except OSError as exc:  # a cache that cannot be written is no reason to fail the build
+        logger.warning("the FMU %s is not kept in the nfal cache: %s", name, exc)
     logger.info("built %s", target)
     return target
 
@@ -306,28 +304,13 @@ def _build_key(name: str, fmi_version: int, windows_python: Path | None) -> str:
                   *recorded, *(part for path in files for part in (path.name, path.read_bytes())))
 
 
-def _copy_in_one_step(source: Path, target: Path) -> None:
-    """Copy ``source`` to ``target`` (its folder made) through a temporary file, so that no reader sees half. The
-    copy is new (its modification time now, not the cached build's): newer than its sources, so up to date, and than
-    the archives packed from its predecessor, so they are packed again (nfal/apps/build.py)."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    handle, partial = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
-    os.close(handle)
-    try:
-        shutil.copyfile(source, partial)
-        os.replace(partial, target)
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
-
-
 #: Builds the cache keeps of each FMU file name (every edit of a source makes a new one; the oldest go).
 KEPT_BUILDS = 8
 
 
 def _prune(root: Path, file_name: str) -> None:
     """Remove all but the newest :data:`KEPT_BUILDS` cached builds named ``file_name`` under ``root``."""
-    builds = sorted(root.glob(f"*/{file_name}"), key=lambda path: path.exists() and path.stat().st_mtime, reverse=True)
+    builds = sorted(root.glob(f"*/{file_name}"), key=lambda path: path.stat().st_mtime, reverse=True)
     for old in builds[KEPT_BUILDS:]:
         shutil.rmtree(old.parent, ignore_errors=True)
 

@@ -13,6 +13,7 @@ import hashlib
 import logging
 import os
 import tempfile
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Callable
@@ -55,6 +56,22 @@ def build_once(done: Callable[[], bool], lock: str | os.PathLike, build: Callabl
     with exclusive(lock):
         if not done():
             build()
+
+
+def write_in_one_step(target: str | os.PathLike, write: Callable[[Path], object]) -> Path:
+    """``write(path)`` to a new temporary file beside ``target`` (its folder made), then that file in ``target``'s
+    place in one step: a reader never sees half of it, and a ``write`` that raises leaves nothing behind. The file is
+    new: its modification time is now."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(f".{target.name}.{uuid.uuid4().hex}")  # made by ``write``, with the usual mode
+    try:
+        write(partial)
+        os.replace(partial, target)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
+    return target
 
 
 def digest(*parts: object) -> str:

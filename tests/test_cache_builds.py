@@ -15,7 +15,7 @@ import pytest
 import nfal
 from nfal.apps import host_check
 from nfal.fmus import build, export_runtime, windows_python
-from nfal.models.disk_cache import exclusive
+from nfal.models.disk_cache import exclusive, write_in_one_step
 
 
 def _at_once(function, count=3):
@@ -143,3 +143,18 @@ def test_the_newest_builds_of_each_fmu_are_kept(tmp_path):
     build._prune(tmp_path, "X.fmu")
     assert sorted(p.parent.name for p in tmp_path.glob("*/X.fmu")) == sorted(f"key{k}" for k in range(3, 11))
     assert (tmp_path / "other" / "Y.fmu").is_file()
+
+
+def test_a_write_in_one_step_that_fails_leaves_the_old_file_and_nothing_else(tmp_path):
+    target = tmp_path / "x.fmu"
+    target.write_bytes(b"old")
+
+    def fail(path):
+        path.write_bytes(b"half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_in_one_step(target, fail)
+    assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["x.fmu"]
+    write_in_one_step(target, lambda path: path.write_bytes(b"new"))
+    assert target.read_bytes() == b"new" and sorted(p.name for p in tmp_path.iterdir()) == ["x.fmu"]

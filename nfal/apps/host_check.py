@@ -16,7 +16,6 @@ import os
 import shutil
 import stat
 import subprocess
-import threading
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ from nfal.errors import DataFormatError, HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import RUNTIMES, mingw_tool
 from nfal.fmus.windows_python import wine_path
-from nfal.models.disk_cache import build_once, cache_root, digest
+from nfal.models.disk_cache import build_once, cache_root, digest, write_in_one_step
 
 #: The C hosts' sources, per FMI version.
 C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
@@ -98,14 +97,9 @@ def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False
                  binary.stat().st_mtime_ns, C_HOST_FLAGS, flags)
     cached = cache_root() / "c-hosts" / key / name
 
-    def build() -> None:
-        cached.parent.mkdir(parents=True, exist_ok=True)
-        partial = cached.with_name(f".{name}.{os.getpid()}.{threading.get_ident()}")
-        compile_to(partial)
-        os.replace(partial, cached)
-
     try:
-        build_once(cached.is_file, cached.parent.with_name(f"{key}.lock"), build)
+        build_once(cached.is_file, cached.parent.with_name(f"{key}.lock"),
+                   lambda: write_in_one_step(cached, compile_to))
         shutil.copy2(cached, executable)
     except OSError:  # the cache cannot be written
         compile_to(executable)
