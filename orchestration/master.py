@@ -55,7 +55,6 @@ import shutil
 import time
 import weakref
 from collections.abc import Callable, Mapping
-from pathlib import Path
 
 from fmpy import calloc, extract, free
 from fmpy.fmi1 import FMICallException
@@ -145,20 +144,10 @@ class _Slave:
     fmi = 2
     CALLS = _FMI2_CALLS  #: variable type -> (suffix of its get/set functions, C value type)
 
+    FMU_CLASS = FMU2Slave  #: fmpy's class of the instance
+
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
-        self.element, self.name, self.folder = element, element.name, unzip_dir
-        self.messages: collections.deque[str] = collections.deque(maxlen=20)
-        #: The error-status messages: an error's cause, said first (pythonfmu's generic follow-up to one adds nothing)
-        self.reasons: collections.deque[str] = collections.deque(maxlen=5)
-        self.state = "loaded"  # -> instantiated -> initialization -> running -> freed; error; fatal
-        self.step_time = 0.0
-        self.fmu_logging = fmu_logging
-        md = element.model_description
-        try:
-            self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzip_dir,
-                                 modelIdentifier=md.coSimulation.modelIdentifier, instanceName=element.name)
-        except Exception as exc:  # fmpy raises bare Exceptions for missing or unloadable binaries
-            raise FmuLoadError(f"element {self.name!r}: cannot load {element.source.name}: {exc}") from None
+        self._load(element, unzip_dir, fmu_logging)
         self.id = next(_NEXT_ID)
         _SLAVES[self.id] = self
         self.callbacks = fmi2CallbackFunctions()
@@ -170,6 +159,22 @@ class _Slave:
             addLoggerProxy(ctypes.byref(self.callbacks))
         except Exception as exc:  # pragma: no cover - fmpy ships the proxy for every platform it supports
             logger.warning("no fmpy logger proxy (%s): FMU messages arrive unformatted", exc)
+
+    def _load(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
+        """What every instance holds, and its FMU loaded from ``unzip_dir`` (its library, not yet instantiated)."""
+        self.element, self.name, self.folder = element, element.name, unzip_dir
+        self.messages: collections.deque[str] = collections.deque(maxlen=20)
+        #: The error-status messages: an error's cause, said first (pythonfmu's generic follow-up to one adds nothing)
+        self.reasons: collections.deque[str] = collections.deque(maxlen=5)
+        self.state = "loaded"  # -> instantiated -> initialization -> running -> freed; error; fatal
+        self.step_time = 0.0
+        self.fmu_logging = fmu_logging
+        md = element.model_description
+        try:
+            self.fmu = self.FMU_CLASS(guid=md.guid, unzipDirectory=unzip_dir,
+                                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName=element.name)
+        except Exception as exc:  # fmpy raises bare Exceptions for missing or unloadable binaries
+            raise FmuLoadError(f"element {self.name!r}: cannot load {element.source.name}: {exc}") from None
 
     def instantiate(self) -> None:
         try:
@@ -211,19 +216,10 @@ class _Slave3(_Slave):
     fmi = 3
     CALLS = _FMI3_CALLS
 
+    FMU_CLASS = FMU3Slave
+
     def __init__(self, element: Element, unzip_dir: str, fmu_logging: str) -> None:
-        self.element, self.name, self.folder = element, element.name, unzip_dir
-        self.messages = collections.deque(maxlen=20)
-        self.reasons = collections.deque(maxlen=5)
-        self.state = "loaded"
-        self.step_time = 0.0
-        self.fmu_logging = fmu_logging
-        md = element.model_description
-        try:
-            self.fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzip_dir,
-                                 modelIdentifier=md.coSimulation.modelIdentifier, instanceName=element.name)
-        except Exception as exc:  # fmpy raises bare Exceptions for missing or unloadable binaries
-            raise FmuLoadError(f"element {self.name!r}: cannot load {element.source.name}: {exc}") from None
+        self._load(element, unzip_dir, fmu_logging)
         # FMI 3.0's logger has no instance name: one callback per instance, which knows its slave
         slave = weakref.ref(self)
         self._log_message = lambda environment, status, category, message: _log3(slave(), status, message)
@@ -491,14 +487,11 @@ class Master:
 
     def instantiate(self) -> None:
         """Extract, load and instantiate every FMU, and set its start values."""
-        folders: dict[Path, str] = {}
         for element in self.system.elements:
             source = element.source
             once = element.model_description.coSimulation.canBeInstantiatedOnlyOncePerProcess
             if source.is_dir():
                 folder = str(source)
-            elif source in folders and not once:
-                folder = folders[source]
             else:
                 try:
                     folder = extract(str(source)) if once else fmu_folders.extracted(source)
@@ -506,7 +499,6 @@ class Master:
                     raise FmuLoadError(f"element {element.name!r}: cannot extract {source}: {exc}") from None
                 if once:
                     self._folders.append(folder)
-                folders[source] = folder
             slave = _slave(element, folder, self.fmu_logging)
             self._slaves[element.name] = slave
             slave.instantiate()
