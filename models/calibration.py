@@ -148,7 +148,7 @@ class TabulatedK(CalibrationFunction):
         self.sigma, self.values = sigma, values
         self._spline = scipy.interpolate.CubicSpline(np.log(sigma), values)
         self._spline_slope = self._spline.derivative()
-        self._scalar_spline = ScalarSpline(self._spline)
+        self._scalar_spline = ScalarSpline.of(self._spline)
 
     def scalar(self, sigma: float) -> float:
         return self._scalar_spline(math.log(min(max(sigma, self.sigma_range[0]), self.sigma_range[1])))

@@ -66,7 +66,7 @@ class DampingCorrection:
             object.__setattr__(self, name, value)
         spline = scipy.interpolate.PchipInterpolator(heights, np.log(factors))
         object.__setattr__(self, "_log_factor", spline)
-        object.__setattr__(self, "_scalar_log_factor", ScalarSpline(spline))  # for factor_scalar
+        object.__setattr__(self, "_scalar_log_factor", ScalarSpline.of(spline))  # for factor_scalar
 
     @property
     def height_range_m(self) -> tuple[float, float]:

@@ -322,6 +322,18 @@ def design_pid(height_m: float, rig: RigParameters | None = None, calibration: C
     return design_at(lpv, spec or DesignSpec(), rig)
 
 
+def _gain_spline(knots: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """The coefficients (``PPoly.c``) of the not-a-knot cubic spline of ``gains`` (one row per knot) over ``knots``,
+    kept in the user-wide cache: a Controller that finds them there imports no scipy.interpolate (which brings
+    scipy.optimize, .special, .linalg and .sparse: 0.6-0.7 s of a host's start, ``python -X importtime``)."""
+    def check(stored: np.ndarray) -> None:
+        if stored.shape != (4, knots.size - 1, gains.shape[1]) or not np.all(np.isfinite(stored)):
+            raise ValueError(f"a stored gain spline of shape {stored.shape}")
+
+    return cached_array("gain_splines", digest("gain-spline", scipy.__version__, knots, gains),
+                        lambda: scipy.interpolate.CubicSpline(knots, gains, axis=0).c, check=check)
+
+
 class GainSchedule:
     """k_p, k_i, k_d over a table of design heights, interpolated by a C2 cubic spline in Hbar.
 
@@ -347,13 +359,20 @@ class GainSchedule:
         self.omega = designs[0].lpv.omega
         self.reference_clearance = designs[0].lpv.reference_clearance
         self.omega_lpf = designs[0].omega_lpf
-        H = heights / self.reference_clearance
-        table = np.array([[d.kp, d.ki, d.kd] for d in designs])
-        self._spline = scipy.interpolate.CubicSpline(H, table, axis=0)
-        self._slope = self._spline.derivative()
-        self._scalar_gains = ScalarSpline(self._spline)  # for law_terms
+        self._knots = heights / self.reference_clearance
+        self._coefficients = _gain_spline(self._knots, np.array([[d.kp, d.ki, d.kd] for d in designs]))
+        self._scalar_gains = ScalarSpline(self._knots, self._coefficients)  # for law_terms
         self._slow_times_s = [1.0 / (d.slow_pole * d.lpv.omega) for d in designs]
         self.name = "gain-scheduled"
+
+    @functools.cached_property
+    def _spline(self):
+        """The spline as scipy's ``PPoly``, for the vectorised views (the 2 kHz law needs none: :meth:`law_terms`)."""
+        return scipy.interpolate.PPoly(self._coefficients, self._knots)
+
+    @functools.cached_property
+    def _slope(self):
+        return self._spline.derivative()
 
     @property
     def height_range_m(self) -> tuple[float, float]:

@@ -15,10 +15,16 @@ import numpy as np
 class ScalarSpline:
     """Scalar evaluation of a scipy ``PPoly`` (``CubicSpline``, ``PchipInterpolator``), 1-D or vector-valued."""
 
-    def __init__(self, spline) -> None:
-        self.knots = np.asarray(spline.x, dtype=float).tolist()
+    def __init__(self, knots, coefficients) -> None:
+        """``knots`` and ``coefficients`` as a ``PPoly``'s ``x`` and ``c`` (shape (order + 1, intervals, ...))."""
+        self.knots = np.asarray(knots, dtype=float).tolist()
         # per interval, highest power first
-        self._pieces = np.moveaxis(np.asarray(spline.c, dtype=float), 0, -1).tolist()
+        self._pieces = np.moveaxis(np.asarray(coefficients, dtype=float), 0, -1).tolist()
+
+    @classmethod
+    def of(cls, spline) -> "ScalarSpline":
+        """The scalar view of a scipy ``PPoly`` (or a subclass)."""
+        return cls(spline.x, spline.c)
 
     def piece(self, x: float) -> tuple[int, float]:
         """(interval, offset into it) of ``x``, clamped to the knots."""

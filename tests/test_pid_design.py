@@ -1,14 +1,18 @@
 """Double-pair pole placement of eqs. (23)-(24), checked with python-control, and the gain schedule."""
 
 import math
+import os
+import subprocess
+import sys
 
 import control
 import numpy as np
 import pytest
+import scipy.interpolate
 
 from nfal.errors import InvalidParameterError
 from nfal.models.rig import RigParameters
-from nfal.models.pid_design import DesignSpec, FixedGains, design_pid, design_schedule, fixed_design
+from nfal.models.pid_design import DesignSpec, FixedGains, GainSchedule, design_pid, design_schedule, fixed_design
 
 SCHEDULE = design_schedule()  # 50-200 um every 5 um
 HALF_POWER_DB = 20 * math.log10(1 / math.sqrt(2))
@@ -94,6 +98,44 @@ def test_unreachable_cutoff_raises():
 def test_unknown_keyword_raises():
     with pytest.raises(TypeError):
         design_pid(100e-6, cutoff=10)
+
+
+def test_the_cached_gain_spline_is_scipys_not_a_knot_spline(tmp_path, monkeypatch):
+    """The schedule's spline, read back from the cache, is scipy's CubicSpline of the designs, value and slope; a
+    corrupt entry is fitted again."""
+    monkeypatch.setenv("NFAL_CACHE_DIR", str(tmp_path))
+    designs = design_schedule(np.linspace(60e-6, 180e-6, 7)).designs
+    expected = scipy.interpolate.CubicSpline([d.height_m / designs[0].lpv.reference_clearance for d in designs],
+                                             [[d.kp, d.ki, d.kd] for d in designs], axis=0)
+    heights = np.linspace(55e-6, 185e-6, 53)
+    for attempt in range(3):
+        schedule = GainSchedule(designs)
+        H = np.clip(heights, *schedule.height_range_m) / schedule.reference_clearance
+        np.testing.assert_allclose(schedule.gains_nondimensional(heights), expected(H), rtol=1e-14, atol=0)
+        inside = (heights >= 60e-6) & (heights <= 180e-6)
+        np.testing.assert_allclose(schedule.slope_nondimensional(heights)[inside], expected(H[inside], 1), rtol=1e-12)
+        assert schedule.law_terms(100e-6)[0] == pytest.approx(float(expected(100e-6 / schedule.reference_clearance)[0]),
+                                                              rel=1e-13)
+        [entry] = (tmp_path / "gain_splines").glob("*.npy")
+        if attempt == 1:
+            np.save(entry, np.zeros((4, 2, 3)))  # the wrong shape: fitted again
+
+
+@pytest.mark.slow
+def test_a_controller_whose_design_is_cached_imports_no_scipy_interpolate(tmp_path):
+    """The Controller FMU's set-up in a host's process: with its design and gain spline in the cache, it needs no
+    scipy.interpolate (and none of the scipy.optimize, .special and .sparse that it brings: 0.6-0.7 s)."""
+    code = ("import sys\n"
+            "from nfal.fmus.controller import Controller\n"
+            "slave = Controller(instance_name='c')\n"
+            "slave.setup_experiment(0.0); slave.enter_initialization_mode(); slave.exit_initialization_mode()\n"
+            "slave.do_step(0.0, 5e-4)\n"
+            "print(sorted(m for m in ('scipy.interpolate', 'scipy.optimize', 'scipy.special') if m in sys.modules))\n")
+    env = {**os.environ, "NFAL_CACHE_DIR": str(tmp_path)}
+    outputs = [subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+               for _ in range(2)]
+    assert outputs[0].strip() != "[]"  # the first designs and fits (the test would pass for nothing otherwise)
+    assert outputs[1].strip() == "[]"
 
 
 def test_a_schedule_is_kept_across_processes_and_keyed_by_what_it_depends_on(tmp_path, monkeypatch):
