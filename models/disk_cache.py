@@ -12,7 +12,6 @@ import contextlib
 import hashlib
 import logging
 import os
-import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -109,10 +108,12 @@ def cached_array(folder: str, key: str, compute: Callable[[], np.ndarray], root:
         logger.debug("cache entry %s not used: %s", path, exc)
     values = compute()
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".npy", delete=False) as handle:
-            np.save(handle, values)
-        os.replace(handle.name, path)
+        write_in_one_step(path, lambda partial: _save(partial, values))
     except OSError as exc:
         logger.debug("not cached in %s: %s", path.parent, exc)
     return values
+
+
+def _save(path: Path, values: np.ndarray) -> None:
+    with open(path, "wb") as handle:  # a handle: np.save would add ".npy" to the partial's name
+        np.save(handle, values)

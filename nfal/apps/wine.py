@@ -41,7 +41,7 @@ from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import dll_exports, mingw_tool
 from nfal.fmus.windows_python import wine_path
 from nfal.apps.host_check import HostRuns
-from nfal.models.disk_cache import cache_root, exclusive
+from nfal.models.disk_cache import cache_root, exclusive, write_in_one_step
 
 #: wine's own PE build of ucrtbase (Debian's wine64 8.0).
 WINE_WINDOWS_DLLS = Path("/usr/lib/x86_64-linux-gnu/wine/x86_64-windows")
@@ -111,16 +111,17 @@ def _wine(command: list[str], environment: dict[str, str], what: str) -> None:
 def _compile(command: list[str], target: Path) -> None:
     """Run mingw-w64's ``command[0]`` on the rest into ``target``, replaced in one step (a wine process may have the
     old one loaded); an error with the compiler's words if it fails."""
-    partial = target.with_name(f".{target.name}.{os.getpid()}")
-    try:
-        done = subprocess.run([mingw_tool(command[0]), *command[1:], "-o", str(partial)], capture_output=True,
-                              text=True, timeout=WINE_TIMEOUT_S)
-    except RuntimeBuildError as exc:
-        raise HostUnavailableError(str(exc)) from exc
-    if done.returncode != 0:
-        raise HostUnavailableError(f"compiling the wine bench's {target.name} failed:\n"
-                                   f"{(done.stdout + done.stderr)[-2000:]}")
-    os.replace(partial, target)
+    def compile_to(partial: Path) -> None:
+        try:
+            done = subprocess.run([mingw_tool(command[0]), *command[1:], "-o", str(partial)], capture_output=True,
+                                  text=True, timeout=WINE_TIMEOUT_S)
+        except RuntimeBuildError as exc:
+            raise HostUnavailableError(str(exc)) from exc
+        if done.returncode != 0:
+            raise HostUnavailableError(f"compiling the wine bench's {target.name} failed:\n"
+                                       f"{(done.stdout + done.stderr)[-2000:]}")
+
+    write_in_one_step(target, compile_to)
 
 
 def _install_ucrtbase(system32: Path) -> None:
@@ -141,9 +142,7 @@ def _install_ucrtbase(system32: Path) -> None:
     definition = system32 / "ucrtbase_nfal.def"
     definition.write_text("LIBRARY ucrtbase.dll\nEXPORTS\n" + "".join(
         f"    {name}=nfal_{name}\n" if name in ours else f"    {name}=ucrtbase_wine.{name}\n" for name in exports))
-    partial = system32 / f".ucrtbase_wine.{os.getpid()}.dll"
-    shutil.copy2(wine_own, partial)
-    os.replace(partial, system32 / "ucrtbase_wine.dll")
+    write_in_one_step(system32 / "ucrtbase_wine.dll", lambda partial: shutil.copy2(wine_own, partial))
     _compile(["gcc", "-O2", "-Wall", "-Werror", "-shared", "-s", str(UCRTBASE_SHIM), str(definition), "-static"],
              system32 / "ucrtbase.dll")
     stamp.write_text(key)
