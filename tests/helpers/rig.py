@@ -1,15 +1,15 @@
-"""The rig for the HIL tests: ``nfal rig-emulator`` as a subprocess (:class:`Emulator`; the ``emulator`` fixture in
-conftest.py starts them on the session's rig_slow.ssp), fig7_hil run against it (:func:`run_hil`), the simulation of the
-same truth it is judged against (:func:`simulate_the_truth`), and a rig model that holds still (:class:`StillRig`)."""
+"""The rig for the HIL tests: ``nfal rig-emulator`` in a process of its own (:class:`Emulator`; the ``emulator``
+fixture in conftest.py starts them on the session's rig_slow.ssp), fig7_hil run against it (:func:`run_hil`), the
+simulation of the same truth it is judged against (:func:`simulate_the_truth`), and a rig model that holds still
+(:class:`StillRig`)."""
 
 from __future__ import annotations
-
-import subprocess
-import sys
 
 from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 from nfal.orchestration.pacing import realtime_priority_refusal
+
+from helpers.warm_nfal import WarmProcess
 
 #: The truth of rig_truth.ssv, as parameters of fig7_slow's Plant: the same model, simulated.
 TRUTH = {"Plant.initial_height": 5e-6, "Plant.excess_damping_height": 137e-6, "Plant.excess_damping_exponent": 6.0,
@@ -21,16 +21,15 @@ RT_PRIORITY = 50
 
 
 class Emulator:
-    """`nfal rig-emulator` as a subprocess: its port (first line) and, after stop(), the rest of its output. It stands
-    for the rig, a separate machine with its own processor: where the system allows it, it runs under SCHED_FIFO, so
-    that the test process beside it (the host, at normal priority) cannot starve it."""
+    """`nfal rig-emulator` in a process of its own, forked from a warm one (helpers/warm_nfal.py): its port (first
+    line) and, after stop(), the rest of its output. It stands for the rig, a separate machine with its own
+    processor: where the system allows it, it runs under SCHED_FIFO, so that the test process beside it (the host,
+    at normal priority) cannot starve it."""
 
     def __init__(self, truth, *options: str) -> None:
         priority = () if realtime_priority_refusal(RT_PRIORITY) else ("--rt-priority", str(RT_PRIORITY))
-        self.process = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator", "--truth", str(truth),
-                                         "--duration", "60", *priority, *options], stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, text=True)
-        self.port = self.process.stdout.readline().strip()
+        self.process = WarmProcess(["rig-emulator", "--truth", str(truth), "--duration", "60", *priority, *options])
+        self.port = self.process.readline().strip()
         if not self.port:
             self.process.kill()
             raise RuntimeError(f"the emulator did not start: {self.process.communicate()[1]}")
