@@ -48,7 +48,7 @@ def test_no_plot_leaves_the_plot_out_and_the_results_as_they_are(capsys, tmp_pat
 def test_run_from_a_reference_csv_of_steps_prints_the_step_table(capsys, tmp_path, fig7_archives):
     csv = tmp_path / "reference.csv"
     csv.write_text("# time_s,reference_m\n0,60e-6\n0.05,80e-6\n0.1,80e-6\n")  # one step, held to the end
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.3",
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.3",
                  "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert "0.3 s" in out and "IAE" in out and "     60 ->   80 " in out
@@ -61,7 +61,7 @@ def test_run_from_a_reference_csv_not_of_steps_prints_the_iae_and_why(capsys, tm
     csv = tmp_path / "sine.csv"
     csv.write_text("time_s,reference_m\n"
                    + "".join(f"{k * 1e-3},{70e-6 + 5e-6 * np.sin(k * 0.03)}\n" for k in range(100)))
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.1",
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--reference", str(csv), "--stop-time", "0.1",
                  "--out", str(tmp_path / "run")]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[1].startswith("IAE ")
@@ -89,8 +89,9 @@ def test_a_run_whose_object_never_lifts_off_fails_with_the_reason(capsys, tmp_pa
 
 @pytest.mark.slow  # whole runs of the loop
 def test_a_level_out_of_reach_leaves_the_run_ok_with_warnings(capsys, tmp_path, fig7_archives):
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--param", "Controller.max_excitation=2e-6", "--reference",
-                 "staircase:60e-6,100e-6:0.2:0.05", "--stop-time", "0.25", "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--param", "Controller.max_excitation=2e-6",
+                 "--reference", "staircase:60e-6,100e-6:0.2:0.05", "--stop-time", "0.25",
+                 "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert "(ok with 2 warnings)" in out.splitlines()[0]
     assert "warning: the reference's level 100 um (0.05-0.25 s) was never reached: the height stayed within 60" in out
@@ -140,7 +141,7 @@ def test_run_drives_a_resonance_drift_input(capsys, tmp_path, fig7_archives, pll
     from nfal.orchestration import read_results
 
     out = tmp_path / "run"
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.4", "--out", str(out), "--json",
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--stop-time", "0.4", "--out", str(out), "--json",
                  "--input", "ResonanceTracker.resonance_shift=step:0,57,0.15",
                  "--param", f"ResonanceTracker.pll_enabled={pll}"]) == 0
     capsys.readouterr()

@@ -187,8 +187,8 @@ def _table(folder: Path):
 @pytest.mark.slow
 def test_nfal_run_with_the_generator_equals_the_masters_staircase(fig7_archives, tmp_path, capsys):
     archive = str(fig7_archives["fig7_slow"])
-    assert main(["run", archive, "--stop-time", "0.8", "--out", str(tmp_path / "fmu")]) == 0
-    assert main(["run", archive, "--stop-time", "0.8", "--reference", "staircase",
+    assert main(["run", "--no-plot", archive, "--stop-time", "0.8", "--out", str(tmp_path / "fmu")]) == 0
+    assert main(["run", "--no-plot", archive, "--stop-time", "0.8", "--reference", "staircase",
                  "--out", str(tmp_path / "master")]) == 0
     fmu, master = _table(tmp_path / "fmu"), _table(tmp_path / "master")
     # the master's input replaced the link
@@ -214,7 +214,7 @@ def _edited_structure(archive: Path, folder: Path, old: str, new: str) -> Path:
 
 def test_an_edited_stop_time_runs_as_edited_and_says_so(fig7_archives, tmp_path, capsys):
     ssd = _edited_structure(fig7_archives["fig7_slow"], tmp_path / "edited", 'stopTime="3.7"', 'stopTime="0.25"')
-    assert main(["run", str(ssd), "--out", str(tmp_path / "run"), "--json"]) == 0
+    assert main(["run", "--no-plot", str(ssd), "--out", str(tmp_path / "run"), "--json"]) == 0
     captured = capsys.readouterr()
     summary = json.loads(captured.out)
     assert summary["end_time_s"] == pytest.approx(0.25) and summary["steps_completed"] == 500
@@ -235,7 +235,7 @@ def test_an_edited_reference_in_the_ssd_drives_the_run(fig7_archives, tmp_path, 
     connectors = ('<ssd:Connector name="reference" kind="output"><ssc:Real unit="m"/></ssd:Connector>\n'
                   '        </ssd:Connectors>')
     ssd = _edited_structure(fig7_archives["fig7_slow"], tmp_path / "edited", connectors, connectors + binding)
-    assert main(["run", str(ssd), "--out", str(tmp_path / "run"), "--json"]) == 0
+    assert main(["run", "--no-plot", str(ssd), "--out", str(tmp_path / "run"), "--json"]) == 0
     captured = capsys.readouterr()
     summary = json.loads(captured.out)
     assert "stopTime (3.7 s) governs, after the reference's last change: the reference lasts 0.2 s" in captured.err
@@ -257,7 +257,8 @@ def fmi3_archives(tmp_path_factory):
 @pytest.mark.slow
 def test_the_fmi3_archive_equals_the_fmi2_run(fig7_archives, fmi3_archives, tmp_path):
     for version, archive in ((2, fig7_archives["fig7_slow"]), (3, fmi3_archives["fig7_slow"])):
-        assert main(["run", str(archive), "--stop-time", "0.8", "--out", str(tmp_path / f"fmi{version}")]) == 0
+        assert main(["run", "--no-plot", str(archive), "--stop-time", "0.8",
+                     "--out", str(tmp_path / f"fmi{version}")]) == 0
     fmi2, fmi3 = _table(tmp_path / "fmi2"), _table(tmp_path / "fmi3")
     assert fmi2.names == fmi3.names
     np.testing.assert_allclose(fmi3["Plant.height"], fmi2["Plant.height"], rtol=0, atol=1e-12)
@@ -279,10 +280,10 @@ def test_a_structure_mixing_fmi2_and_fmi3_runs_as_either(fig7_archives, fmi3_arc
         shutil.copy2(source, mixed / f"{name}.fmu")
     archive = pack(structure_sources() / "fig7_slow.ssd", mixed, tmp_path / "mixed.ssp")
     for algorithm in ("causal", "jacobi"):
-        assert main(["run", str(archive), "--stop-time", "0.3", "--algorithm", algorithm,
+        assert main(["run", "--no-plot", str(archive), "--stop-time", "0.3", "--algorithm", algorithm,
                      "--out", str(tmp_path / f"mixed-{algorithm}")]) == 0
-        assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.3", "--algorithm", algorithm,
-                     "--out", str(tmp_path / f"fmi2-{algorithm}")]) == 0
+        assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--stop-time", "0.3", "--algorithm",
+                     algorithm, "--out", str(tmp_path / f"fmi2-{algorithm}")]) == 0
         ours, theirs = _table(tmp_path / f"mixed-{algorithm}"), _table(tmp_path / f"fmi2-{algorithm}")
         for column in theirs.names:
             np.testing.assert_array_equal(ours[column], theirs[column], err_msg=f"{algorithm}: {column}")
@@ -305,7 +306,7 @@ def ecos(tmp_path_factory):
 def jacobi_run(fig7_archives, tmp_path_factory):
     """nfal run of fig7_slow's whole staircase with ecos's algorithm (libcosim's fixed-step Jacobi)."""
     out = tmp_path_factory.mktemp("jacobi")
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--algorithm", "jacobi", "--out", str(out),
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--algorithm", "jacobi", "--out", str(out),
                  "--overwrite"]) == 0
     return _table(out)
 

@@ -81,7 +81,7 @@ def test_corrupted_dropped_and_duplicated_frames_are_counted_and_never_used(fig7
     out = tmp_path / "run"
     # a generous missed-sample limit: this test is about what reaches the host, not about how late (a starved
     # emulator on a loaded machine was once silent for 11 ms, above the default 10 ms)
-    assert main(["run", str(fig7_archives["fig7_hil"]), "--param", f"proxy.port={rig.port}", "--param",
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_hil"]), "--param", f"proxy.port={rig.port}", "--param",
                  "proxy.max_missed_samples=400", "--stop-time", "1.5", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     rig.stop()

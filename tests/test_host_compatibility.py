@@ -227,14 +227,16 @@ def test_the_fig7_archive_runs_in_ecos_without_a_crash(environment, fmus, ecos, 
 
 
 def test_an_ecos_that_exits_with_0_and_writes_no_results_is_an_error_saying_what_it_said(tmp_path):
-    """Seen once from ecos.exe under wine beside a loaded machine: exit 0, no CSV. The run is not read as a success,
-    nor fails on the missing file: the error carries what ecos printed."""
+    """Seen twice from ecos.exe under wine beside a loaded machine: exit 0, no CSV (wine's report of a null read in
+    ecos.exe). The run is not read as a success, nor fails on the missing file: the error carries the start of what
+    ecos printed (how far it got) and its end (wine's crash report), and the whole is kept beside the run."""
     silent = tmp_path / "ecos"
-    silent.write_text("#!/bin/sh\necho 'simulation ended early' >&2\nexit 0\n")
+    silent.write_text("#!/bin/sh\necho 'loading Plant'\nseq 2000 >&2\necho 'simulation ended early' >&2\nexit 0\n")
     silent.chmod(0o755)
-    with pytest.raises(DataFormatError, match=r"ecos exited with 0 but wrote no fig7_slow\.csv; it said: simulation "
-                                              r"ended early"):
+    with pytest.raises(DataFormatError, match=r"(?s)wrote no fig7_slow\.csv; all it said is in .*ecos_0/ecos\.log; it "
+                                              r"began: loading Plant\n1\n.*\[\.\.\.\].*2000\nsimulation ended early"):
         run_in_ecos(silent, tmp_path / "fig7_slow.ssp", tmp_path / "runs", runs=1, stop_time=0.01)
+    assert (tmp_path / "runs" / "ecos_0" / "ecos.log").read_text().startswith("loading Plant\n1\n2\n")
 
 
 @pytest.mark.parametrize("fmi_version", [2, 3])

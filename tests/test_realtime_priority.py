@@ -94,8 +94,8 @@ def test_nfal_run_under_fifo_records_the_priority(capsys, tmp_path, fig7_archive
     if realtime_priority_refusal(1):
         pytest.skip("this process may not use SCHED_FIFO")
     policy = os.sched_getscheduler(0)
-    assert main(["run", str(fig7_archives["fig7_slow"]), "--stop-time", "0.05", "--realtime", "--rt-priority", "20",
-                 "--out", str(tmp_path / "run"), "--json"]) == 0
+    assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--stop-time", "0.05", "--realtime",
+                 "--rt-priority", "20", "--out", str(tmp_path / "run"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["status"] == "ok" and summary["rt_priority"] == 20 and summary["realtime"]["steps"] == 100
     assert os.sched_getscheduler(0) == policy

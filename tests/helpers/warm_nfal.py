@@ -28,7 +28,9 @@ _CONTEXT.set_forkserver_preload(PRELOAD)
 def _run(argv: list[str], environment: dict[str, str], cwd: str, stdout: str, stderr: str) -> None:
     """In the forked process: the command line's streams to the files, the caller's environment, ``main``."""
     for fd, path in ((1, stdout), (2, stderr)):
-        os.dup2(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644), fd)
+        opened = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(opened, fd)
+        os.close(opened)
     os.environ.clear()
     os.environ.update(environment)
     os.chdir(cwd)
