@@ -42,7 +42,8 @@ def extracted(fmu: str | os.PathLike) -> str:
     with _lock:
         folder = _folders.get(key)
         if folder is None or not os.path.isdir(folder):
-            folder = str(extract(io.BytesIO(data), unzipdir=tempfile.mkdtemp(dir=_cache_root(), prefix=f"{key[:16]}-")))
+            into = tempfile.mkdtemp(dir=_process_root(), prefix=f"{key[:16]}-")
+            folder = str(extract(io.BytesIO(data), unzipdir=into))
             _folders[key] = folder
         return folder
 
@@ -55,7 +56,7 @@ def forget(folder: str) -> None:
             del _folders[key]
 
 
-def _cache_root() -> str:
+def _process_root() -> str:
     """This process's folder of extracted FMUs, removed at its exit (not after ``os._exit`` or a kill: such a
     process's folder stays in the temporary folder)."""
     global _root

@@ -211,17 +211,16 @@ def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: 
                     repr(step_size)], folder, env)
         result.exit_codes.append(run.returncode)
         result.texts.append((run.stdout, run.stderr))
-        log = folder / "ecos.log"
-        log.write_text(run.stdout + run.stderr, encoding="utf-8")
+        said, log = run.stdout + run.stderr, folder / "ecos.log"
+        log.write_text(said, encoding="utf-8")
         if run.returncode == 0:
             written = folder / f"{ssp.stem}.csv"
             if not written.is_file():  # seen twice: ecos.exe under wine beside a loaded machine, a null read in it
-                said = run.stdout + run.stderr
                 raise DataFormatError(f"ecos exited with 0 but wrote no {written.name}; all it said is in {log}; it "
                                       f"began: {said[:2000]}\n[...]\nand ended: {said[-2000:]}")
             result.outputs.append(read_ecos_csv(written))
         elif not result.first_failure:
-            result.first_failure = run.stdout + run.stderr
+            result.first_failure = said
     return result
 
 
