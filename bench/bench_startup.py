@@ -1,4 +1,4 @@
-"""What a fresh process pays before its work starts: the Controller FMU's set-up and the rig emulator's start.
+"""What a process pays before its work starts, and what it no longer pays again: set-ups, starts, extractions, builds.
 
     python bench/bench_startup.py [--runs 5]
 
@@ -9,12 +9,18 @@ Each measurement is a new Python, as a host's embedded interpreter or `nfal rig-
   which the set-up needed before the gain spline's coefficients were cached (with it, scipy.optimize, .special and
   .sparse);
 * `nfal rig-emulator` on rig_slow from its start to the line that gives its port: wall time, and its CPU time then
-  (``/proc/<pid>/stat``); what the suite's warm emulators (tests/helpers/warm_nfal.py) no longer pay each.
+  (``/proc/<pid>/stat``); what the suite's warm emulators (tests/helpers/warm_nfal.py) no longer pay each;
+* 10 short fig7_slow runs (0.01 s) in one Python, each FMU extracted once per content as the master does
+  (orchestration/fmu_folders.py), against the baseline, in the same run, of every FMU extracted anew for each run
+  (each folder forgotten after its run, as before fmu_folders): wall time of the runs, the process's peak memory;
+* an FMU built (``build_fmu(..., force=True)``) against the same FMU built into another folder, a copy from the
+  nfal cache (fmus/build.py), after one warm-up build.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -26,6 +32,7 @@ import numpy as np
 import record
 
 from nfal.apps.build import build_all
+from nfal.fmus.build import build_fmu
 
 #: The Controller's set-up in a fresh process, timed there; ``{before}`` is what runs first.
 CONTROLLER = """import time
@@ -44,6 +51,36 @@ def controller_setup(before: str) -> float:
     done = subprocess.run([sys.executable, "-c", CONTROLLER.format(before=before)], capture_output=True, text=True,
                           check=True)
     return float(done.stdout.split()[-1])
+
+
+#: Short fig7_slow runs in one Python; with "fresh", each FMU is extracted anew for every run.
+REPEATED_RUNS = """import json, resource, sys, tempfile, time
+from nfal.orchestration import fmu_folders, run_structure
+archive, runs, fresh = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "fresh"
+started = time.perf_counter()
+with tempfile.TemporaryDirectory() as out:
+    for k in range(runs):
+        run_structure(archive, stop_time=0.01, plot=False, progress=False, out_dir=out, overwrite=True)
+        if fresh:
+            for folder in list(fmu_folders._folders.values()):
+                fmu_folders.forget(folder)
+print(json.dumps({"wall_s": time.perf_counter() - started,
+                  "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+MODES = {"extracted once per content": "once", "baseline: extracted anew for each run": "fresh"}
+REPEATED = 10
+
+
+def repeated_runs(archive: Path, runs: int, mode: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", REPEATED_RUNS, str(archive), str(runs), mode], capture_output=True,
+                          text=True, check=True)
+    return {key: round(value, 2) for key, value in json.loads(done.stdout.splitlines()[-1]).items()}
+
+
+def build_seconds(folder: Path, force: bool) -> float:
+    started = time.perf_counter()
+    build_fmu("SlowPlant", folder, force=force)
+    return time.perf_counter() - started
 
 
 def cpu_seconds(pid: int) -> float:
@@ -82,6 +119,14 @@ def main() -> None:
             data["emulator_wall_s"].append(round(wall, 3))
             data["emulator_cpu_s"].append(round(cpu, 2))
             print(run, {name: values[-1] for name, values in data["controller_s"].items()}, wall, cpu, flush=True)
+        archive = build_all(Path(folder), structures=("fig7_slow",))["fig7_slow"]
+        data["repeated_runs"] = {name: repeated_runs(archive, REPEATED, mode) for name, mode in MODES.items()}
+        build_seconds(Path(folder) / "warm-up", True)  # pythonfmu and the slave modules imported
+        data["build_s"] = {"copied from the nfal cache": [], "baseline: built (force=True)": []}
+        for run in range(args.runs):  # interleaved
+            for name, force in zip(data["build_s"], (False, True)):
+                data["build_s"][name].append(round(build_seconds(Path(folder) / f"{run}-{force}", force), 4))
+        print(data["repeated_runs"], data["build_s"], flush=True)
     print(record.save("startup", data))
     record.show(tables(data), findings(data))
 
@@ -95,16 +140,29 @@ def tables(result: dict) -> list[record.Table]:
                          [*([f"Controller import, set-up and first step: {name}", _span(values)]
                             for name, values in result["controller_s"].items()),
                           ["`nfal rig-emulator` to its port line: wall", _span(result["emulator_wall_s"])],
-                          ["`nfal rig-emulator` to its port line: its CPU", _span(result["emulator_cpu_s"])]])]
+                          ["`nfal rig-emulator` to its port line: its CPU", _span(result["emulator_cpu_s"])],
+                          *([f"SlowPlant.fmu {name}", _span(values, 3)]
+                            for name, values in result["build_s"].items())]),
+            record.Table(f"{REPEATED} fig7_slow runs of 0.01 s in one Python:",
+                         ["FMUs", "wall [s]", "peak memory [MiB]"],
+                         [[name, f"{row['wall_s']:.2f}", f"{row['peak_mib']:.0f}"]
+                          for name, row in result["repeated_runs"].items()])]
 
 
 def findings(result: dict) -> list[str]:
     ours, baseline = (np.median(values) for values in result["controller_s"].values())
+    once, fresh = result["repeated_runs"].values()
+    copied, built = (np.median(values) for values in result["build_s"].values())
     return [f"The Controller with its schedule cached sets up in {ours / baseline:.2f}x the time it takes when "
             "scipy.interpolate is imported too (the baseline, same run: what the set-up paid before the gain "
             "spline's coefficients were cached).",
             f"Each `nfal rig-emulator` had used {np.median(result['emulator_cpu_s']):.2f} s of CPU (median) when it "
-            "gave its port: the interpreter's start, nfal's and numba's imports and the plant's kernels."]
+            "gave its port: the interpreter's start, nfal's and numba's imports and the plant's kernels.",
+            f"{REPEATED} short runs in one Python take {once['wall_s'] / fresh['wall_s']:.2f}x the wall time and "
+            f"{once['peak_mib'] / fresh['peak_mib']:.2f}x the peak memory with each FMU extracted once per content, "
+            "against extracted anew for each run (the baseline, same run).",
+            f"A build of an FMU already built from the same sources takes {copied / built:.3f}x a build "
+            "(the baseline, same run): a copy from the nfal cache."]
 
 
 if __name__ == "__main__":

@@ -43,10 +43,9 @@ carries, whatever else the host process has imported (``fmus/bundle_loader.py``)
 An FMU is rebuilt only when it is missing or older than one of its sources (the script, the copied
 files, this file); ``force=True`` rebuilds regardless. What is built is kept in the nfal cache
 (``fmus/<digest>/``, by the sources' content, the builders' versions and the Python the FMU records; the newest
-:data:`KEPT_BUILDS` of each FMU), and a build of the same is a copy from there: 5 ms, not 0.25-0.36 s once the
-modules are loaded (pythonfmu imports the slave to describe it; ``build_fmu(name, folder, force=True)``, then
-``build_fmu(name, another_folder)``, in one Python). Builds go to a temporary file that replaces the FMU in one
-step, so a reader never sees half an archive.
+:data:`KEPT_BUILDS` of each FMU), and a build of the same is a copy from there (``python bench/bench_startup.py``
+times both, after a warm-up build: pythonfmu imports the slave to describe it). Builds go to a temporary file
+that replaces the FMU in one step, so a reader never sees half an archive.
 """
 
 from __future__ import annotations

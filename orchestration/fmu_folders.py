@@ -2,8 +2,7 @@
 
 A run extracts each FMU it instantiates. Extracted anew for every run, an FMU cost each run the unzip and, for a
 Python FMU, a new import of everything it carries (compiling its modules, loading its compiled kernels), kept for the
-rest of the process: 20 runs of ``run_structure("fig7_slow.ssp", stop_time=0.01, plot=False)`` in one Python took
-13.5-19.4 s and 284 MiB and left 100 copies of the FMUs' nfal; now 3.7 s, 201 MiB and 5 (2026-11-28). Here an FMU
+rest of the process (``python bench/bench_startup.py`` times short runs in one Python both ways). Here an FMU
 is extracted once per *content* (the SHA-256 of the file, so a copy unpacked from another archive, or from the same
 one again, is found too) into a folder this process removes at exit, and its later runs instantiate it from there,
 as a second instance of a run's FMU always did.

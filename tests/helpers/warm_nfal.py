@@ -1,7 +1,7 @@
 """``nfal <command>`` in a process of its own, forked from a warm one: the suite's rig emulators.
 
 Each ``python -m nfal rig-emulator`` pays the interpreter's start, nfal's imports and numba's (its import and the
-kernels' load): 1.3-1.7 s of CPU here before it prints its port (``python bench/bench_startup.py``), for each of
+kernels' load): 1.3-1.8 s of CPU here before it prints its port (``python bench/bench_startup.py``), for each of
 the suite's emulators. Here multiprocessing's fork server imports all that once per test worker (:data:`PRELOAD`)
 and forks each command from it (``python -m pytest -n 0 tests/test_hil_end_to_end.py``: 62.6 s before, 32.7 s
 after, 2026-11-28). What runs is the CLI's own ``main(argv)``, in a process of its own (its pid, signals, exit
