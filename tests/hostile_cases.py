@@ -19,6 +19,7 @@ timeout), or an FMU through fmpy in its own process (so a crash is seen as one).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import io
 import json
@@ -91,16 +92,15 @@ def _snapshot(folder: Path, names: tuple[str, ...]) -> dict:
 MAX_CASE_MEMORY = 8 << 30
 
 
-def _limits(fsize: int | None):
-    def apply():
-        import resource
+def _limit(fsize: int | None) -> None:
+    """In the case's process before it runs: a session of its own, MAX_CASE_MEMORY, and ``fsize`` if given."""
+    import resource
 
-        os.setsid()
-        resource.setrlimit(resource.RLIMIT_AS, (MAX_CASE_MEMORY, MAX_CASE_MEMORY))
-        if fsize is not None:  # a full disk: writes past fsize fail with EFBIG (SIGXFSZ ignored)
-            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
-    return apply
+    os.setsid()
+    resource.setrlimit(resource.RLIMIT_AS, (MAX_CASE_MEMORY, MAX_CASE_MEMORY))
+    if fsize is not None:  # a full disk: writes past fsize fail with EFBIG (SIGXFSZ ignored)
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
 
 def command_for(case: Case, folder: Path, build: Path, context: dict) -> list[str]:
@@ -124,13 +124,15 @@ def _judge(case: Case, done: subprocess.CompletedProcess, folder: Path, before: 
     return Outcome(case.id, case.area, outcome, detail, round(seconds, 2))
 
 
-def run_case(case: Case, root: Path, build: Path) -> Outcome:
-    """Run ``case`` in its own process in a new folder under ``root`` (the FMUs and archives in ``build``)."""
+def run_case(case: Case, root: Path, build: Path, popen: Callable[..., subprocess.Popen] = subprocess.Popen) -> Outcome:
+    """Run ``case`` in its own process in a new folder under ``root`` (the FMUs and archives in ``build``), started
+    by ``popen`` (Popen's arguments; the suite forks ``python -m nfal`` from a warm process:
+    tests/helpers/warm_nfal.py)."""
     folder, context, before = _prepare(case, root, build)
     env = dict(os.environ, PYTHONUNBUFFERED="1", MPLBACKEND="Agg")
     start = time.perf_counter()
-    process = subprocess.Popen(command_for(case, folder, build, context), cwd=folder, env=env, text=True,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_limits(case.fsize_limit))
+    process = popen(command_for(case, folder, build, context), cwd=folder, env=env, text=True, stdout=subprocess.PIPE,
+                    stderr=subprocess.PIPE, preexec_fn=functools.partial(_limit, case.fsize_limit))
     try:
         if case.during is not None:
             case.during(process, folder)

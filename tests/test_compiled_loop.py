@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 from helpers.rig import run_hil
+from helpers.warm_nfal import popen
 
 from nfal.apps.compiled_loop import CompiledLaw
 from nfal.apps.compiled_run import run_compiled
@@ -180,7 +181,7 @@ def test_a_stop_signal_ends_the_compiled_loop_keeps_every_row_and_says_stop(fig7
                                                                              signal_number):
     rig = emulator()
     out = tmp_path / "run"
-    process = subprocess.Popen([sys.executable, "-m", "nfal", "run", str(fig7_archives["fig7_hil"]), "--compiled",
+    process = popen([sys.executable, "-m", "nfal", "run", str(fig7_archives["fig7_hil"]), "--compiled",
                                 "--param", f"proxy.port={rig.port}", "--stop-time", "30", "--out", str(out),
                                 "--no-plot"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     results = out / "results.csv"

@@ -18,6 +18,7 @@ import threading
 import time
 
 import pytest
+from helpers.warm_nfal import popen
 
 from nfal.hil.firmware import RigReading, RigTiming
 from nfal.hil.link import RigLink
@@ -247,7 +248,7 @@ def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7
     """`nfal rig-emulator --firmware c|qemu`: the first line is a port a RigLink opens; the truth answers (the
     height the host measures is the rig_slow sensor's, at rest); the exit summary counts the ticks."""
     link_path = tmp_path / "rig"
-    emulator = subprocess.Popen([sys.executable, "-m", "nfal", "rig-emulator",
+    emulator = popen([sys.executable, "-m", "nfal", "rig-emulator",
                                  "--truth", str(fig7_archives["rig_slow"]),
                                  "--firmware", kind, "--link", str(link_path), "--watchdog", "0.5", "--duration", "60",
                                  "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

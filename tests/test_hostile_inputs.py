@@ -14,6 +14,7 @@ import subprocess
 
 import pytest
 
+from helpers.warm_nfal import popen
 from hostile_cases import (CLEAR, CRASH, HANDLED, REFUSED, TRACEBACK, WRONG, Case, cases_by_id, classify, run_case,
                            run_case_in_process, write)
 
@@ -107,7 +108,7 @@ def test_hostile_input_in_process(case_id, build, tmp_path):
 @pytest.mark.parametrize("case_id", _ids(OWN_PROCESS))
 def test_hostile_input_in_its_own_process(case_id, build, tmp_path):
     _skip_if_meaningless(case_id)
-    outcome = run_case(CASES[case_id], tmp_path, build)
+    outcome = run_case(CASES[case_id], tmp_path, build, popen)
     assert outcome.outcome == _expected(case_id), outcome.detail
 
 

@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 from helpers.rig import run_hil, simulate_the_truth
+from helpers.warm_nfal import WarmProcess
 
 from nfal.cli import main
 from nfal.apps.fig7 import HARDWARE, SIMULATED, loop_metrics
@@ -105,9 +104,7 @@ def test_a_stop_signal_ramps_the_drive_down_says_stop_and_keeps_every_sample(emu
     # `python bench/realtime.py identify`
     rig = emulator("--record", str(record), "--watchdog", "1.0")
     raw = tmp_path / "rig-raw.csv"
-    host = subprocess.Popen([sys.executable, "-m", "nfal", "identify", "--port", rig.port,
-                             "--out", str(tmp_path / "rig.json")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    host = WarmProcess(["identify", "--port", rig.port, "--out", str(tmp_path / "rig.json")])
     deadline = time.monotonic() + 120  # a bound for a broken run, not a measure: the test waits for rig time
     while _lines(raw) < 4000 and host.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)

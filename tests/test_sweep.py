@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from dask.distributed import Client
 from helpers.properties import examples
+from helpers.warm_nfal import popen
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -304,9 +305,11 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-@pytest.fixture
-def dask_cluster(tmp_path):
-    """A real ``dask scheduler`` and two ``dask worker`` processes on loopback (no shared folder)."""
+@pytest.fixture(scope="module")
+def dask_cluster(tmp_path_factory):
+    """A real ``dask scheduler`` and two ``dask worker`` processes on loopback (no shared folder), for the tests of
+    the local-sweep group (one worker: three processes started once)."""
+    tmp_path = tmp_path_factory.mktemp("dask_cluster")
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     dask = [sys.executable, "-m", "dask"]
@@ -433,7 +436,7 @@ def test_a_killed_sweep_restarts_without_repeating_or_losing_runs(tmp_path, fig7
         'step_size = 5e-4\nreference = {levels_m = [100e-6, 140e-6], hold_s = 0.1, lead_s = 0.05}\n'
         '[grid]\n"Plant.mass" = [0.1347, 0.16, -1.0]\n"SensorChain.seed" = [0, 1]\n')
     out = tmp_path / "out"
-    process = subprocess.Popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "0",
+    process = popen([sys.executable, "-m", "nfal", "sweep", str(spec_path), "--workers", "0",
                                 "--out", str(out)],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     csv_path = out / "results.csv"
@@ -570,6 +573,7 @@ def test_a_file_beside_the_spec_reaches_the_workers_wherever_they_run(tmp_path, 
 
 
 @pytest.mark.slow  # a Dask cluster of worker processes
+@LOCAL_SWEEP_GROUP
 def test_a_file_beside_the_spec_reaches_a_remote_schedulers_workers(tmp_path, dask_cluster):
     path = _spec_beside_a_file(tmp_path, SHAPES_SPEC)
     _shape_rows(run_sweep(load_spec(path), tmp_path / "out", scheduler=dask_cluster, plot=False))

@@ -5,6 +5,8 @@ simulation of the same truth it is judged against (:func:`simulate_the_truth`), 
 
 from __future__ import annotations
 
+from subprocess import TimeoutExpired
+
 from nfal.models.reference import Staircase
 from nfal.orchestration import run_structure
 from nfal.orchestration.pacing import realtime_priority_refusal
@@ -38,7 +40,11 @@ class Emulator:
     def stop(self) -> str:
         if self.process.poll() is None:
             self.process.terminate()
-        self.output, errors = self.process.communicate(timeout=20)
+        try:
+            self.output, errors = self.process.communicate(timeout=20)
+        except TimeoutExpired:
+            self.process.kill()
+            raise
         return self.output
 
 
