@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import record
+from machine import cpu_seconds
 import timed_emulator
 
 from nfal.apps.build import build_all
@@ -52,11 +53,6 @@ def reference(seconds: float) -> Staircase:
     count = int((seconds - 0.1) / 0.6) + 1
     return Staircase(tuple(LEVELS[i % len(LEVELS)] for i in range(max(count, 2))), hold_s=0.6, lead_s=0.1)
 
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process [s] (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 @contextlib.contextmanager

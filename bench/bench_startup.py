@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -30,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import record
+from machine import cpu_seconds
 
 from nfal.apps.build import build_all
 from nfal.fmus.build import build_fmu
@@ -82,10 +82,6 @@ def build_seconds(folder: Path, force: bool) -> float:
     build_fmu("SlowPlant", folder, force=force)
     return time.perf_counter() - started
 
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def emulator_start(truth: Path, link: Path) -> tuple[float, float]:
