@@ -239,6 +239,16 @@ def test_an_ecos_that_exits_with_0_and_writes_no_results_is_an_error_saying_what
     assert (tmp_path / "runs" / "ecos_0" / "ecos.log").read_text().startswith("loading Plant\n1\n2\n")
 
 
+def test_a_short_account_from_an_ecos_without_results_is_quoted_once_and_whole(tmp_path):
+    silent = tmp_path / "ecos"
+    silent.write_text("#!/bin/sh\necho 'loading Plant'\necho 'simulation ended early' >&2\nexit 0\n")
+    silent.chmod(0o755)
+    with pytest.raises(DataFormatError) as failure:
+        run_in_ecos(silent, tmp_path / "fig7_slow.ssp", tmp_path / "runs", runs=1, stop_time=0.01)
+    assert str(failure.value).endswith("it said: loading Plant\nsimulation ended early\n")
+    assert str(failure.value).count("loading Plant") == 1
+
+
 @pytest.mark.parametrize("fmi_version", [2, 3])
 def test_ecos_with_an_override_naming_a_missing_python_does_not_crash(fmi_version, fmus, fmus3, ecos, tmp_path):
     """ecos shows an FMU's messages only at its debug level and goes on without the instance: the loader's

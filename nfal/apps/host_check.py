@@ -196,6 +196,10 @@ def ecos_executable(cache_dir: Path) -> Path:
     return target / "ecos"
 
 
+#: How much of the start and of the end of what ecos said an error quotes (all of it is in the run's ecos.log).
+QUOTED_CHARS = 2000
+
+
 def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: float,
                 step_size: float = 5e-4, env: dict[str, str] | None = None,
                 wrapper: tuple[str, ...] = ()) -> HostRuns:
@@ -216,8 +220,9 @@ def run_in_ecos(ecos: Path, ssp: Path, work_dir: Path, *, runs: int, stop_time: 
         if run.returncode == 0:
             written = folder / f"{ssp.stem}.csv"
             if not written.is_file():  # seen twice: ecos.exe under wine beside a loaded machine, a null read in it
-                raise DataFormatError(f"ecos exited with 0 but wrote no {written.name}; all it said is in {log}; it "
-                                      f"began: {said[:2000]}\n[...]\nand ended: {said[-2000:]}")
+                raise DataFormatError(f"ecos exited with 0 but wrote no {written.name}; all it said is in {log}; "
+                                      + (f"it said: {said}" if len(said) <= 2 * QUOTED_CHARS else
+                                         f"it began: {said[:QUOTED_CHARS]}\n[...]\nand ended: {said[-QUOTED_CHARS:]}"))
             result.outputs.append(read_ecos_csv(written))
         elif not result.first_failure:
             result.first_failure = said
