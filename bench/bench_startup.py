@@ -6,8 +6,8 @@ Each measurement is a new Python, as a host's embedded interpreter or `nfal rig-
 
 * the Controller slave class's import, set-up and first step, its schedule in the nfal cache (one run before fills
   it), wall time in that process; the baseline, in the same run, does the same after importing scipy.interpolate,
-  which the set-up needed before the gain spline's coefficients were cached (with it, scipy.optimize, .special and
-  .sparse);
+  which the set-up needed before the gain spline's coefficients were cached (with it, scipy.optimize, .special,
+  .linalg and .sparse);
 * `nfal rig-emulator` on rig_slow from its start to the line that gives its port: wall time, and its CPU time then
   (``/proc/<pid>/stat``); what the suite's warm emulators (tests/helpers/warm_nfal.py) no longer pay each;
 * 10 short fig7_slow runs (0.01 s) in one Python, each FMU extracted once per content as the master does

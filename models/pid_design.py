@@ -325,7 +325,7 @@ def design_pid(height_m: float, rig: RigParameters | None = None, calibration: C
 def _gain_spline(knots: np.ndarray, gains: np.ndarray) -> np.ndarray:
     """The coefficients (``PPoly.c``) of the not-a-knot cubic spline of ``gains`` (one row per knot) over ``knots``,
     kept in the user-wide cache: a Controller that finds them there imports no scipy.interpolate (which brings
-    scipy.optimize, .special and .sparse: ``python bench/bench_startup.py``)."""
+    scipy.optimize, .special, .linalg and .sparse: ``python bench/bench_startup.py``)."""
     def check(stored: np.ndarray) -> None:
         if stored.shape != (4, knots.size - 1, gains.shape[1]) or not np.all(np.isfinite(stored)):
             raise ValueError(f"a stored gain spline of shape {stored.shape}")

@@ -31,7 +31,7 @@ class Emulator:
     def __init__(self, truth, *options: str) -> None:
         priority = () if realtime_priority_refusal(RT_PRIORITY) else ("--rt-priority", str(RT_PRIORITY))
         self.process = WarmProcess(["rig-emulator", "--truth", str(truth), "--duration", "60", *priority, *options])
-        self.port = self.process.readline().strip()
+        self.port = self.process.stdout.readline().strip()
         if not self.port:
             self.process.kill()
             raise RuntimeError(f"the emulator did not start: {self.process.communicate()[1]}")

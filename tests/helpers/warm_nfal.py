@@ -106,9 +106,6 @@ class WarmProcess:
         self.stderr = _Output(self._folder / "stderr", self._process.is_alive)
         self._streams: tuple[str, str] | None = None
 
-    def readline(self, timeout_s: float = 60.0) -> str:
-        return self.stdout.readline(timeout_s)
-
     @property
     def returncode(self) -> int | None:
         return self._process.exitcode
