@@ -22,6 +22,7 @@ this engine knows no kind of its own (nfal's kinds: :mod:`nfal.apps.sweeps`).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import hashlib
@@ -75,8 +76,7 @@ def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | No
     """
     cache = _checked_cache(data, sha256, "the archive", cache_dir)
     folder = cache / sha256
-    marker = folder / ".sha256"
-    if marker.is_file() and marker.read_text().strip() == sha256:
+    if _complete(folder, sha256):
         return folder
     cache.mkdir(parents=True, exist_ok=True)
     temp = Path(tempfile.mkdtemp(dir=cache, prefix=".part-"))
@@ -91,20 +91,32 @@ def cached_structure(data: bytes, sha256: str, cache_dir: str | os.PathLike | No
                     archive.extractall(fmu)
                 packed.unlink()
         (temp / ".sha256").write_text(sha256 + "\n")
-        if marker.is_file() and marker.read_text().strip() == sha256:  # another process finished first
-            shutil.rmtree(temp, ignore_errors=True)
-            return folder
-        if folder.exists():  # an incomplete folder from an interrupted unpack
-            shutil.rmtree(folder, ignore_errors=True)
+        # a folder renamed in holds its marker from the start, so one without it is an interrupted unpack of an
+        # earlier version, which no run uses: set aside in one step (a complete one, renamed in meanwhile by another
+        # process, is in use and is never removed)
+        if folder.exists() and not _complete(folder, sha256):
+            stale = Path(tempfile.mkdtemp(dir=cache, prefix=".stale-"))
+            with contextlib.suppress(FileNotFoundError):  # another process set it aside first
+                os.rename(folder, stale / "folder")
+            shutil.rmtree(stale, ignore_errors=True)
         os.rename(temp, folder)
     except OSError:
         shutil.rmtree(temp, ignore_errors=True)
-        if not (marker.is_file() and marker.read_text().strip() == sha256):  # not another process's win
+        if not _complete(folder, sha256):  # not another process's win
             raise
     except zipfile.BadZipFile as exc:
         shutil.rmtree(temp, ignore_errors=True)
         raise SweepError(f"the archive {sha256[:12]}... is not a zip (SSP) archive: {exc}") from None
     return folder
+
+
+def _complete(folder: Path, sha256: str) -> bool:
+    """Whether ``folder`` is a whole unpack of the archive ``sha256`` (its marker holds the hash)."""
+    marker = folder / ".sha256"
+    try:
+        return marker.read_text().strip() == sha256
+    except OSError:
+        return False
 
 
 def _checked_cache(data: bytes, sha256: str, what: str, cache_dir: str | os.PathLike | None) -> Path:

@@ -160,6 +160,26 @@ def test_cached_structure_checks_the_hash_and_unpacks_the_fmus(tmp_path, fig7_ar
         cached_structure(data[:-1], sha, cache_dir=tmp_path / "other")
 
 
+def test_a_complete_cache_entry_another_process_renamed_in_is_never_removed(tmp_path, fig7_archives, monkeypatch):
+    """Two processes unpack the same archive at once: the one that finds the other's folder renamed in after its
+    first look leaves that folder alone (runs are using it). Before, it removed it as an interrupted unpack: a
+    local sweep's run failed with a StructureError in CI."""
+    import hashlib
+
+    from nfal.orchestration import sweep
+
+    data = fig7_archives["fig7_slow"].read_bytes()
+    sha = hashlib.sha256(data).hexdigest()
+    folder = cached_structure(data, sha, cache_dir=tmp_path)  # the other process's, complete
+    (folder / "in-use").write_text("a run's\n")
+    looks = [False]  # this process's first look came before the other's rename
+    complete = sweep._complete
+    monkeypatch.setattr(sweep, "_complete", lambda path, digest: looks.pop() if looks else complete(path, digest))
+    assert cached_structure(data, sha, cache_dir=tmp_path) == folder
+    assert (folder / "in-use").read_text() == "a run's\n"
+    assert [p.name for p in tmp_path.iterdir()] == [sha]  # its own unpack discarded, nothing left beside
+
+
 def test_a_task_runs_in_process_with_a_ramped_input(fig7_archives):
     import hashlib
 
