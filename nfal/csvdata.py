@@ -44,24 +44,26 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     """
     path = Path(path)
     text = read_user_text(path, "the table")
-    lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-    try:
-        records = [[cell.strip() for cell in row] for row in csv.reader(lines)]
+    numbered = [(number, line) for number, line in enumerate(text.splitlines(), start=1)
+                if line.strip() and not line.lstrip().startswith("#")]
+    try:  # one record per line: the lines are split already
+        records = [[cell.strip() for cell in row] for row in csv.reader(line for _, line in numbered)]
     except csv.Error as exc:
         raise DataFormatError(f"{path}: not CSV: {exc}") from None
     if not records:
         raise DataFormatError(f"{path}: no data rows")
     names = None
+    line_numbers = [number for number, _ in numbered]
     if not _is_numeric(records[0]):
-        names, records = [cell.lower() for cell in records[0]], records[1:]
+        names, records, line_numbers = [cell.lower() for cell in records[0]], records[1:], line_numbers[1:]
         repeated = sorted({name for name in names if names.count(name) > 1})
         if repeated:
             raise DataFormatError(f"{path}: column(s) {', '.join(repeated)} appear more than once in the header")
     width = len(names) if names else len(records[0])
     rows = []
-    for number, record in enumerate(records, start=2 if names else 1):
+    for number, record in zip(line_numbers, records):
         if len(record) != width or not _is_numeric(record):
-            raise DataFormatError(f"{path}: data row {number} is not {width} numbers: {','.join(record)!r}")
+            raise DataFormatError(f"{path}: line {number} is not {width} numbers: {','.join(record)!r}")
         rows.append([float(cell) for cell in record])
     if not rows:
         raise DataFormatError(f"{path}: a header but no data rows")

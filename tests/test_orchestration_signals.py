@@ -67,6 +67,7 @@ def test_csv_without_header_and_with_a_named_column(tmp_path):
     ("t,r\n0,1\n1,2\n0.5,3\n", "row 3 has t = 0.5 s after t = 1.0 s"),
     ("t,r\n0,1\n0,2\n", "increase strictly"),
     ("t,r\n0,1\nx,2\n", "not 2 numbers"),
+    ("t,r\n# measured\n0,1\n\n0.5,abc\n", "line 5 is not 2 numbers"),  # the file's line: comments and blanks count
     ("t,r\n", "no data rows"),
     ("t,r\n0,nan\n", "NaN"),
 ])
