@@ -75,13 +75,15 @@ class RunResult:
 def _step_count(start: float, stop: float, step: float) -> int:
     ratio = (stop - start) / step
     count = round(ratio)
-    if abs(ratio - count) > 1e-9 * max(1.0, ratio):
+    whole = abs(ratio - count) <= 1e-9 * max(1.0, ratio)
+    if not whole:
         count = math.floor(ratio + 1e-9)
-        logger.warning("stop time %g s is not a whole number of %g s steps from %g s: the run ends at %g s",
-                       stop, step, start, start + count * step)
-    if count < 1:
+    if count < 1:  # before any warning that the run ends early: it does not run
         raise InvalidParameterError("stop_time", stop,
                                     f"at least one step ({step:g} s) after the start time {start:g} s")
+    if not whole:
+        logger.warning("stop time %g s is not a whole number of %g s steps from %g s: the run ends at %g s",
+                       stop, step, start, start + count * step)
     return count
 
 
@@ -96,7 +98,7 @@ def _require_step_count(steps: int, stop: float, step: float, max_steps: int) ->
         raise InvalidParameterError(
             "stop_time / step_size", f"{stop:g} s / {step:g} s",
             f"at most {max_steps:,} steps, not {steps:,} (one results row each); check the units, or allow "
-            "more with --max-steps (max_steps=)")
+            "more with --max-steps (run_structure's max_steps)")
 
 
 def claim_results_folder(out: Path, overwrite: bool) -> None:

@@ -267,3 +267,16 @@ def test_faster_than_real_time_when_asked(loop, tmp_path):
     result = run_structure(loop, stop_time=0.4, step_size=0.01, realtime=4.0, out_dir=tmp_path, progress=False,
                            plot=False)
     assert result.summary["loop_wall_time_s"] >= 0.1
+
+
+def test_a_step_longer_than_the_run_is_one_error_and_no_warning_that_the_run_ends_early(caplog):
+    from nfal.errors import InvalidParameterError
+    from nfal.orchestration import run
+
+    with caplog.at_level("WARNING", logger=run.__name__):
+        with pytest.raises(InvalidParameterError, match=r"at least one step \(10 s\)"):
+            run._step_count(0.0, 3.7, 10.0)
+        assert not caplog.records
+        assert run._step_count(0.0, 3.7, 1.0) == 3
+    assert [r.getMessage() for r in caplog.records] == [
+        "stop time 3.7 s is not a whole number of 1 s steps from 0 s: the run ends at 3 s"]
