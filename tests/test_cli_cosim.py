@@ -111,7 +111,7 @@ def test_default_run_prints_the_step_metrics(capsys, tmp_path, monkeypatch, fig7
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["run", "no_such.ssp"], "structure"),
+    (["run", "no_such.ssp"], "structure = 'no_such.ssp' is invalid"),  # and where it looked (below)
     (["run", "fig7_slow", "--param", "Controller"], "--param"),
     (["run", "fig7_slow", "--param", "Plant.mass=-1", "--stop-time", "0.01"], "mass"),
 ])
@@ -119,7 +119,10 @@ def test_bad_input_is_a_clear_error(capsys, tmp_path, monkeypatch, fig7_archives
     monkeypatch.chdir(tmp_path)
     argv = argv + ["--build-dir", str(fig7_archives["fig7_slow"].parent)]
     assert main(argv) == 2
-    assert message in capsys.readouterr().err
+    said = capsys.readouterr().err
+    assert message in said
+    if argv[1] == "no_such.ssp":
+        assert f"nothing is at {tmp_path / 'no_such.ssp'}" in said
 
 
 @pytest.mark.parametrize("text, expected", [("A.b=1e-6", ("A.b", "1e-6")), ("A.flag= true", ("A.flag", "true")),

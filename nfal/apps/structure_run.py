@@ -132,7 +132,8 @@ def _structure_path(request: RunRequest) -> Path:
     path = Path(request.structure)
     if not path.exists():
         raise InvalidParameterError("structure", request.structure,
-                                    f"one of {', '.join(STRUCTURES)} or an existing .ssp/.ssd/folder")
+                                    f"one of {', '.join(STRUCTURES)} or an existing .ssp/.ssd/folder "
+                                    f"(nothing is at {path.absolute()})")
     return path
 
 

@@ -97,7 +97,8 @@ def _truth_path(truth: str, build_dir: str) -> Path:
         return build_all(build_dir, structures=(name,))[name]
     path = Path(truth)
     if not path.exists():
-        raise InvalidParameterError("--truth", truth, "slow, reynolds, or an existing .ssp/.ssd/folder")
+        raise InvalidParameterError("--truth", truth, "slow, reynolds, or an existing .ssp/.ssd/folder "
+                                    f"(nothing is at {path.absolute()})")
     return path
 
 
