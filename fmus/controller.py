@@ -168,7 +168,8 @@ class Controller(RigSlave):
         low, high = self.law.reference_range_m
         if not (low <= self.reference <= high):
             raise InvalidParameterError("reference", self.reference,
-                                        f"within reference_min–reference_max, {span_um(low, high)}")
+                                        f"within reference_min–reference_max, {span_um(low, high)} ({low:g}–{high:g} "
+                                        "m: a clearance in metres)", as_shown=f"{self.reference:g} m")
         return float(self.reference)
 
     @property

@@ -227,8 +227,9 @@ def test_fmu_simulates_with_fmpy(fmu):
 
 
 @pytest.mark.parametrize("inputs, reason", [
-    ({"reference": 250e-6}, "reference = 0.00025 is invalid"),
-    ({"reference": 40e-6}, "reference = 4e-05 is invalid"),
+    ({"reference": 250e-6}, "reference = 0.00025 m is invalid"),
+    ({"reference": 40e-6}, "reference = 4e-05 m is invalid: must be within reference_min–reference_max, "
+                           "50.0–200.0 µm (5e-05–0.0002 m: a clearance in metres)"),
     ({"measured_height": math.nan}, "measured_height = nan is invalid"),
     ({"reference": math.inf}, "reference = inf is invalid"),
 ])
