@@ -61,8 +61,11 @@ def test_comparison_shows_the_measured_noise_above_the_clearance_line_width():
     figure = comparison_figure(runs)
     FigureCanvasAgg(figure).draw()
     assert len(figure.axes) == 2 * len(runs)
-    for zoom in figure.axes[1::2]:
-        measured, clearance = _line(zoom, "measured (with noise)"), _line(zoom, "clearance")
+    # one legend entry per colour: the gain-scheduled line is blue, the linear ones orange
+    assert [text.get_text() for text in figure.legends[0].get_texts()] == [
+        "measured (with noise)", "clearance: gain-scheduled", "reference", "clearance: linear"]
+    for zoom, kind in zip(figure.axes[1::2], ("gain-scheduled", "linear")):
+        measured, clearance = _line(zoom, "measured (with noise)"), _line(zoom, f"clearance: {kind}")
         assert measured.get_visible() and (measured.get_alpha() is None or measured.get_alpha() >= 0.8)
         assert measured.get_linewidth() >= 0.5 and measured.get_zorder() < clearance.get_zorder()
         values = np.asarray(measured.get_ydata())
@@ -77,7 +80,7 @@ def test_comparison_of_a_rig_run_draws_the_measured_height_once():
     run = _closed_loop_run("on the rig")
     run = dataclasses.replace(run, height_m=run.measured_m)
     figure = comparison_figure({"gs": run})
-    assert [line.get_label() for line in figure.axes[1].get_lines()] == ["clearance", "reference"]
+    assert [line.get_label() for line in figure.axes[1].get_lines()] == ["clearance: gain-scheduled", "reference"]
 
 
 def _loop_table(frequency_hz: np.ndarray) -> ResultTable:

@@ -86,7 +86,8 @@ def comparison_figure(runs: dict, *, title: str = "Closed-loop responses to the 
     axes = figure.subplots(len(runs), 2, sharex="col", sharey="col", squeeze=False, width_ratios=(3, 1))
     for (full, zoom), (key, run) in zip(axes, runs.items()):
         colour = "tab:blue" if key == "gs" else "tab:orange"
-        full.plot(run.time_s, run.height_m * 1e6, color=colour, lw=1.2, label=height_label)
+        label = f"{height_label}: {'gain-scheduled' if key == 'gs' else 'linear'}"  # the legend tells the colours
+        full.plot(run.time_s, run.height_m * 1e6, color=colour, lw=1.2, label=label)
         full.step(run.time_s, run.reference_m * 1e6, where="post", color="black", ls="--", lw=1, label="reference")
         full.set_ylabel("clearance [µm]")
         full.set_title(run.controller if key == "gs" else f"linear controller designed at {key} µm", fontsize=10)
@@ -96,15 +97,15 @@ def comparison_figure(runs: dict, *, title: str = "Closed-loop responses to the 
         if not np.array_equal(run.measured_m, run.height_m):  # on a rig the measured height is the clearance
             zoom.plot(run.time_s[window], run.measured_m[window] * 1e6, color="0.5", lw=0.8, zorder=1,
                       label="measured (with noise)")
-        zoom.plot(run.time_s[window], run.height_m[window] * 1e6, color=colour, lw=1.2, zorder=2, label=height_label)
+        zoom.plot(run.time_s[window], run.height_m[window] * 1e6, color=colour, lw=1.2, zorder=2, label=label)
         zoom.step(run.time_s[window], run.reference_m[window] * 1e6, where="post", color="black", ls="--", lw=1,
                   zorder=3, label="reference")
         for axis in (full, zoom):
             axis.grid(alpha=0.3)
     top_level = max(run.reference_m.max() for run in runs.values())
     axes[0, 1].set_title(f"zoom: end of the {top_level * 1e6:g} µm hold", fontsize=10)
-    handles = {line.get_label(): line for line in (*axes[0, 1].get_lines(), *axes[0, 0].get_lines())}
-    figure.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3, fontsize=8)
+    handles = {line.get_label(): line for row in axes for line in (*row[1].get_lines(), *row[0].get_lines())}
+    figure.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=len(handles), fontsize=8)
     for axis in axes[-1]:
         axis.set_xlabel("time [s]")
     figure.suptitle(title, fontsize=11)
