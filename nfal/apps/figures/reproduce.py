@@ -87,7 +87,7 @@ th {{ background: #f3f3f3; }} .ok {{ background: #e3f6e3; }} .differs {{ backgro
 <p>Ilssar, Bucher, Flashner: modelling and closed-loop control of near-field acoustically levitated objects.
 {report.summary}{quick}.
 Every number is also in <code>report.json</code>; the paper's are in
-<code>nfal/models/data/paper_numbers.json</code>.</p>
+<code>models/data/paper_numbers.json</code> (<code>nfal/models/data/</code> where nfal is installed).</p>
 """]
     for section in report.sections:
         title = html.escape(section.title)

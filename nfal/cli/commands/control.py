@@ -73,14 +73,15 @@ def register(commands) -> None:
         "fig7_hil, paced in real time, one run per controller from rest (a 1 s first level for the lift-off); "
         "the rig's own sensor gives the noise, and every run's results.csv is kept under --runs-dir.")
     compare.add_argument("--controllers", default="gs,80,120,160",
-                         help="'gs' and/or design heights of linear controllers in um (default gs,80,120,160)")
+                         help="'gs' and/or linear controllers named by their design height in um, as the paper names "
+                         "them (80: the design at 80e-6 m; default gs,80,120,160)")
     compare.add_argument("--seed", type=int, help="seed of the measurement noise (default 0; not with --port)")
     compare.add_argument("--noise-peak", type=finite_float, help=f"peak noise magnitude [m] (default {NOISE_PEAK_M:g}; "
                          "0: none; not with --port)")
     compare.add_argument("--noise-cutoff", type=finite_float, help=f"noise colouring cut-off [Hz] (default "
                          f"{NOISE_CUTOFF_HZ:g}; not with --port)")
     compare.add_argument("--levels", type=number_list, default=list(STAIRCASE_LEVELS_M),
-                         help="reference levels [m] (default 60,100,140,180,140,100,60 um)")
+                         help="reference levels [m] (default 60e-6,100e-6,140e-6,180e-6,140e-6,100e-6,60e-6)")
     compare.add_argument("--hold", type=finite_float, default=0.6, help="hold time of each level [s] (default 0.6)")
     compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M,
                          help="actuator limit |a|max [m] (default %(default)s)")

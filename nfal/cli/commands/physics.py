@@ -164,7 +164,8 @@ def validate_table1(args: argparse.Namespace) -> int:
     if args.json:
         print_json(rows)
     else:
-        print("Table 1: delta at steady state, simplified (13) vs full (3)-(5) model; paper's values in brackets")
+        print("Table 1: delta at steady state, simplified (13) vs full (3)-(5) model; the paper's values in the last "
+              "two columns")
         print(f"{'case':>4} {'delta simplified':>17} {'delta full':>11} {'error %':>9} {'paper delta':>12} "
               f"{'paper error %':>14}")
         for row in rows:

@@ -25,9 +25,10 @@ def register(commands) -> None:
         "11-12 (the same controllers against the rig emulator, over the rig protocol, in lockstep, 35 Hz "
         "low-pass). Writes DIR/report.html (open it in a browser), DIR/report.json (every number, the paper's "
         "beside it, the tolerance and whether it holds) and the PNGs. The paper's numbers come from one data file, "
-        "nfal/models/data/paper_numbers.json. Exit status 0 when every judged number holds or differs only where "
+        "models/data/paper_numbers.json (nfal/models/data/ where nfal is installed). Exit status 0 when every "
+        "judged number holds or differs only where "
         "the report explains why (a known difference), 1 otherwise.",
-        epilog="About 45 s on a 2-core machine (the rig runs and Table 1's full-model runs are most of it); the "
+        epilog="About a minute on a 2-core machine (the rig runs and Table 1's full-model runs are most of it); the "
         "first run also builds the FMUs and fills the cache (about 100 s). Example: nfal reproduce --out runs/paper "
         "&& xdg-open runs/paper/report.html")
     reproduce.add_argument("--out", metavar="DIR", help="the report's folder (default runs/reproduce-<date-time>)")
