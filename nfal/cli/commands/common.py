@@ -152,8 +152,8 @@ def print_step_table(steps: list[dict]) -> None:
     if any(step["rise_time_s"] is None or step["settling_time_s"] is None for step in steps):
         print("  (-: not reached within the step: no 10-90 % rise, or not settled within 2 % by its end)")
     if any(noise_limits_settling(step) and step["settling_time_s"] is not None for step in steps):
-        print("  (*: limited by noise: the 2 % band is narrower than twice the height's noise RMS, so the time is when "
-              "the noise last left the band, not when the object settled; rise time and overshoot still hold)")
+        print("  (*: limited by noise: the 2 % band is narrower than three times the height's noise RMS, so the time "
+              "is when the noise last left the band, not when the object settled; rise time and overshoot still hold)")
 
 
 def progress_bar(total: int, description: str) -> tqdm:
