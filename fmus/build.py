@@ -252,7 +252,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{name}.fmu"
     if not force and is_up_to_date(target, name, fmi_version, windows=windows_python):
-        logger.info("%s is up to date", target)
+        logger.debug("%s is up to date", target)
         return target
     settings = python_settings()
     if not settings.get("libpython"):
@@ -263,10 +263,11 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
     if not force and cached.is_file():
         try:  # a new file (modification time now): newer than its sources, and than archives packed before it
             write_in_one_step(target, lambda path: shutil.copyfile(cached, path))
-            logger.info("built %s (from the cache: %s)", target, cached.parent)
+            logger.debug("built %s (from the cache: %s)", target, cached.parent)
             return target
         except FileNotFoundError:  # pruned by another process meanwhile: built below
             pass
+    logger.info("building %s (pythonfmu%s)", target, "3" if fmi_version == 3 else "")
     with tempfile.TemporaryDirectory(prefix=f"nfal_build_{name}_") as temp:
         stage = Path(temp) / "stage"
         stage.mkdir()

@@ -35,6 +35,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -49,6 +50,8 @@ from nfal.errors import RuntimeBuildError
 from nfal.fmus.runtime_upstream import tree_files
 from nfal.fmus.windows_python import check_windows_python
 from nfal.models.disk_cache import build_once, cache_root
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -338,6 +341,8 @@ def _build_runtime(runtime: Runtime, target: Path) -> None:
     if shutil.which("cmake") is None or shutil.which("c++") is None:
         raise RuntimeBuildError("building the FMU runtime needs CMake and a C++ compiler: "
                                 "apt-get install cmake g++ (and python3-dev for the headers)")
+    logger.info("compiling the patched FMI %d.0 runtime with CMake: once for this Python, kept in %s",
+                runtime.fmi_version, target.parent)
     with tempfile.TemporaryDirectory(prefix="nfal_runtime_", dir=target.parent) as build:
         commands = [["cmake", "-S", str(runtime.sources), "-B", build, "-DCMAKE_BUILD_TYPE=Release",
                      f"-DPython3_EXECUTABLE={sys.executable}",

@@ -13,6 +13,10 @@ from nfal import __version__
 from nfal.cli.commands import COMMANDS
 from nfal.errors import NfalError
 
+#: The loggers of the FMU build, whose INFO lines (a build that is not a copy from the cache, the runtime's compilation)
+#: every command shows: a first build takes tens of seconds.
+BUILD_LOGGERS = ("nfal.fmus.build", "nfal.fmus.export_runtime")
+
 
 def build_parser(dispatched: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser. The commands in ``dispatched`` (default: all) come with their options, their modules imported; the
@@ -49,6 +53,10 @@ def main(argv: list[str] | None = None) -> int:
     level = fmu_logger.level
     if not args.verbose:  # an FMU's failure reaches the user once: in the error the command prints
         fmu_logger.setLevel(logging.CRITICAL)
+    builds = [logging.getLogger(name) for name in BUILD_LOGGERS]
+    build_levels = [builder.level for builder in builds]
+    for builder in builds:  # a first build takes tens of seconds: it says so (a copy from the cache does not)
+        builder.setLevel(logging.INFO)
     try:
         return int(args.handler(args) or 0)
     except NfalError as exc:
@@ -62,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
                      "and please report it)", 1)
     finally:
         fmu_logger.setLevel(level)
+        for builder, build_level in zip(builds, build_levels):
+            builder.setLevel(build_level)
 
 
 def _fail(args: argparse.Namespace, message: str, code: int) -> int:
