@@ -3,6 +3,7 @@ ask at the same time, as two test workers or a sweep's workers do on a fresh mac
 and find it built. Before, the second Windows Python failed to move into place ("Directory not empty"). An FMU and
 the C host are built once per content and copied after that."""
 
+import logging
 import os
 import shutil
 import subprocess
@@ -158,3 +159,22 @@ def test_a_write_in_one_step_that_fails_leaves_the_old_file_and_nothing_else(tmp
     assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["x.fmu"]
     write_in_one_step(target, lambda path: path.write_bytes(b"new"))
     assert target.read_bytes() == b"new" and sorted(p.name for p in tmp_path.iterdir()) == ["x.fmu"]
+
+
+@pytest.mark.slow  # seven FMUs built (a few seconds)
+def test_a_command_says_each_fmu_it_builds_and_nothing_for_copies_from_the_cache(tmp_path, monkeypatch, caplog):
+    """A first build took 20-30 s without a line; the command line now shows the build's INFO lines, and only for
+    work that is not a copy."""
+    from nfal.cli import BUILD_LOGGERS, main
+
+    monkeypatch.setattr(build, "cache_root", lambda: tmp_path / "cache")  # the FMUs' (the runtime's stays warm)
+    caplog.set_level("WARNING")  # the root logger as the command line sets it without -v
+    caplog.handler.setLevel(logging.NOTSET)  # and every record that gets past the loggers captured
+    said = []
+    for out in ("a", "b"):
+        caplog.clear()
+        assert main(["build", "--out", str(tmp_path / out)]) == 0
+        said.append([record.getMessage() for record in caplog.records if record.name in BUILD_LOGGERS])
+    assert sum(message.startswith("building ") for message in said[0]) == len(build.FMU_SCRIPTS)
+    assert said[1] == []  # every FMU a copy from the cache
+    assert all(logging.getLogger(name).level == logging.NOTSET for name in BUILD_LOGGERS)  # restored afterwards
