@@ -58,7 +58,7 @@ def test_tabulated_shape_any_scale_is_normalised(tmp_path):
     ("R,e\n0,1\n0.5,1\n1,1\n", "4"),
     ("R,e\n0,1\n0.2,1\n0.1,1\n1,1\n", "increase"),
     ("R,e\n0.1,1\n0.2,1\n0.5,1\n1,1\n", "from 0 to 1"),
-    ("R,e\n0,1\n0.2,x\n0.5,1\n1,1\n", "row 3"),
+    ("R,e\n0,1\n0.2,x\n0.5,1\n1,1\n", "line 3 is not 2 numbers"),
     ("R,e,f\n0,1,1\n0.2,1,1\n0.5,1,1\n1,1,1\n", "two columns"),
     ("R,e\n0,0\n0.2,0\n0.5,0\n1,0\n", "zero"),
     ("", "no data"),
