@@ -210,8 +210,8 @@ def _print_summary(summary: dict, out: Path) -> None:
     metrics = summary.get("metrics")
     if metrics:
         first = metrics.get("first_level") or {}
-        parts = (f" (first level {first['iae_m_s'] * 1e6:.3f}, its peak {first['peak_m'] * 1e6:.1f} um; steps "
-                 f"{first['steps_iae_m_s'] * 1e6:.3f})" if first.get("peak_m") is not None else "")
+        parts = (f": {first['iae_m_s'] * 1e6:.3f} on the first level (its peak {first['peak_m'] * 1e6:.1f} um), "
+                 f"{first['steps_iae_m_s'] * 1e6:.3f} over the steps" if first.get("peak_m") is not None else "")
         print(f"IAE {metrics['iae'] * 1e6:.3f} um s{parts}")
         if metrics["steps"] is not None:
             print_step_table(metrics["steps"])

@@ -39,8 +39,8 @@ def register(commands) -> None:
                           "name in the temporary folder)")
     emulator.add_argument("--truth", default="slow", metavar="slow|reynolds|FILE",
                           help="the rig's hardware: rig_slow (slow model with the large-gap damping correction, "
-                          "default), rig_reynolds (the full Reynolds film by harmonic balance, piston form: 44 us a "
-                          "0.5 ms tick in bench/bench_rig_truth.py), or an SSP of your own with the same element names")
+                          "default), rig_reynolds (the full Reynolds film by harmonic balance, piston form; its cost "
+                          "per 0.5 ms tick: docs/benchmarks.md), or an SSP of your own with the same element names")
     emulator.add_argument("--param", action="append", default=[], metavar="ELEMENT.VAR=VALUE",
                           help="override a parameter of the truth (repeatable), e.g. Plant.mass=0.15, "
                           "SensorChain.noise_peak=0")
