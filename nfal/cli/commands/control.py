@@ -72,18 +72,20 @@ def register(commands) -> None:
         "With --port, run each controller on the rig instead (Figs. 11-12): the hardware-in-the-loop structure "
         "fig7_hil, paced in real time, one run per controller from rest (a 1 s first level for the lift-off); "
         "the rig's own sensor gives the noise, and every run's results.csv is kept under --runs-dir.")
-    compare.add_argument("--controllers", default="gs,80,120,160",
+    compare.add_argument("--controllers", default="gs,80,120,160", metavar="LIST",
                          help="'gs' and/or linear controllers named by their design height in um, as the paper names "
                          "them (80: the design at 80e-6 m; default gs,80,120,160)")
-    compare.add_argument("--seed", type=int, help="seed of the measurement noise (default 0; not with --port)")
-    compare.add_argument("--noise-peak", type=finite_float, help=f"peak noise magnitude [m] (default {NOISE_PEAK_M:g}; "
-                         "0: none; not with --port)")
-    compare.add_argument("--noise-cutoff", type=finite_float, help=f"noise colouring cut-off [Hz] (default "
-                         f"{NOISE_CUTOFF_HZ:g}; not with --port)")
-    compare.add_argument("--levels", type=number_list, default=list(STAIRCASE_LEVELS_M),
+    compare.add_argument("--seed", type=int, metavar="N",
+                         help="seed of the measurement noise (default 0; not with --port)")
+    compare.add_argument("--noise-peak", type=finite_float, metavar="m",
+                         help=f"peak noise magnitude [m] (default {NOISE_PEAK_M:g}; 0: none; not with --port)")
+    compare.add_argument("--noise-cutoff", type=finite_float, metavar="Hz",
+                         help=f"noise colouring cut-off [Hz] (default {NOISE_CUTOFF_HZ:g}; not with --port)")
+    compare.add_argument("--levels", type=number_list, default=list(STAIRCASE_LEVELS_M), metavar="m,m,...",
                          help="reference levels [m] (default 60e-6,100e-6,140e-6,180e-6,140e-6,100e-6,60e-6)")
-    compare.add_argument("--hold", type=finite_float, default=0.6, help="hold time of each level [s] (default 0.6)")
-    compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M,
+    compare.add_argument("--hold", type=finite_float, default=0.6, metavar="s",
+                         help="hold time of each level [s] (default 0.6)")
+    compare.add_argument("--max-excitation", type=finite_float, default=MAX_EXCITATION_M, metavar="m",
                          help="actuator limit |a|max [m] (default %(default)s)")
     compare.add_argument("--full-schedule", action="store_true",
                          help="with --placement continuous only: schedule the paper's designs at every height, even "
@@ -105,11 +107,11 @@ def register(commands) -> None:
 
 
 def _add_design_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--closed-loop-cutoff", type=finite_float, default=CLOSED_LOOP_CUTOFF_HZ,
+    parser.add_argument("--closed-loop-cutoff", type=finite_float, default=CLOSED_LOOP_CUTOFF_HZ, metavar="Hz",
                         help="closed-loop -3 dB bandwidth [Hz] (default %(default)s)")
-    parser.add_argument("--filter-cutoff", type=finite_float, default=FILTER_CUTOFF_HZ,
+    parser.add_argument("--filter-cutoff", type=finite_float, default=FILTER_CUTOFF_HZ, metavar="Hz",
                         help="derivative filter cut-off [Hz] (default %(default)s)")
-    parser.add_argument("--sample-rate", type=finite_float, default=SAMPLING_RATE_HZ,
+    parser.add_argument("--sample-rate", type=finite_float, default=SAMPLING_RATE_HZ, metavar="Hz",
                         help="controller sampling rate [Hz] (default %(default)s)")
     parser.add_argument("--placement", choices=PLACEMENTS, default="sampled",
                         help="loop whose poles are placed: sampled (the loop the discrete law realises at "

@@ -56,7 +56,7 @@ def register(commands) -> None:
                           help="drop the port this long (rig time) after the host's first DRIVE (its reads fail)")
     emulator.add_argument("--reconnect-after", default="1.0", metavar="SECONDS|never",
                           help="reconnect the port this long after --disconnect-at (default 1.0)")
-    emulator.add_argument("--seed", type=int, default=0, help="seed of the fault injection (default 0)")
+    emulator.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the fault injection (default 0)")
     emulator.add_argument("--sample-rate", type=positive_float, default=1.0 / RigTiming.sample_period_s, metavar="HZ",
                           help="the rig's tick and measurement rate (default %(default)g; a host's HardwareProxy and "
                           "Controller take the same sample_rate; the C firmware runs at the default only)")

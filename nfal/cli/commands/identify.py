@@ -61,7 +61,8 @@ def register(commands) -> None:
     identify.add_argument("--damping-heights", type=number_list, default=np.linspace(*WORK_RANGE_M, 8),
                           metavar="HEIGHTS",
                           help=f"heights of the drive steps [m] (default {WORK_RANGE_M[0]:g}:{WORK_RANGE_M[1]:g}:8)")
-    identify.add_argument("--steps", type=int, default=6, help="fitted steps per damping height, even (default 6)")
+    identify.add_argument("--steps", type=int, default=6, metavar="N",
+                          help="fitted steps per damping height, even (default 6)")
     identify.add_argument("--step-size", type=float, default=0.03, metavar="FRACTION",
                           help="drive step about the equilibrium drive, relative (default 0.03)")
     identify.add_argument("--max-hold", type=float, default=5.0, metavar="SECONDS",
