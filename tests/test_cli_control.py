@@ -103,6 +103,12 @@ def test_compare_refuses_an_option_without_effect_in_its_mode(capsys, tmp_path, 
     assert not list(tmp_path.iterdir())  # nothing built, nothing run
 
 
+def test_compare_refuses_levels_in_micrometres_naming_the_unit(capsys):
+    assert main(["compare", "--controllers", "gs", "--levels", "60,100", "--hold", "0.1"]) == 2
+    assert capsys.readouterr().err == ("nfal compare: error: --levels = [60.0, 100.0] is invalid: must be clearances "
+                                       "within 1.0–1000.0 µm (did you give µm or mm as m?)\n")
+
+
 def test_compare_takes_the_full_schedule_with_the_continuous_placement(capsys):
     assert main(["compare", *SHORT, "--placement", "continuous", "--full-schedule", "--seed", "0", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["noise"]["seed"] == 0

@@ -98,8 +98,8 @@ def test_reference_staircase_rejects_a_bad_spec():
 
 
 def test_reference_staircase_in_micrometres_is_refused_before_the_run_with_the_unit_named():
-    with pytest.raises(InvalidParameterError, match=r"--reference level = 60.0 is invalid: must be at most 0.005 m "
-                       r"for a levitation rig \(did you give µm or mm as m\?\)"):
+    with pytest.raises(InvalidParameterError, match=r"--reference levels = \(60.0, 100.0\) is invalid: must be "
+                       r"clearances within 1.0–1000.0 µm \(did you give µm or mm as m\?\)"):
         reference_staircase("staircase:60,100:0.2", "fig7_slow")
 
 

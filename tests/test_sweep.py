@@ -95,10 +95,10 @@ BAD_SPECS = [
     ({"run": {"kind": "ssp", "reference": {"levels_m": [1e-4] * 2, "hold_s": 1e4}}, "grid": {"Plant.mass": [1]}},
      "steps; at most 10,000,000"),
     ({"run": {"kind": "ssp", "reference": {"levels_m": [100, 140]}}, "grid": {"Plant.mass": [1]}},
-     "[run] reference.levels_m = 100 is invalid: must be at most 0.005 m for a levitation rig (did you give µm or mm "
-     "as m?)"),
+     "[run] reference.levels_m = [100, 140] is invalid: must be clearances within 1.0–1000.0 µm (did you give µm or "
+     "mm as m?)"),
     ({"run": {"kind": "ssp", "reference": {"levels_m": [1e-4, "high"]}}, "grid": {"Plant.mass": [1]}},
-     "[run] reference.levels_m = [0.0001, 'high']; must be clearances [m]"),
+     "[run] reference.levels_m = [0.0001, 'high'] is invalid: must be clearances within 1.0–1000.0 µm"),
 ]
 
 

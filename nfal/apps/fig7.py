@@ -35,7 +35,7 @@ from nfal.models.reference import Staircase
 from nfal.models.control_law import SATURATION_WARNING_S, DiscreteControlLaw
 from nfal.models.measurement_noise import coloured_noise
 from nfal.models.pid_design import DesignSpec, design_schedule
-from nfal.models.plausibility import MAX_CLEARANCE_M, require_plausible
+from nfal.models.plausibility import require_clearances
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.reference import StepSequence
 from nfal.models.rig import RigParameters
@@ -70,8 +70,7 @@ def reference_staircase(spec: str, structure: str, lead_s: float | None = None) 
     except ValueError:
         raise InvalidParameterError("--reference", spec, "staircase, staircase:L1,L2,...[:HOLD[:LEAD]] (m, s) "
                                     "or a CSV file") from None
-    for level in levels:  # before the build and the set-up: 60 for 60 um fails here, not at the run's first step
-        require_plausible("--reference level", level, MAX_CLEARANCE_M, "m")
+    require_clearances("--reference levels", levels)  # 60 for 60 um fails here, not at the run's first step
     return Staircase(levels, *timing)
 
 

@@ -22,7 +22,7 @@ from nfal.errors import InvalidParameterError, SweepSpecError
 from nfal.apps.fig7 import REFERENCE, SIMULATED, loop_checks, loop_metrics, matched_design, reference_staircase
 from nfal.fmus.rig_contract import CALIBRATION_CHOICES
 from nfal.models.calibration import perturbation_calibration
-from nfal.models.plausibility import MAX_CLEARANCE_M, require_plausible
+from nfal.models.plausibility import require_clearances
 from nfal.models.reference import Staircase
 from nfal.models.excitation import parse_shape
 from nfal.models.table1 import TABLE1, run_case
@@ -201,14 +201,10 @@ def _check_ssp_settings(settings: dict, swept: list[str]) -> None:
         raise SweepSpecError(f"[run] reference = {reference!r}; must be \"staircase\", \"none\" or "
                              "{levels_m = [...], hold_s = ..., lead_s = ...}")
     if isinstance(reference, dict):  # levels in um given as m: every run would fail at its first step
-        for level in reference["levels_m"]:
-            try:
-                require_plausible("[run] reference.levels_m", level, MAX_CLEARANCE_M, "m")
-            except InvalidParameterError as exc:
-                raise SweepSpecError(str(exc)) from None
-            except TypeError:
-                raise SweepSpecError(f"[run] reference.levels_m = {reference['levels_m']!r}; must be clearances "
-                                     "[m]") from None
+        try:
+            require_clearances("[run] reference.levels_m", reference["levels_m"])
+        except InvalidParameterError as exc:
+            raise SweepSpecError(str(exc)) from None
     run_time = ssp_run_time(settings)
     if run_time is not None and run_time / settings["step_size"] > MAX_STEPS:  # every run would be refused at its start
         raise SweepSpecError(f"[run] a run of {run_time:g} s at step_size = {settings['step_size']:g} s is "

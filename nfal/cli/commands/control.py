@@ -203,6 +203,7 @@ def run_compare(args: argparse.Namespace) -> int:
     keys = _parse_controllers(args.controllers)
     _refuse_unused(args)
     started = time.perf_counter()
+    require_clearances("--levels", args.levels)  # 60 for 60 um: refused with the unit hint
     # from rest on a rig: a 1 s first level for the lift-off
     reference = Staircase(tuple(args.levels), hold_s=args.hold, **({"lead_s": HARDWARE_LEAD_S} if args.port else {}))
     samples = reference.duration_s * args.sample_rate
