@@ -26,7 +26,7 @@ def read_user_text(path: str | os.PathLike, what: str) -> str:
         if size > MAX_TEXT_BYTES:
             raise DataFormatError(f"{what} {path}: {size / 2**20:,.0f} MiB, more than the {MAX_TEXT_BYTES >> 20} MiB "
                                   "such a file can be")
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")  # a byte-order mark (a spreadsheet's UTF-8 export) is not text
     except OSError as exc:
         raise DataFormatError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
@@ -34,7 +34,8 @@ def read_user_text(path: str | os.PathLike, what: str) -> str:
 
 
 def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
-    """Read a CSV of numbers with an optional header line and ``#`` comment lines.
+    """Read a CSV of numbers with an optional header line and ``#`` comment lines: comma-, or semicolon- or
+    tab-separated with a decimal comma (:func:`_delimiter`), as spreadsheets export them.
 
     Returns
     -------
@@ -46,8 +47,9 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     text = read_user_text(path, "the table")
     numbered = [(number, line) for number, line in enumerate(text.splitlines(), start=1)
                 if line.strip() and not line.lstrip().startswith("#")]
+    delimiter = _delimiter([line for _, line in numbered[:DELIMITER_SAMPLE_LINES]])
     try:  # one record per line: the lines are split already
-        records = [[cell.strip() for cell in row] for row in csv.reader(line for _, line in numbered)]
+        records = [_cells(row, delimiter) for row in csv.reader((line for _, line in numbered), delimiter=delimiter)]
     except csv.Error as exc:
         raise DataFormatError(f"{path}: not CSV: {exc}") from None
     if not records:
@@ -63,7 +65,10 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     rows = []
     for number, record in zip(line_numbers, records):
         if len(record) != width or not _is_numeric(record):
-            raise DataFormatError(f"{path}: line {number} is not {width} numbers: {','.join(record)!r}")
+            decimal_comma = " (a decimal comma? between commas, numbers take a point)" if any(
+                "," in cell for cell in record) else ""
+            raise DataFormatError(f"{path}: line {number} is not {width} number{'s' if width > 1 else ''}: "
+                                  f"{delimiter.join(record)!r}{decimal_comma}")
         rows.append([float(cell) for cell in record])
     if not rows:
         raise DataFormatError(f"{path}: a header but no data rows")
@@ -71,6 +76,37 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     if not np.all(np.isfinite(table)):
         raise DataFormatError(f"{path}: contains NaN or infinite values")
     return names or [f"col{i}" for i in range(width)], table
+
+
+#: Lines read to tell the delimiter.
+DELIMITER_SAMPLE_LINES = 20
+#: The delimiters a table may have, tried in this order: a comma, or the semicolon or tab a spreadsheet writes where
+#: the decimal mark is a comma.
+DELIMITERS = (",", ";", "\t")
+
+
+def _delimiter(lines: list[str]) -> str:
+    """The first of :data:`DELIMITERS` that splits ``lines`` (after a header) into rows of numbers of one width; a
+    comma if none does (the rows' errors are then named by line). A semicolon or a tab is never part of a number,
+    where a comma can be the decimal mark: '0,5;1,2' is two numbers, not three cells."""
+    for delimiter in DELIMITERS:
+        try:
+            records = [_cells(row, delimiter) for row in csv.reader(lines, delimiter=delimiter)]
+        except csv.Error:
+            continue
+        data = records[1:] if records and not _is_numeric(records[0]) else records
+        if data and all(record and len(record) == len(data[0]) and _is_numeric(record) for record in data):
+            return delimiter
+    return ","
+
+
+def _cells(row: list[str], delimiter: str) -> list[str]:
+    """A record's cells, stripped, without the empty ones a spreadsheet leaves after the last column; between
+    semicolons or tabs, a comma is the decimal mark (6,0e-5 is 6.0e-5)."""
+    cells = [cell.strip() if delimiter == "," else cell.strip().replace(",", ".") for cell in row]
+    while cells and not cells[-1]:
+        cells.pop()
+    return cells
 
 
 def _is_numeric(record: list[str]) -> bool:

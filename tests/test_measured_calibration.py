@@ -94,11 +94,14 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 @examples(60)
 @given(rows=st.lists(st.lists(finite, min_size=3, max_size=3), min_size=1, max_size=20), header=st.booleans(),
-       comments=st.lists(st.text(alphabet=st.characters(blacklist_categories=("Cs", "Cc")), max_size=20), max_size=3))
-def test_csv_reader_round_trips(tmp_path_factory, rows, header, comments):
+       comments=st.lists(st.text(alphabet=st.characters(blacklist_categories=("Cs", "Cc")), max_size=20), max_size=3),
+       delimiter=st.sampled_from([",", ";", "\t"]), decimal_comma=st.booleans())
+def test_csv_reader_round_trips(tmp_path_factory, rows, header, comments, delimiter, decimal_comma):
+    """Comma-separated, or semicolon- or tab-separated as a spreadsheet writes them, with a decimal comma or point."""
     path = tmp_path_factory.mktemp("csv") / "t.csv"
-    lines = ([f"# {c}" for c in comments] + (["a,B,c"] if header else [])
-             + [",".join(repr(v) for v in row) for row in rows])
+    number = (lambda v: repr(v).replace(".", ",")) if decimal_comma and delimiter != "," else repr  # noqa: E731
+    lines = ([f"# {c}" for c in comments] + ([delimiter.join(["a", "B", "c"])] if header else [])
+             + [delimiter.join(number(v) for v in row) for row in rows])
     path.write_text("\n".join(lines) + "\n")
     names, table = read_numeric_csv(path)
     np.testing.assert_array_equal(table, np.array(rows))
@@ -115,6 +118,22 @@ def test_csv_reader_never_crashes_on_garbage(tmp_path_factory, text):
     except DataFormatError:
         return
     assert np.all(np.isfinite(table))
+
+
+def test_csv_reader_takes_a_spreadsheets_export(tmp_path):
+    """A byte-order mark, CRLF line ends and an empty cell after the last column, as spreadsheets write them."""
+    path = tmp_path / "export.csv"
+    path.write_bytes(b"\xef\xbb\xbftime_s,reference_m,\r\n0,6e-05,\r\n0.3,0.0001,\r\n")
+    names, table = read_numeric_csv(path)
+    assert names == ["time_s", "reference_m"] and table.tolist() == [[0.0, 6e-05], [0.3, 1e-04]]
+
+
+def test_a_decimal_comma_between_commas_is_named(tmp_path):
+    path = tmp_path / "comma.csv"
+    path.write_text('time_s,reference_m\n0,"6,0e-5"\n')
+    with pytest.raises(DataFormatError, match=r"line 2 is not 2 numbers: '0,6,0e-5' \(a decimal comma\? between "
+                       r"commas, numbers take a point\)"):
+        read_numeric_csv(path)
 
 
 @pytest.mark.parametrize("content", [b"a,b\n1,\x002\n", b"\xff\xfe1,2\n"])
