@@ -110,6 +110,14 @@ def test_file_round_trip_keeps_k_damping_rig_and_provenance(tmp_path):
     assert load_calibration(path)(123.0) == paper_calibration()(123.0)  # K-only readers keep working
 
 
+def test_a_file_saved_with_a_byte_order_mark_loads(tmp_path):
+    """An editor's "UTF-8 with BOM" (json.loads refused the mark: 'Unexpected UTF-8 BOM')."""
+    path = tmp_path / "rig.json"
+    RigCalibration(paper_calibration(), TABLE, RIG_FIELDS, PROVENANCE).save(path)
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert load_rig_calibration(path, RIG).provenance == PROVENANCE
+
+
 def test_k_only_files_of_older_releases_load(tmp_path):
     path = tmp_path / "k.json"
     path.write_text(json.dumps(paper_calibration().to_dict()))  # no version, no damping
