@@ -23,6 +23,7 @@ from pathlib import Path
 
 from nfal.fmus.base import DefaultExperiment, NfalSlave
 from nfal.models.reference import Staircase
+from nfal.models.plausibility import require_clearances
 from nfal.models.reference import StepSequence, numbers
 
 from nfal.errors import InvalidParameterError
@@ -42,7 +43,12 @@ def reference_of(parameters: Mapping[str, object], resources: str | None = None)
     unknown = set(parameters) - set(PARAMETERS)
     if unknown:
         raise InvalidParameterError("ReferenceGenerator parameter", sorted(unknown)[0], f"one of {sorted(PARAMETERS)}")
-    values = {**PARAMETERS, **parameters}
+    reference = _reference({**PARAMETERS, **parameters}, resources)
+    require_clearances("ReferenceGenerator levels", reference.levels_m)  # 60 for 60 um: named here, not downstream
+    return reference
+
+
+def _reference(values: Mapping[str, object], resources: str | None) -> Staircase | StepSequence:
     table = str(values["table"]).strip()
     if table:
         if table.lower().endswith(".csv") and "," not in table:

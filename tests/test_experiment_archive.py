@@ -123,6 +123,9 @@ def test_the_slave_takes_steps_a_table_and_a_file_in_its_resources(tmp_path):
 @pytest.mark.parametrize("parameters, named", [
     ({"levels": "60e-6"}, "at least two levels"),
     ({"levels": "60 um 100 um"}, "levels"),
+    ({"levels": "60 100"}, r"ReferenceGenerator levels = \(60.0, 100.0\) is invalid: must be clearances within "
+                           r"1.0–1000.0 µm \(did you give µm or mm as m\?\)"),
+    ({"table": "0,60;0.1,80"}, r"ReferenceGenerator levels = \(60.0, 80.0\) is invalid"),
     ({"hold": -0.6}, "hold_s"),
     ({"times": "0 0.1", "levels": "60e-6"}, "2 times, 1 levels"),
     ({"table": "../secrets.csv"}, "resources folder"),
