@@ -102,11 +102,18 @@ def _delimiter(lines: list[str]) -> str:
 
 def _cells(row: list[str], delimiter: str) -> list[str]:
     """A record's cells, stripped, without the empty ones a spreadsheet leaves after the last column; between
-    semicolons or tabs, a comma is the decimal mark (6,0e-5 is 6.0e-5)."""
-    cells = [cell.strip() if delimiter == "," else cell.strip().replace(",", ".") for cell in row]
+    semicolons or tabs, a comma in a number is the decimal mark (6,0e-5 is 6.0e-5; a header's names keep theirs)."""
+    cells = [cell.strip() for cell in row]
+    if delimiter != ",":
+        cells = [_decimal_point(cell) for cell in cells]
     while cells and not cells[-1]:
         cells.pop()
     return cells
+
+
+def _decimal_point(cell: str) -> str:
+    pointed = cell.replace(",", ".")
+    return pointed if _is_numeric([pointed]) else cell
 
 
 def _is_numeric(record: list[str]) -> bool:
