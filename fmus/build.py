@@ -288,7 +288,7 @@ def build_fmu(name: str, out_dir: str | os.PathLike, *, force: bool = False, fmi
         _prune(cached.parent.parent, target.name)
     except OSError as exc:  # a cache that cannot be written is no reason to fail the build
         logger.warning("the FMU %s is not kept in the nfal cache: %s", name, exc)
-    logger.info("built %s", target)
+    logger.debug("built %s", target)  # "building" said it at the start
     return target
 
 
