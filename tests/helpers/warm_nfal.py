@@ -35,7 +35,7 @@ _CONTEXT.set_forkserver_preload(PRELOAD)
 NFAL = [sys.executable, "-m", "nfal"]
 
 
-def _run(argv: list[str], environment: dict[str, str], cwd: str, stdout: str, stderr: str,
+def _run(argv: list[str], environment: dict[str, str], cwd: str, stdout: str, stderr: str, new_session: bool,
          preexec_fn: Callable[[], None] | None) -> None:
     """In the forked process: the command line's streams to the files, the caller's environment, ``main``."""
     # may start processes of its own (a sweep's local cluster), as the command line can: the daemon flag (which only
@@ -48,6 +48,8 @@ def _run(argv: list[str], environment: dict[str, str], cwd: str, stdout: str, st
     os.environ.clear()
     os.environ.update(environment)
     os.chdir(cwd)
+    if new_session:  # then preexec_fn, in Popen's order
+        os.setsid()
     if preexec_fn is not None:
         preexec_fn()
     sys.argv = ["nfal", *argv]
@@ -88,18 +90,18 @@ class _Output:
 class WarmProcess:
     """``nfal *argv`` forked from the warm server, with what the tests use of a ``subprocess.Popen``: ``stdout`` and
     ``stderr`` go to files in a folder of its own, read line by line while it runs (``stdout.readline``) and whole by
-    :meth:`communicate` at its end (which removes the folder). ``cwd``, ``env`` and ``preexec_fn`` (picklable) are
-    Popen's."""
+    :meth:`communicate` at its end (which removes the folder). ``cwd``, ``env``, ``start_new_session`` and
+    ``preexec_fn`` (picklable) are Popen's."""
 
     def __init__(self, argv: list[str], *, cwd: str | Path | None = None, env: dict[str, str] | None = None,
-                 preexec_fn: Callable[[], None] | None = None) -> None:
+                 start_new_session: bool = False, preexec_fn: Callable[[], None] | None = None) -> None:
         self.args = ["nfal", *argv]
         self._folder = Path(tempfile.mkdtemp(prefix="nfal-warm-"))
         # daemonic: ended with the test worker if a test left it running
         self._process = _CONTEXT.Process(
             target=_run, daemon=True,
             args=(list(argv), dict(os.environ if env is None else env), str(cwd or os.getcwd()),
-                  str(self._folder / "stdout"), str(self._folder / "stderr"), preexec_fn))
+                  str(self._folder / "stdout"), str(self._folder / "stderr"), start_new_session, preexec_fn))
         self._process.start()
         self.pid = self._process.pid
         self.stdout = _Output(self._folder / "stdout", self._process.is_alive)
@@ -145,5 +147,6 @@ def popen(command: list[str], **options) -> WarmProcess | subprocess.Popen:
     by ``subprocess.Popen(command, **options)``."""
     if command[:len(NFAL)] != NFAL:
         return subprocess.Popen(command, **options)
-    preexec_fn = os.setsid if options.get("start_new_session") else options.get("preexec_fn")
-    return WarmProcess(command[len(NFAL):], cwd=options.get("cwd"), env=options.get("env"), preexec_fn=preexec_fn)
+    return WarmProcess(command[len(NFAL):], cwd=options.get("cwd"), env=options.get("env"),
+                       start_new_session=options.get("start_new_session", False),
+                       preexec_fn=options.get("preexec_fn"))
