@@ -43,12 +43,12 @@ def reference_of(parameters: Mapping[str, object], resources: str | None = None)
     unknown = set(parameters) - set(PARAMETERS)
     if unknown:
         raise InvalidParameterError("ReferenceGenerator parameter", sorted(unknown)[0], f"one of {sorted(PARAMETERS)}")
-    reference = _reference({**PARAMETERS, **parameters}, resources)
+    reference = _described({**PARAMETERS, **parameters}, resources)
     require_clearances("ReferenceGenerator levels", reference.levels_m)  # 60 for 60 um: named here, not downstream
     return reference
 
 
-def _reference(values: Mapping[str, object], resources: str | None) -> Staircase | StepSequence:
+def _described(values: Mapping[str, object], resources: str | None) -> Staircase | StepSequence:
     table = str(values["table"]).strip()
     if table:
         if table.lower().endswith(".csv") and "," not in table:
