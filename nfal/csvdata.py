@@ -13,6 +13,12 @@ from nfal.errors import DataFormatError
 #: Largest text file a user brings (a calibration, a shape scan, equilibria): far above any real one (kB).
 MAX_TEXT_BYTES = 16 << 20
 
+#: Lines read to tell the delimiter.
+DELIMITER_SAMPLE_LINES = 20
+#: The delimiters a table may have, tried in this order: a comma, or the semicolon or tab a spreadsheet writes where
+#: the decimal mark is a comma.
+DELIMITERS = (",", ";", "\t")
+
 
 def read_user_text(path: str | os.PathLike, what: str) -> str:
     """The text of a small UTF-8 file a user names; :class:`DataFormatError` for anything else (missing, a
@@ -76,13 +82,6 @@ def read_numeric_csv(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     if not np.all(np.isfinite(table)):
         raise DataFormatError(f"{path}: contains NaN or infinite values")
     return names or [f"col{i}" for i in range(width)], table
-
-
-#: Lines read to tell the delimiter.
-DELIMITER_SAMPLE_LINES = 20
-#: The delimiters a table may have, tried in this order: a comma, or the semicolon or tab a spreadsheet writes where
-#: the decimal mark is a comma.
-DELIMITERS = (",", ";", "\t")
 
 
 def _delimiter(lines: list[str]) -> str:
