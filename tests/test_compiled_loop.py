@@ -182,8 +182,8 @@ def test_a_stop_signal_ends_the_compiled_loop_keeps_every_row_and_says_stop(fig7
     rig = emulator()
     out = tmp_path / "run"
     process = popen([sys.executable, "-m", "nfal", "run", str(fig7_archives["fig7_hil"]), "--compiled",
-                                "--param", f"proxy.port={rig.port}", "--stop-time", "30", "--out", str(out),
-                                "--no-plot"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                     "--param", f"proxy.port={rig.port}", "--stop-time", "30", "--out", str(out),
+                     "--no-plot"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     results = out / "results.csv"
     deadline = time.monotonic() + 60
     while not (results.is_file() and results.stat().st_size > 100_000) and time.monotonic() < deadline:

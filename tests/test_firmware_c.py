@@ -249,9 +249,9 @@ def test_the_emulator_with_the_c_firmware_prints_its_port_and_serves_a_host(fig7
     height the host measures is the rig_slow sensor's, at rest); the exit summary counts the ticks."""
     link_path = tmp_path / "rig"
     emulator = popen([sys.executable, "-m", "nfal", "rig-emulator",
-                                 "--truth", str(fig7_archives["rig_slow"]),
-                                 "--firmware", kind, "--link", str(link_path), "--watchdog", "0.5", "--duration", "60",
-                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                      "--truth", str(fig7_archives["rig_slow"]),
+                      "--firmware", kind, "--link", str(link_path), "--watchdog", "0.5", "--duration", "60",
+                      "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert emulator.stdout.readline().strip() == str(link_path)
         assert "C firmware" in emulator.stdout.readline()
