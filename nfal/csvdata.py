@@ -89,6 +89,8 @@ def _delimiter(lines: list[str]) -> str:
     comma if none does (the rows' errors are then named by line). A semicolon or a tab is never part of a number,
     where a comma can be the decimal mark: '0,5;1,2' is two numbers, not three cells."""
     for delimiter in DELIMITERS:
+        if delimiter != "," and not any(delimiter in line for line in lines):  # a ragged comma table stays one
+            continue
         try:
             records = [_cells(row, delimiter) for row in csv.reader(lines, delimiter=delimiter)]
         except csv.Error:

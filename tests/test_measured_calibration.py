@@ -128,6 +128,14 @@ def test_csv_reader_takes_a_spreadsheets_export(tmp_path):
     assert names == ["time_s", "reference_m"] and table.tolist() == [[0.0, 6e-05], [0.3, 1e-04]]
 
 
+def test_a_short_row_of_a_comma_table_is_named_not_read_as_decimal_commas(tmp_path):
+    """'1,2' alone would be a number with a decimal comma between semicolons; a table without any is a comma table."""
+    path = tmp_path / "ragged.csv"
+    path.write_text("a,b\n1,2\n3\n")
+    with pytest.raises(DataFormatError, match="line 3 is not 2 numbers: '3'"):
+        read_numeric_csv(path)
+
+
 def test_a_decimal_comma_between_commas_is_named(tmp_path):
     path = tmp_path / "comma.csv"
     path.write_text('time_s,reference_m\n0,"6,0e-5"\n')
