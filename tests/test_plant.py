@@ -6,7 +6,7 @@ from scipy import integrate
 
 from nfal.errors import InvalidParameterError
 from nfal.models.calibration import paper_calibration
-from nfal.models.plant import PlantState, SimplifiedPlant
+from nfal.models.plant import LIFT_OFF_MARGIN, PlantState, SimplifiedPlant
 from nfal.models.rig import RigParameters
 
 
@@ -172,6 +172,16 @@ def test_ramp_through_the_lift_off_threshold(surface_plant, slope):
                           samples=300)  # no sample on the crossing
     np.testing.assert_array_equal(path.resting, path.time <= crossing)
     assert np.all(np.diff(path.height[path.time > crossing]) > 0)
+
+
+def test_the_rest_test_is_levitation_force_at_the_rest_gap_to_the_bit(surface_plant):
+    """The rest test's film force (floats, K at rest_gap kept) is levitation_force's (numpy) to the last bit: a
+    different rounding would move the lift-off threshold."""
+    plant = surface_plant
+    threshold = plant.equilibrium_excitation(plant.rest_gap)
+    for excitation in [0.0, *threshold * (1.0 + np.linspace(-1e-9, 1e-9, 201)), *np.geomspace(1e-9, 1e-4, 200)]:
+        expected = float(plant.levitation_force(plant.rest_gap, excitation) - (1.0 + LIFT_OFF_MARGIN) * plant.weight)
+        assert plant._net_resting_force(0.0, lambda t: excitation) == expected, excitation
 
 
 @pytest.mark.parametrize("state, factor, expected", [
