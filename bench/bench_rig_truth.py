@@ -5,7 +5,8 @@
 Each built-in rig structure (rig_slow, rig_reynolds: ``nfal rig-emulator --truth slow|reynolds``) is run
 in-process as the emulator runs it (:func:`nfal.apps.rig_model.open_rig`) for 10 s of rig time from rest
 (45 V, lift-off, then 60 V), twice, the second time with the imports, numba kernels and the Reynolds
-plant's film table warm; then rig_slow once more through the co-simulation master (:class:`StructureRig`, the
+plant's film table warm; rig_slow warm at 0 V, the object resting on the surface all along (an emulator's state while
+no host drives it); then rig_slow once more through the co-simulation master (:class:`StructureRig`, the
 path of a rig structure that is not all nfal FMUs). Per tick: ``reading`` + ``advance``, in wall time and in
 this thread's CPU time. A tick whose wall time exceeds the 500 us period but whose CPU time does not was the
 machine's (the thread was not running: another process, the hypervisor); a tick whose CPU time exceeds it is
@@ -26,6 +27,8 @@ from nfal.apps.rig_model import StructureRig, open_rig
 
 TICK_S = 5e-4
 TICKS = 20000
+#: The row of the slow truth at rest on the surface.
+RESTING = "rig_slow, resting (0 V)"
 
 
 def timed(step, costs: list):
@@ -39,11 +42,12 @@ def timed(step, costs: list):
     return wrapper
 
 
-def tick_costs(rig) -> tuple[np.ndarray, np.ndarray]:
-    """Wall and CPU time [us] of each of TICKS ticks (``reading`` + ``advance``), 45 V then 60 V."""
+def tick_costs(rig, voltages: tuple[float, ...] = (45.0, 60.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Wall and CPU time [us] of each of TICKS ticks (``reading`` + ``advance``), ``voltages`` [V] in turn, each for
+    an equal share of them."""
     costs, cpu = np.empty(TICKS), np.empty(TICKS)
     for k in range(TICKS):
-        rig.apply(45.0 if k < TICKS // 2 else 60.0)
+        rig.apply(voltages[k * len(voltages) // TICKS])
         tick, tick_cpu = time.perf_counter(), time.thread_time()
         rig.reading()
         rig.advance()
@@ -63,20 +67,27 @@ def summary(name: str, run: int, setup: float, costs: np.ndarray, cpu: np.ndarra
             "plant_cpu": stats(plant)}
 
 
+def measured(path: Path, voltages: tuple[float, ...] = (45.0, 60.0)) -> tuple:
+    """Set-up time [s], the ticks' wall and CPU times [us] and the plant's doStep CPU times [us] of the rig structure
+    at ``path`` run in-process (:func:`tick_costs`)."""
+    started = time.perf_counter()
+    with open_rig(path, TICK_S) as rig:
+        setup = time.perf_counter() - started
+        plant = []
+        rig.plant.do_step = timed(rig.plant.do_step, plant)  # the in-process rig's Plant slave
+        costs, cpu = tick_costs(rig, voltages)
+    return setup, costs, cpu, np.array(plant) * 1e6
+
+
 def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         paths = build_all(Path(folder), structures=("rig_slow", "rig_reynolds"))
         for run in (1, 2):
             for name in ("rig_slow", "rig_reynolds"):
-                started = time.perf_counter()
-                with open_rig(paths[name], TICK_S) as rig:
-                    setup = time.perf_counter() - started
-                    plant = []
-                    rig.plant.do_step = timed(rig.plant.do_step, plant)  # the in-process rig's Plant slave
-                    costs, cpu = tick_costs(rig)
-                rows.append(summary(name, run, setup, costs, cpu, np.array(plant) * 1e6))
+                rows.append(summary(name, run, *measured(paths[name])))
                 print(rows[-1], flush=True)
+        rows.append(summary(RESTING, 2, *measured(paths["rig_slow"], (0.0,))))
         started = time.perf_counter()  # the same rig through the co-simulation master (a user's structure's path)
         with StructureRig(paths["rig_slow"], TICK_S) as rig:
             setup = time.perf_counter() - started
@@ -108,7 +119,11 @@ def findings(result: dict) -> list[str]:
     return [f"Warm (run 2), the slow truth's tick costs {slow['tick']['mean_us'] / reynolds['tick']['mean_us']:.2f}x "
             f"the Reynolds truth's (the baseline, same run) and its plant "
             f"{slow['plant_cpu']['mean_us'] / reynolds['plant_cpu']['mean_us']:.2f}x; a tick over 500 µs of wall "
-            "time whose CPU time is not was the machine's, not the model's."]
+            "time whose CPU time is not was the machine's, not the model's."] + \
+        ([f"Resting on the surface (0 V, warm), the slow truth's tick costs "
+          f"{warm[RESTING]['tick_cpu']['mean_us'] / slow['tick_cpu']['mean_us']:.2f}x its tick lifting the object "
+          f"and its plant {warm[RESTING]['plant_cpu']['mean_us'] / slow['plant_cpu']['mean_us']:.2f}x (CPU time, "
+          "same run)."] if RESTING in warm else [])
 
 if __name__ == "__main__":
     main()
