@@ -657,11 +657,12 @@ class _Resolver:
 
 def check_link_types(source: str | None, target: str | None, transformed: bool, where: str) -> None:
     """Refuse a link between these FMU/connector types (see the module docstring); None: not declared."""
+    # by kind, whatever the FMI version names it (an FMI 3.0 Float64 is a Real, an Int32 an Integer)
     source_kind, target_kind = TRANSPORT.get(source, source), TRANSPORT.get(target, target)
-    widening = source == "Integer" and target == "Real"
+    widening = source_kind == "Integer" and source != "Enumeration" and target_kind == "Real"
     if source and target and source_kind != target_kind and not widening:
         raise TypeMismatchError(f"{where}: only Integer -> Real is converted at a connection")
-    if transformed and not ({source, target} <= {"Real", None} or widening):
+    if transformed and not ({source_kind, target_kind} <= {"Real", None} or widening):
         raise TypeMismatchError(f"{where}: a LinearTransformation needs Real ends (or Integer -> Real)")
 
 

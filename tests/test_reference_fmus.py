@@ -20,6 +20,7 @@ from toy_fmus.ssd import component, connection, ssd, system, write_folder
 
 from nfal.cli import main
 from nfal.orchestration import TypeMismatchError, UnsupportedFeatureError, read_ssp, resolve, run_structure
+from nfal.orchestration.resolve import check_link_types
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +117,22 @@ def test_connections_that_would_lose_meaning_are_refused(reference, tmp_path, st
     with read_ssp(_pair(reference, tmp_path, start, end, transformation)) as structure:
         with pytest.raises(TypeMismatchError, match=message):
             resolve(structure)
+
+
+@pytest.mark.parametrize("source, target, transformed", [
+    ("Float64", "Float64", True), ("Float32", "Real", True), ("Int32", "Float64", False), ("Integer", "Float64", True),
+    ("UInt8", "Real", False), ("Real", "Float64", False)])
+def test_fmi3_type_names_are_linked_by_kind(source, target, transformed):
+    """An FMI 3.0 Float64 is a Real and an Int32 an Integer, at a connection as anywhere: FMI versions mix."""
+    check_link_types(source, target, transformed, "A.y -> B.u")
+
+
+@pytest.mark.parametrize("source, target, transformed", [
+    ("Float64", "Int32", False), ("Boolean", "Float64", False), ("Int32", "Int64", True),
+    ("Enumeration", "Float64", False)])
+def test_fmi3_type_names_that_would_lose_meaning_are_refused(source, target, transformed):
+    with pytest.raises(TypeMismatchError):
+        check_link_types(source, target, transformed, "A.y -> B.u")
 
 
 @pytest.mark.parametrize("start, transformation, expected", [
