@@ -351,9 +351,10 @@ class _Resolver:
                 self._check_connector(name, connector)
         self._walk_connections(self.structure.system, "")
         self._walk_bindings()
-        for path, value in overrides.items():
+        for (owner, connector), (value, where) in self.connector_values.items():
+            self._propagate(owner, connector, value, where)
+        for path, value in overrides.items():  # the command line's after the SSD's: they win
             self._override(path, value)
-        self._propagate_connector_values()
         links, inputs, outputs = self._flows()
         elements = tuple(self._element(name) for name in self.components)
         if self.unmatched:
@@ -570,19 +571,20 @@ class _Resolver:
                 f"{element!r} has no variable {variable!r}" if element else "not a connector of the system; use "
                 "Element.variable"))
         self._assign(target, value, f"parameter override {path!r}")
+        if target in self.connector_values:  # a system connector's: on to what it feeds, over the SSD's values
+            self._propagate(*target, value, f"parameter override {path!r}")
 
-    def _propagate_connector_values(self) -> None:
-        """A value bound to a system connector becomes the start value of every FMU variable it feeds."""
-        for (owner, connector), (value, where) in self.connector_values.items():
-            origin = self.nodes.get((owner, connector))
-            for node in self.nodes.values():
-                if node.component is None:
-                    continue
-                source = node.source
-                while source is not None and source is not origin:
-                    source = source.source
-                if source is origin and origin is not None:
-                    self._assign((node.component, node.name), value, f"{where} (via {origin.path})")
+    def _propagate(self, owner: str, connector: str, value: object, where: str) -> None:
+        """A value given to a system connector becomes the start value of every FMU variable it feeds."""
+        origin = self.nodes.get((owner, connector))
+        for node in self.nodes.values():
+            if node.component is None:
+                continue
+            source = node.source
+            while source is not None and source is not origin:
+                source = source.source
+            if source is origin and origin is not None:
+                self._assign((node.component, node.name), value, f"{where} (via {origin.path})")
 
     # -- the flat system ----------------------------------------------------------------------------
     def _flows(self) -> tuple[tuple[Link, ...], dict[str, SystemInput], dict[str, Port]]:

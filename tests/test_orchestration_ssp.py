@@ -93,6 +93,21 @@ def test_overrides_win_and_strings_are_parsed_by_type(tmp_path, toys):
     assert plant.start_values == {"x0": 3e-6, "frozen": True, "decimation": 2, "label": "cli"}
 
 
+def test_a_system_parameter_connector_feeds_its_value_and_the_command_line_wins(tmp_path, toys):
+    """A value bound to a system connector of kind parameter is the start value of what it feeds; an override of that
+    variable, or of the connector, comes after the SSD's values and wins (the connector's value hid an override of
+    Plant.x0 before)."""
+    text = ssd(system("loop", (component("Plant", "Integrator", PLANT_CONNECTORS), component("Controller", "Gain")),
+                      (connection("Plant.x", "Controller.u"), connection("Controller.y", "Plant.u"),
+                       connection("start", "Plant.x0")),
+                      connectors=(connector("start", "parameter", "m"),),
+                      parameter_bindings=bindings(parameter_set({"start": ("Real", 2.0, "m")}))),
+               stop_time=1.0, step_size=0.1)
+    for overrides, expected in (({}, 2.0), ({"Plant.x0": 3.0}, 3.0), ({"start": 4.0}, 4.0)):
+        with read_ssp(write_folder(tmp_path / str(expected), text, toys)) as structure:
+            assert resolve(structure, overrides).element("Plant").start_values["x0"] == expected, overrides
+
+
 @pytest.mark.parametrize("override, error", [
     ({"Plant.nothing": 1.0}, UnknownConnectorError),
     ({"Nobody.x0": 1.0}, UnknownElementError),
