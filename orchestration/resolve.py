@@ -509,9 +509,18 @@ class _Resolver:
         else:
             candidates = [f"{element}.{variable}" for element, variables in self.variables.items()
                           for variable in variables]
-        close = difflib.get_close_matches(name, candidates, n=1, cutoff=MISSPELLING_CUTOFF)
-        if close:
-            raise UnknownConnectorError(f"{origin}: {name!r} matches no variable; did you mean {close[0]!r}?")
+        folded = {candidate.lower(): candidate for candidate in candidates}
+        unprefixed = name.rpartition(".")[2]
+        if name.lower() in folded:  # names are case-sensitive, and difflib's ratio misses a one-letter case slip
+            hint = f"did you mean {folded[name.lower()]!r}?"
+        elif component is not None and unprefixed in candidates:
+            hint = (f"did you mean {unprefixed!r}? (an element's binding names its variables without the element's "
+                    "name: check the binding's prefix)")
+        else:
+            close = difflib.get_close_matches(name, candidates, n=1, cutoff=MISSPELLING_CUTOFF)
+            hint = f"did you mean {close[0]!r}?" if close else None
+        if hint:
+            raise UnknownConnectorError(f"{origin}: {name!r} matches no variable; {hint}")
 
     def _lookup(self, full: str) -> tuple[str, str] | None:
         """A hierarchical name -> (element, variable) or (system path, connector) ("" for the top)."""

@@ -436,6 +436,9 @@ def read_parameter_set(element, *, source: Path | None = None, where: str = "") 
             raise UnsupportedFeatureError(f"{here}: Binary parameter values are not supported")
         else:  # String; Enumeration: the item name, looked up in the FMU later
             value = text
+        if any(earlier.name == name for earlier in values):
+            raise StructureError(f"{here}, line {parameter.sourceline}: given twice in one parameter set (which "
+                                 "value is meant?)")
         values.append(ParameterValue(name, kind, value, typed.get("unit") if kind == "Real" else None))
     return ParameterSet(element.get("name", source.stem if source else "inline"), tuple(values),
                         _read_units(element.find(_q(SSV_NS, "Units")), where), source)
@@ -472,6 +475,12 @@ class _SsdReader:
             if system_element is None:
                 raise StructureError(f"{ssd_path}: no ssd:System")
             system = self._system(system_element, ssd_path.parent, ssd_path.name)
+            if len(self._stack) == 1:  # the whole tree read: its hierarchical names
+                names = [name for name, _ in system.components()]
+                shared = sorted({name for name in names if names.count(name) > 1})
+                if shared:
+                    raise StructureError(f"{ssd_path.name}: more than one element named {', '.join(map(repr, shared))} "
+                                         "by its hierarchical name (a dot in an element's name meets a sub-system's)")
             return SystemStructure(root.get("name", system.name), system, dict(self.units),
                                    self._default_experiment(root, ssd_path), ssd_path, ssd_path)
         finally:
@@ -592,6 +601,9 @@ class _SsdReader:
             if binding.find(_q(SSD_NS, "ParameterMapping")) is not None:
                 raise UnsupportedFeatureError(f"{where}: parameter mappings (ssd:ParameterMapping) are not supported")
             source = binding.get("source")
+            if source and binding.find(_q(SSD_NS, "ParameterValues")) is not None:
+                raise StructureError(f"{where}, line {binding.sourceline}: a parameter binding has a source or inline "
+                                     "ssd:ParameterValues, not both (SSP 1.0); make them two bindings")
             if source:
                 if binding.get("sourceBase", "SSD") != "SSD":
                     raise UnsupportedFeatureError(f"{where}: parameter binding {source!r} with sourceBase="
@@ -645,6 +657,9 @@ def _transformation(connection, where: str) -> LinearTransformation | None:
         if child.tag != _q(SSC_NS, "LinearTransformation"):
             raise UnsupportedFeatureError(f"{where}: {etree.QName(child).localname} is not supported (only "
                                           "ssc:LinearTransformation)")
+        if found is not None:
+            raise StructureError(f"{where}, line {child.sourceline}: a second LinearTransformation (a connection has "
+                                 "at most one: write their composition)")
         found = LinearTransformation(_float(child.get("factor", "1"), f"{where}: LinearTransformation factor"),
                                      _float(child.get("offset", "0"), f"{where}: LinearTransformation offset"))
     return found

@@ -287,6 +287,41 @@ def test_not_an_ssd(tmp_path, text, message):
         read_ssp(tmp_path)
 
 
+LINK = '<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u"/>'
+TRANSFORM = '<ssc:LinearTransformation factor="2"/>'
+
+
+@pytest.mark.parametrize("change, message", [
+    ((LINK, LINK.replace("/>", f">{TRANSFORM}{TRANSFORM}</ssd:Connection>")), "a second LinearTransformation"),
+    (('<ssd:Component name="Plant" source="resources/Integrator.fmu">',
+      '<ssd:Component name="Plant" source="resources/Integrator.fmu">' + bindings(parameter_set(
+          {"x0": ("Real", 1.0), "x1": ("Real", 2.0)}).replace('"x1"', '"x0"'))), "given twice"),
+    (('<ssd:Component name="Plant" source="resources/Integrator.fmu">',
+      '<ssd:Component name="Plant" source="resources/Integrator.fmu">' + bindings(parameter_set(
+          {"x0": ("Real", 1.0)})).replace("<ssd:ParameterBinding>", '<ssd:ParameterBinding source="rig.ssv">')),
+     "not both"),
+    (('<ssd:Component name="Controller" source="resources/Gain.fmu"></ssd:Component>',
+      '<ssd:Component name="Controller" source="resources/Gain.fmu"/><ssd:System name="Sub"><ssd:Elements>'
+      '<ssd:Component name="x" source="resources/Gain.fmu"/></ssd:Elements></ssd:System>'
+      '<ssd:Component name="Sub.x" source="resources/Gain.fmu"/>'), "more than one element named 'Sub.x'"),
+])
+def test_what_the_ssd_says_twice_is_refused_not_half_applied(tmp_path, toys, change, message):
+    """Two transformations on a connection, a name twice in a parameter set, a binding's source and inline values,
+    two elements with one hierarchical name: each used to keep one of the two silently."""
+    text = loop_text()
+    assert change[0] in text
+    with pytest.raises(StructureError, match=message):
+        read_ssp(write_folder(tmp_path, text.replace(*change), toys, {"rig.ssv": ssv_file({"x0": ("Real", 2.0)})}))
+
+
+@pytest.mark.parametrize("name, hint", [("X0", "did you mean 'x0'"), ("Plant.x0", "without the element's name")])
+def test_a_name_an_elements_binding_misses_by_case_or_by_prefix_is_a_typo(tmp_path, toys, name, hint):
+    text = loop_text(plant_bindings=bindings(parameter_set({name: ("Real", 1.0)})))
+    with read_ssp(write_folder(tmp_path, text, toys)) as structure:
+        with pytest.raises(UnknownConnectorError, match=hint):
+            resolve(structure)
+
+
 def test_a_second_source_for_one_input_is_an_error(tmp_path, toys):
     text = ssd(system("two", (component("A", "Gain"), component("B", "Gain"), component("C", "Gain")),
                       (connection("A.y", "C.u"), connection("B.y", "C.u"))))
