@@ -90,11 +90,11 @@ def test_a_run_whose_object_never_lifts_off_fails_with_the_reason(capsys, tmp_pa
 @pytest.mark.slow  # whole runs of the loop
 def test_a_level_out_of_reach_leaves_the_run_ok_with_warnings(capsys, tmp_path, fig7_archives):
     assert main(["run", "--no-plot", str(fig7_archives["fig7_slow"]), "--param", "Controller.max_excitation=2e-6",
-                 "--reference", "staircase:60e-6,100e-6:0.2:0.05", "--stop-time", "0.25",
+                 "--reference", "staircase:60e-6,100e-6,60e-6:0.1:0.05", "--stop-time", "0.25",
                  "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert "(ok with 2 warnings)" in out.splitlines()[0]
-    assert "warning: the reference's level 100 um (0.05-0.25 s) was never reached: the height stayed within 60" in out
+    assert "warning: the reference's level 100 um (0.05-0.15 s) was never reached: the height stayed within 60" in out
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "ok" and len(summary["warnings"]) == 2 and summary["warnings"][0] in out
 

@@ -48,6 +48,15 @@ def test_an_object_that_never_rises_to_the_reference_fails_the_run():
     assert finding.message.startswith("the object never lifted off to the reference: its height stayed within 5-8.6 um")
 
 
+def test_an_object_that_starts_at_the_first_level_and_falls_fails_the_run():
+    """Started at the lead level (the simulation's initial height), too heavy to be held: it reached no level it was
+    sent to. The lead level, reached by starting there, counted before, and the run was ok with warnings."""
+    (finding,) = loop_checks(table(np.linspace(60e-6, 20e-6, TIME.size)), STAIRCASE)
+    assert finding.failure
+    assert finding.message.startswith("the object never reached the reference: its height stayed within 20-60 um, "
+                                      "and no level (100-140 um)")
+
+
 def test_a_level_never_reached_is_a_warning_naming_it():
     height = np.minimum(STAIRCASE(TIME), 120e-6)  # 140 um out of reach: 20 um short, the band is 4 um
     (finding,) = loop_checks(table(height), STAIRCASE)

@@ -237,10 +237,12 @@ def _unreached_levels(table, reference, columns: LoopColumns) -> list[Finding]:
         return []
     reach = level_reach(loop_run(table, columns=columns), reference)
     missed = [r for r in reach if not r.reached]
-    if reach and len(missed) == len(reach):
+    # a level the run starts at (a band of 0: the first, from the initial height) is reached by starting there
+    moved_to = [r for r in reach if r.band_m > 0]
+    if moved_to and all(not r.reached for r in moved_to):
         height = np.asarray(table[columns.height])
-        levels = [r.level_m for r in reach]
-        what = "never lifted off to" if height.max() < min(levels) else "never reached"
+        levels = [r.level_m for r in moved_to]
+        what = "never lifted off to" if height.max() < min(r.level_m for r in reach) else "never reached"
         return [Finding(f"the object {what} the reference: its height stayed within {height.min() * 1e6:.3g}-"
                         f"{height.max() * 1e6:.3g} um, and no level "
                         f"({min(levels) * 1e6:.4g}-{max(levels) * 1e6:.4g} um) was reached in its hold", failure=True)]
