@@ -105,6 +105,17 @@ def test_no_step_reference_says_why(reference, why):
     assert steps is None and why in reason
 
 
+def test_a_run_that_starts_mid_staircase_is_measured_on_the_steps_it_holds():
+    """Started at 0.2 s, after the 0.1 s step: only the 0.3 s step is the run's, from 100 um (its metrics failed on the
+    step before the run's start, with numpy's "zero-size array" and no step table)."""
+    steps, why = step_reference(STAIRCASE, 0.2, 0.5)
+    assert why is None and steps.levels_m == (100e-6, 140e-6) and tuple(steps.step_times_s) == pytest.approx((0.3,))
+    later = table(STAIRCASE(TIME))
+    later = ResultTable(later.names, later.units, later.data[TIME >= 0.2])
+    (step,) = loop_metrics(later, steps)["steps"]
+    assert (step["from_m"], step["to_m"]) == (100e-6, 140e-6)
+
+
 def test_metrics_of_steps_found_in_a_csv_equal_the_staircases():
     """The same steps as a staircase and as a CSV reference give the same step table."""
     csv_steps, _ = step_reference(PiecewiseConstant([0.0, 0.1, 0.3], [60e-6, 100e-6, 140e-6]), 0.0, 0.5)

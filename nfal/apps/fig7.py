@@ -176,6 +176,8 @@ def step_reference(reference, start_s: float, stop_s: float) -> tuple[object | N
     """The steps of a run's reference for the step metrics and the checks, or None and why there are none: a
     staircase's steps completed by ``stop_s``, or the steps of a piecewise-constant reference (a CSV, the
     ReferenceGenerator's times or table; :func:`~nfal.orchestration.signals.steps_of`)."""
+    if isinstance(reference, Staircase) and start_s > reference.step_times_s[0]:  # a run that starts mid-staircase
+        reference = PiecewiseConstant([min(0.0, start_s), *reference.step_times_s], reference.levels_m)
     if isinstance(reference, Staircase):
         completed = reference.completed_by(stop_s)
         why = None if completed is not None else f"no step of the staircase completes its hold by {stop_s:g} s"
