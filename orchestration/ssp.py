@@ -351,8 +351,9 @@ def _parse_xml(path: Path, what: str):
 def _resolve_uri(uri: str, base: Path, where: str) -> Path:
     """A ``source`` URI (relative reference or ``file:`` URI) as a path; relative to the folder ``base``."""
     parsed = urllib.parse.urlparse(uri)
-    if parsed.scheme == "file":
-        return Path(urllib.request.url2pathname(parsed.path))
+    if parsed.scheme == "file":  # file:///abs/x.fmu; file:x.fmu (no slash) is relative, to the SSD as any reference
+        path = Path(urllib.request.url2pathname(parsed.path))
+        return path if path.is_absolute() or parsed.netloc else base / path
     if len(parsed.scheme) > 1:  # one letter: a Windows drive
         raise UnsupportedFeatureError(f"{where}: source {uri!r}: only relative paths and file: URIs are supported")
     return base / urllib.parse.unquote(uri)

@@ -264,6 +264,17 @@ def test_referenced_ssd_is_read_as_a_nested_system(tmp_path, toys):
     assert [e.name for e in resolved.elements] == ["Plant", "Ctl.Controller"]
 
 
+def test_a_relative_file_uri_is_relative_to_the_ssd_not_the_working_folder(tmp_path, toys, monkeypatch):
+    """``file:resources/Gain.fmu`` (no slash after the colon) is a relative reference: it was looked up from wherever
+    the command ran, which could load another FMU of that name."""
+    text = loop_text().replace('source="resources/Gain.fmu"', 'source="file:resources/Gain.fmu"')
+    folder = write_folder(tmp_path / "loop", text, toys)
+    (tmp_path / "elsewhere" / "resources").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    with read_ssp(folder) as structure:
+        assert structure.system.element("Controller").source == folder / "resources" / "Gain.fmu"
+
+
 @pytest.mark.parametrize("change, feature", [
     (('<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u"/>',
       '<ssd:Connection startElement="Plant" startConnector="x" endElement="Controller" endConnector="u">'
