@@ -304,7 +304,10 @@ def _locate_ssd(path: Path, ssd_name: str, temporary: list) -> Path:
         try:
             with zipfile.ZipFile(path) as archive:
                 _check_archive(path, archive)
-                archive.extractall(folder)
+                entries = archive.infolist()
+                for entry in entries:  # Windows PowerShell 5's Compress-Archive writes \ where the zip format says /
+                    entry.filename = entry.filename.replace("\\", "/")
+                archive.extractall(folder, members=entries)
         except (zipfile.BadZipFile, OSError, NotImplementedError, RuntimeError) as exc:
             # NotImplementedError: a compression method zipfile lacks; RuntimeError: an encrypted entry
             raise StructureError(f"{path}: cannot unpack the SSP archive: {exc}") from None
@@ -611,7 +614,8 @@ class _SsdReader:
                                                   f"{binding.get('sourceBase')!r}; only sources relative to the SSD")
                 path = self._inside_archive(_resolve_uri(source, base, where), base, where)
                 if not path.is_file():
-                    raise StructureError(f"{where}: parameter values {source!r} not found (looked for {path})")
+                    raise StructureError(f"{where}: parameter values {source!r} " + (
+                        f"are not a regular file ({path})" if path.exists() else f"not found (looked for {path})"))
                 root = _parse_xml(path, "parameter set")
                 parameter_set = read_parameter_set(root, source=path, where=f"{where}: {path.name}")
             else:

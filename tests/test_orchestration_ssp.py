@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import zipfile
+
 import pytest
 
 from nfal.orchestration import (CausalityError, MissingFmuError, StructureError, TypeMismatchError, UnitMismatchError,
@@ -262,6 +264,25 @@ def test_referenced_ssd_is_read_as_a_nested_system(tmp_path, toys):
     with read_ssp(tmp_path) as structure:
         resolved = resolve(structure)
     assert [e.name for e in resolved.elements] == ["Plant", "Ctl.Controller"]
+
+
+def test_an_archive_with_windows_separators_unpacks_as_its_folder(tmp_path, toys):
+    """Windows PowerShell 5's Compress-Archive names entries resources\\Gain.fmu: the FMU was "not found"."""
+    folder = write_folder(tmp_path / "loop", loop_text(), toys)
+    archive = tmp_path / "windows.ssp"
+    with zipfile.ZipFile(archive, "w") as zip_file:
+        for path in sorted(folder.rglob("*")):
+            if path.is_file():
+                zip_file.write(path, "\\".join(path.relative_to(folder).parts))
+    assert "resources\\Gain.fmu" in zipfile.ZipFile(archive).namelist()
+    with read_ssp(archive) as structure:
+        assert structure.system.element("Controller").source.is_file()
+
+
+def test_parameter_values_that_are_not_a_file_are_named_so(tmp_path, toys):
+    text = loop_text(plant_bindings=bindings("/dev/null"))
+    with pytest.raises(StructureError, match="not a regular file"):
+        read_ssp(write_folder(tmp_path, text, toys))
 
 
 def test_a_relative_file_uri_is_relative_to_the_ssd_not_the_working_folder(tmp_path, toys, monkeypatch):
