@@ -10,7 +10,7 @@ import random
 
 import pytest
 
-from nfal.errors import UnknownConnectorError, UnknownElementError
+from nfal.errors import InvalidParameterError, UnknownConnectorError, UnknownElementError
 from nfal.hil.firmware import RigReading
 from nfal.apps.rig_model import InProcessRig, StructureRig, open_rig
 
@@ -109,3 +109,10 @@ def test_close_twice_in_a_with_block_is_safe(rig_slow, make):
         rig.advance()
         rig.close()
     rig.close()
+
+
+def test_a_closed_loop_is_not_a_rig(fig7_archives):
+    """fig7_slow, whose Controller drives the tracker, was played as "the rig": the emulator's drive replaced the
+    Controller's link, the loop's Controller and reference ran on each tick (1962 overruns in 2000 ticks)."""
+    with pytest.raises(InvalidParameterError, match="here Controller.drive_voltage does: a closed loop, not a rig"):
+        open_rig(fig7_archives["fig7_slow"], PERIOD)

@@ -52,6 +52,11 @@ class StructureRig:
             system = resolve(structure, parameters)
             self.master = self._stack.enter_context(
                 Master(system, step_size=period_s, inputs={RIG_DRIVE_INPUT: lambda t: self.voltage}))
+            if self.master.overridden:  # the drive came from inside: a closed loop (fig7_slow), not a rig
+                drivers = ", ".join(f"{link.source.element}.{link.source.name}" for link in self.master.overridden)
+                raise InvalidParameterError("rig structure", str(path), f"one whose {RIG_DRIVE_INPUT} nothing inside "
+                                            f"drives (the emulator does; here {drivers} does: a closed loop, not a "
+                                            "rig; e.g. rig_slow)")
             columns = {column.name: index for index, column in enumerate(self.master.columns)}
             missing = [name for name in (*RIG_READINGS.values(), RIG_TRUE_HEIGHT) if name not in columns]
             if missing:
