@@ -27,7 +27,7 @@ from nfal.errors import DataFormatError, InvalidParameterError, ResultsWriteErro
 
 logger = logging.getLogger(__name__)
 
-_HEADER = re.compile(r"^(?P<name>.*?)(?: \[(?P<unit>[^\]]*)\])?$")
+_HEADER = re.compile(r"^(?P<name>.*?)(?: \[(?P<unit>[^\]]*)\])?$", re.DOTALL)  # a name may hold a newline (quoted)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -34,6 +34,16 @@ def test_rows_are_readable_while_the_writer_is_still_open(tmp_path):
         "time [s],reference [m],Plant.height [m],Plant.resting,Sensor.count"
 
 
+def test_names_with_commas_quotes_and_newlines_are_read_back(tmp_path):
+    """An SSD's element may be named 'Sensor,Chain=1' with a line break: the header quotes it, and the reader, which
+    matched the name up to the line break only, failed on it ("'NoneType' object is not subscriptable")."""
+    columns = (Column("time", "s"), Column('Sensor,Chain="1"\nx.measured_height', "m"))
+    with CsvWriter(tmp_path / "r.csv", columns) as writer:
+        writer.write([0.0, 6e-5])
+    table = read_results(tmp_path / "r.csv")
+    assert table.names == ("time", 'Sensor,Chain="1"\nx.measured_height') and table.units == ("s", "m")
+
+
 @examples(100)
 @given(st.lists(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=3, max_size=3),
                 min_size=1, max_size=20))
