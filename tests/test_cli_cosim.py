@@ -1,6 +1,7 @@
 """``nfal build`` and ``nfal run`` through nfal.cli.main."""
 
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -97,6 +98,25 @@ def test_a_level_out_of_reach_leaves_the_run_ok_with_warnings(capsys, tmp_path, 
     assert "warning: the reference's level 100 um (0.05-0.15 s) was never reached: the height stayed within 60" in out
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "ok" and len(summary["warnings"]) == 2 and summary["warnings"][0] in out
+
+
+def test_the_loop_in_a_sub_system_is_measured_and_checked(capsys, tmp_path, fig7_archives):
+    """fig7_slow's elements and connections moved into a sub-system Loop (as another tool may nest them): the loop is
+    found by its elements' names (Loop.Plant.height), so a 20 kg object fails the run as it does flat; it was run
+    unchecked, "ok", and its metrics failed on 'no column Plant.height'."""
+    with zipfile.ZipFile(fig7_archives["fig7_slow"]) as archive:
+        archive.extractall(tmp_path / "nested")
+    ssd = tmp_path / "nested" / "SystemStructure.ssd"
+    text = ssd.read_text(encoding="utf-8")
+    start, end = text.index("<ssd:Elements>"), text.index("</ssd:Connections>") + len("</ssd:Connections>")
+    ssd.write_text(f'{text[:start]}<ssd:Elements><ssd:System name="Loop">{text[start:end]}</ssd:System>'
+                   f"</ssd:Elements>{text[end:]}", encoding="utf-8")
+    argv = ["run", str(tmp_path / "nested"), "--no-plot", "--stop-time", "1.3", "--json"]
+    assert main([*argv, "--out", str(tmp_path / "ok")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert [(s["from_m"], s["to_m"]) for s in summary["metrics"]["steps"]] == [(60e-6, 100e-6), (100e-6, 140e-6)]
+    assert main([*argv, "--out", str(tmp_path / "heavy"), "--param", "Loop.Plant.mass=20"]) == 2
+    assert "the object never reached the reference" in capsys.readouterr().err
 
 
 @pytest.mark.slow  # whole runs of the loop

@@ -83,9 +83,9 @@ class GeneratedReference:
     reference: object | None
 
 
-def generated_reference(system) -> GeneratedReference | None:
-    """The output connected to ``Controller.reference`` in the resolved ``system``
-    (:func:`nfal.orchestration.resolve`), or None: the structure leaves the reference to the host.
+def generated_reference(system, target: str = REFERENCE) -> GeneratedReference | None:
+    """The output connected to ``target`` (``Controller.reference``, where the structure has it) in the resolved
+    ``system`` (:func:`nfal.orchestration.resolve`), or None: the structure leaves the reference to the host.
 
     The ReferenceGenerator's reference is worked out from its parameters as the FMU works it out
     (:func:`nfal.fmus.reference_generator.reference_of`): the SSD's bindings and ``--param`` overrides, the
@@ -94,7 +94,7 @@ def generated_reference(system) -> GeneratedReference | None:
     # on use: the FMU's slave module (pythonfmu) loads only when a structure is read
     from nfal.fmus.reference_generator import PARAMETERS, reference_of
 
-    link = next((candidate for candidate in system.links if candidate.target.path == REFERENCE), None)
+    link = next((candidate for candidate in system.links if candidate.target.path == target), None)
     if link is None:
         return None
     element = next(e for e in system.elements if e.name == link.source.element)
@@ -151,15 +151,17 @@ def pure_python_loop(reference: Staircase, seed: int = 0) -> ClosedLoopRun:
 
 
 def loop_columns(element_names) -> LoopColumns:
-    """HARDWARE when the structure has the ``proxy`` element, else SIMULATED."""
-    return HARDWARE if PROXY in set(element_names) else SIMULATED
+    """HARDWARE when the structure has the ``proxy`` element, else SIMULATED, located in the structure's hierarchical
+    ``element_names`` (:meth:`LoopColumns.located`)."""
+    proxy = any(name.rpartition(".")[2] == PROXY for name in element_names)
+    return (HARDWARE if proxy else SIMULATED).located(element_names)
 
 
 def response_panels(columns: LoopColumns = SIMULATED) -> list:
     """Height (reference, true, measured) in um; excitation in um; the drive frequency's change in Hz (and, with
     hardware, the commanded and applied voltage and the age of the sample used)."""
     heights = (columns.reference, columns.measured) + ((columns.height,) if columns.height != columns.measured else ())
-    excitation = tuple(dict.fromkeys((EXCITATION_COMMAND, columns.excitation)))
+    excitation = tuple(dict.fromkeys((columns.command, columns.excitation)))
     return [PlotPanel(heights, 1e6, "height [um]"), PlotPanel(excitation, 1e6, "|a| [um]"),
             PlotPanel((columns.frequency,), 1.0, "drive frequency change [Hz]", from_start=True),
             *(PlotPanel(*panel) for panel in columns.extra_panels)]
@@ -195,7 +197,7 @@ def loop_metrics(table, reference, columns: LoopColumns = SIMULATED, *, no_steps
     (:func:`saturation_episodes`), and the first level apart (:func:`first_level`). With ``reference`` None:
     the IAE, the saturations, and ``no_steps``, why there is no step table."""
     run = loop_run(table, columns=columns)
-    saturation = saturation_episodes(table, reference_column=columns.reference)
+    saturation = saturation_episodes(table, columns=columns)
     if reference is None:
         return {"iae": total_iae(run), "steps": None, "no_steps": no_steps, "saturation": saturation,
                 "first_level": None}
@@ -220,7 +222,7 @@ def loop_checks(table, reference, columns: LoopColumns = SIMULATED) -> list[Find
         return levels
     return [*(Finding(f"the drive stayed saturated for {e['duration_s']:.3g} s from t = {e['start_s']:.4g} s: the "
                       f"reference {e['reference_m'] * 1e6:.4g} um is out of the film's reach with this drive limit")
-              for e in saturation_episodes(table, reference_column=columns.reference)), *levels]
+              for e in saturation_episodes(table, columns=columns)), *levels]
 
 
 def _never_left_surface(table, columns: LoopColumns) -> Finding | None:
@@ -262,14 +264,14 @@ def first_level(run: ClosedLoopRun, reference) -> dict:
 
 
 def saturation_episodes(table, longest_allowed_s: float = SATURATION_WARNING_S, *,
-                        reference_column: str = REFERENCE) -> list[dict]:
+                        columns: LoopColumns = SIMULATED) -> list[dict]:
     """Every stretch in which the Controller's drive stayed saturated longer than ``longest_allowed_s``:
     its start, length and the reference then (what the film could not reach). Empty when the table has no
-    ``Controller.saturated_time`` column (a controller without it) or no reference column."""
-    if SATURATED_TIME not in table or reference_column not in table:
+    ``columns.saturated`` (a controller without it) or no ``columns.reference``."""
+    if columns.saturated not in table or columns.reference not in table:
         return []
-    time, saturated = np.asarray(table.time), np.asarray(table[SATURATED_TIME])
-    reference = np.asarray(table[reference_column])
+    time, saturated = np.asarray(table.time), np.asarray(table[columns.saturated])
+    reference = np.asarray(table[columns.reference])
     ends = np.flatnonzero((saturated[:-1] > 0) & (saturated[1:] <= saturated[:-1]))  # the run's last sample
     if saturated.size and saturated[-1] > 0:
         ends = np.append(ends, saturated.size - 1)

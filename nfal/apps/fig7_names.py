@@ -39,12 +39,33 @@ class LoopColumns:
     resting: str      #: true while the object rests on the surface
     extra_panels: tuple = ()
     reference: str = REFERENCE  #: the reference's column: the driven input, or GENERATED_REFERENCE
+    command: str = EXCITATION_COMMAND  #: the Controller's excitation command
+    saturated: str = SATURATED_TIME    #: how long the Controller's drive has been saturated [s]
+    hardware: bool = False             #: the loop meets a rig (through the proxy)
+
+    def located(self, element_names) -> "LoopColumns":
+        """These columns with each element found by its own name wherever it sits in ``element_names`` (the
+        structure's hierarchical names: a sub-system's Plant is Mechanics.Plant); a name found twice or not at all is
+        kept as it is."""
+        paths: dict[str, list[str]] = {}
+        for name in element_names:
+            paths.setdefault(name.rpartition(".")[2], []).append(name)
+
+        def located(column: str) -> str:
+            element, _, variable = column.partition(".")
+            found = paths.get(element, [])
+            return f"{found[0]}.{variable}" if len(found) == 1 else column
+
+        fields = ("height", "measured", "excitation", "frequency", "resting", "reference", "command", "saturated")
+        return dataclasses.replace(
+            self, **{field: located(getattr(self, field)) for field in fields},
+            extra_panels=tuple((tuple(map(located, names)), *rest) for names, *rest in self.extra_panels))
 
 
 SIMULATED = LoopColumns("Plant.height", "SensorChain.measured_height", "ResonanceTracker.excitation_amplitude",
                         "ResonanceTracker.drive_frequency", "Plant.resting")
 HARDWARE = LoopColumns(f"{PROXY}.measured_height", f"{PROXY}.measured_height", EXCITATION_COMMAND,
-                       f"{PROXY}.drive_frequency", f"{PROXY}.resting",
+                       f"{PROXY}.drive_frequency", f"{PROXY}.resting", hardware=True,
                        extra_panels=((((DRIVE_VOLTAGE, f"{PROXY}.applied_voltage"), 1.0, "drive [V]")),
                                      (((f"{PROXY}.measurement_age",), 1e3, "sample age [ms]"))))
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from nfal.apps.build import STRUCTURES, build_all
 from nfal.apps.compiled_run import run_compiled
-from nfal.apps.fig7 import (HARDWARE, HARDWARE_LEAD_S, generated_reference, link_summary, loop_checks, loop_columns,
+from nfal.apps.fig7 import (HARDWARE_LEAD_S, generated_reference, link_summary, loop_checks, loop_columns,
                             loop_metrics, matched_design, reference_staircase, response_panels, step_reference)
 from nfal.apps.fig7_names import REFERENCE
 from nfal.errors import InvalidParameterError
@@ -60,34 +60,35 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
     structure = _structure_path(request)
     names, ssd_start, ssd_stop, generated = _read_structure(structure, parameters)
     columns = loop_columns(names)
-    if columns is HARDWARE and not str(parameters.get("proxy.port", "")).strip():
+    if columns.hardware and not str(parameters.get("proxy.port", "")).strip():
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a "
                                     "device path or socket://host:port); no rig? start `nfal rig-emulator` and give "
                                     "the path it prints first")
     # in lockstep the rig's answers pace the loop (a value that is no Boolean is refused when the structure resolves)
     lockstep = parse_boolean(str(parameters.get("proxy.lockstep", "false"))) is True
     realtime = request.realtime
-    if request.compiled and columns is not HARDWARE:
+    if request.compiled and not columns.hardware:
         raise InvalidParameterError("--compiled", True, "a run against a rig: a structure with the hardware proxy "
                                     "(fig7_hil)")
     if request.compiled and request.algorithm != "causal":
         raise InvalidParameterError("--algorithm", request.algorithm, "not given with --compiled (no master runs)")
-    if columns is HARDWARE and not realtime and not lockstep:
+    if columns.hardware and not realtime and not lockstep:
         if not request.compiled:  # the compiled loop is paced by its nature
             notice("the structure has the hardware proxy: pacing it on the wall clock (--realtime)")
         realtime = True
     if request.rt_priority is not None and not realtime:
         raise InvalidParameterError("--rt-priority", request.rt_priority, "used with --realtime (a paced run)")
-    reference_input = request.reference_input or (REFERENCE if "Controller" in names else "none")
-    from_structure = request.reference is None and reference_input == REFERENCE and generated is not None
+    driven = columns.reference  # Controller.reference, wherever the structure has its Controller
+    reference_input = request.reference_input or (driven if driven.rpartition(".")[0] in names else "none")
+    from_structure = request.reference is None and reference_input == driven and generated is not None
     if from_structure:  # the experiment in the archive: its ReferenceGenerator drives the reference
         reference, inputs = generated.reference, {}
         columns = dataclasses.replace(columns, reference=generated.source)
     else:
-        reference = _reference(request.reference, columns is HARDWARE, structure)
+        reference = _reference(request.reference, columns.hardware, structure)
         inputs = {} if reference_input == "none" else {reference_input: reference}
     inputs.update(request.inputs)
-    if request.compiled and (reference_input != REFERENCE or request.inputs or from_structure):
+    if request.compiled and (reference_input != driven or request.inputs or from_structure):
         raise InvalidParameterError("--compiled", True, f"the master driving {REFERENCE} alone (no --input, no "
                                     "--reference-input, no ReferenceGenerator element)")
     stop_time, note = _stop_time(request.stop_time, ssd_stop, reference if reference_input != "none" else None)
@@ -95,7 +96,7 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
         notice(note)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = request.out if request.out is not None else Path("runs") / f"{structure.stem}-{stamp}"
-    fig7 = reference_input == REFERENCE
+    fig7 = reference_input == driven
     start = request.start_time if request.start_time is not None else ssd_start
     steps, no_steps = step_reference(reference, start, stop_time) if fig7 and stop_time is not None else (None, None)
     metrics = (lambda table: loop_metrics(table, steps, columns, no_steps=no_steps)) if fig7 else None
@@ -121,7 +122,7 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
 
 def _complete(result, columns, experiment: dict) -> None:
     """The summary's last entries: the link's health (against hardware) and the experiment."""
-    if columns is HARDWARE and result.csv_path.is_file() and result.summary.get("steps_completed"):
+    if columns.hardware and result.csv_path.is_file() and result.summary.get("steps_completed"):
         result.update_summary(link=link_summary(result.table()))
     result.update_summary(experiment=experiment)
 
@@ -144,12 +145,14 @@ def _reference(spec: str | None, hardware: bool, structure: Path):
 
 
 def _read_structure(structure: Path, parameters: dict):
-    """(element names, the DefaultExperiment's start time (0 if none) and stop time (or None), the GeneratedReference
-    or None)."""
+    """(the FMU elements' hierarchical names, the DefaultExperiment's start time (0 if none) and stop time (or None),
+    the GeneratedReference or None)."""
     with read_ssp(structure) as read:
-        names = [element.name for element in read.system.elements]
+        names = [name for name, _ in read.system.components()]
         start, stop = read.default_experiment.start_time or 0.0, read.default_experiment.stop_time
-        generated = generated_reference(resolve(read, parameters)) if "Controller" in names else None
+        driven = loop_columns(names).reference
+        generated = generated_reference(resolve(read, parameters), driven) if driven.rpartition(".")[0] in names \
+            else None
     return names, start, stop, generated
 
 
