@@ -404,7 +404,7 @@ class Master:
         for name, system_input in self.system.system_inputs.items():
             if name not in inputs and system_input.value is not None and system_input.targets:
                 inputs[name] = system_input.value
-            elif name not in inputs and system_input.targets:
+            elif name not in inputs and not all(t.path in inputs for t in system_input.targets):
                 logger.warning("system input %r is not driven: %s keep their start values", name,
                                ", ".join(t.path for t in system_input.targets))
         for name, source in inputs.items():

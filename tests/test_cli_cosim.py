@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nfal.cli import main
-from nfal.cli.commands.cosim import _print_summary, parse_parameter
+from nfal.cli.commands.cosim import _print_summary, parse_input, parse_parameter
 from nfal.errors import InvalidParameterError
 
 
@@ -149,6 +149,16 @@ def test_bad_input_is_a_clear_error(capsys, tmp_path, monkeypatch, fig7_archives
                                             ("A.design=fixed", ("A.design", "fixed"))])
 def test_parse_parameter(text, expected):
     assert parse_parameter(text) == expected
+
+
+def test_an_input_may_be_a_system_inputs_name():
+    """``--input ref=constant:1e-4`` drives a system input (as --reference-input ref does); it was refused as not
+    ELEMENT.VAR=SIGNAL. A name that is neither is named by the master, with the inputs there are."""
+    name, signal = parse_input("ref=constant:1e-4")
+    assert name == "ref" and signal(0.5) == 1e-4
+    for text in ("=constant:1", "ref=", "ref"):
+        with pytest.raises(InvalidParameterError):
+            parse_input(text)
 
 
 @pytest.mark.parametrize("text", ["A=1", "A.b", "A.b=", "A.b= "])

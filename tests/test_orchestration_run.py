@@ -280,3 +280,19 @@ def test_a_step_longer_than_the_run_is_one_error_and_no_warning_that_the_run_end
         assert run._step_count(0.0, 3.7, 1.0) == 3
     assert [r.getMessage() for r in caplog.records] == [
         "stop time 3.7 s is not a whole number of 1 s steps from 0 s: the run ends at 3 s"]
+
+
+def test_a_system_input_whose_targets_are_driven_directly_is_not_said_to_be_undriven(tmp_path, toys, caplog):
+    """A system input ``in`` feeds Controller.u; the run drives Controller.u itself (as nfal run drives
+    Controller.reference): the warning that ``in`` is not driven and Controller.u keeps its start value was false.
+    Driving ``in`` by its name works as well."""
+    text = ssd(system("open", (component("Controller", "Gain"),), (connection("in", "Controller.u"),),
+                      connectors=(connector("in", "input"),)), stop_time=3 * DT, step_size=DT)
+    folder = write_folder(tmp_path / "open", text, toys)
+    outputs = []
+    for name in ("Controller.u", "in"):
+        caplog.clear()
+        result = run_structure(folder, inputs={name: 2.0}, out_dir=tmp_path / name, progress=False, plot=False)
+        assert "not driven" not in caplog.text
+        outputs.append(result["Controller.y"][-1])
+    assert outputs[0] == outputs[1] != 0.0

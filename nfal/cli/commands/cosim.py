@@ -100,7 +100,8 @@ def _register_run(commands) -> None:
                      help=f"the input the reference drives (default {REFERENCE} if the structure has a Controller "
                      "element, else none; 'none' for no external input)")
     run.add_argument("--input", action="append", default=[], metavar="ELEMENT.VAR=SIGNAL",
-                     help="drive another input (repeatable): SIGNAL is constant:V, step:INITIAL,FINAL,AT_S, "
+                     help="drive another input, of an element or the system's (repeatable): SIGNAL is constant:V, "
+                     "step:INITIAL,FINAL,AT_S, "
                      "staircase:L1,L2,...[:HOLD[:LEAD]] or a CSV of time_s,value; e.g. "
                      "ResonanceTracker.resonance_shift=step:0,57,1.0 (a 0.2 %% resonance drift at 1 s)")
     run.add_argument("--algorithm", choices=("causal", "jacobi"), default="causal",
@@ -158,8 +159,8 @@ def parse_input(text: str) -> tuple[str, object]:
     reads it."""
 
     name, sep, spec = text.partition("=")
-    if not sep or "." not in name.strip(".") or not spec:
-        raise InvalidParameterError("--input", text, "ELEMENT.VAR=SIGNAL")
+    if not sep or not name.strip() or not spec:  # the master names the inputs there are if NAME is none
+        raise InvalidParameterError("--input", text, "ELEMENT.VAR=SIGNAL (or a system input's NAME=SIGNAL)")
     return name.strip(), reference_staircase(spec.strip(), "") or signal_from_spec(spec.strip())
 
 
