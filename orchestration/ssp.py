@@ -277,9 +277,13 @@ def read_ssp(path: str | os.PathLike, *, ssd_name: str = DEFAULT_SSD) -> SystemS
         ssd_path = _locate_ssd(path, ssd_name, temporary)
         reader = _SsdReader(temporary)
         structure = reader.read(ssd_path)
-    except BaseException:
+    except BaseException as exc:
         for holder in temporary:
             holder.cleanup()
+        if temporary and isinstance(exc, StructureError) and len(exc.args) == 1 and isinstance(exc.args[0], str):
+            # the archive's unpacked folder, deleted now: the user's archive is what the message names
+            folder = str(Path(temporary[0].name).resolve())
+            exc.args = (exc.args[0].replace(folder + os.sep, f"{path}: ").replace(folder, str(path)),)
         raise
     structure.path = path
     structure._temporary.extend(temporary)
@@ -348,6 +352,9 @@ def _parse_xml(path: Path, what: str):
     except OSError as exc:
         raise StructureError(f"{path}: cannot read the {what}: {exc}") from None
     except etree.XMLSyntaxError as exc:
+        if "XML_PARSE_HUGE" in str(exc):  # libxml2's limits, kept: they are what stops an XML bomb
+            raise StructureError(f"{path}: a text or attribute of the {what} is longer than the 10 MB the XML reader "
+                                 f"takes (line {exc.lineno}): cut what is that long (an annotation?)") from None
         raise StructureError(f"{path}: not well-formed XML ({what}): {exc}") from None
 
 

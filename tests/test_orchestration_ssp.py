@@ -279,6 +279,24 @@ def test_an_archive_with_windows_separators_unpacks_as_its_folder(tmp_path, toys
         assert structure.system.element("Controller").source.is_file()
 
 
+def test_an_archives_errors_name_the_archive_not_its_deleted_unpacked_folder(tmp_path, toys):
+    folder = write_folder(tmp_path / "loop", loop_text(), toys)
+    (folder / "resources" / "Gain.fmu").unlink()
+    archive = pack(folder, tmp_path / "loop.ssp")
+    with pytest.raises(MissingFmuError) as raised:
+        read_ssp(archive)
+    assert f"looked for {archive}: resources/Gain.fmu" in str(raised.value) and "nfal-ssp-" not in str(raised.value)
+
+
+def test_a_text_longer_than_the_xml_reader_takes_is_named_so(tmp_path, toys):
+    """A 12 MB annotation: libxml2's limit (kept: it stops XML bombs) read as "not well-formed XML ...
+    XML_PARSE_HUGE"."""
+    annotation = f'<ssd:Annotations><ssc:Annotation type="x">{"a" * 12_000_000}</ssc:Annotation></ssd:Annotations>'
+    text = loop_text().replace("</ssd:SystemStructureDescription>", annotation + "</ssd:SystemStructureDescription>")
+    with pytest.raises(StructureError, match="longer than the 10 MB the XML reader takes"):
+        read_ssp(write_folder(tmp_path, text, toys))
+
+
 def test_parameter_values_that_are_not_a_file_are_named_so(tmp_path, toys):
     text = loop_text(plant_bindings=bindings("/dev/null"))
     with pytest.raises(StructureError, match="not a regular file"):
