@@ -188,7 +188,7 @@ class AlgebraicLoopError(StructureError):
         super().__init__(
             f"algebraic loop: {chain}. Every output in the loop is declared to depend directly on the input "
             "before it, so no causal order exists; break the loop (an FMU without direct feedthrough), or run "
-            "with algorithm='jacobi', which delays every exchange by one step")
+            "with algorithm='jacobi' (nfal run --algorithm jacobi), which delays every exchange by one step")
 
 
 class SignalError(OrchestrationError, ValueError):

@@ -278,9 +278,12 @@ def experiment_steps(experiment, start_time: float | None, stop_time: float | No
     stop = stop_time if stop_time is not None else experiment.stop_time
     step = step_size if step_size is not None else experiment.step_size
     if stop is None:
-        raise InvalidParameterError("stop_time", None, "given, since the SSD has no DefaultExperiment stopTime")
+        raise InvalidParameterError("stop_time", None, "given (nfal run --stop-time S), since the SSD has no "
+                                    "DefaultExperiment stopTime")
     if step is None:
-        raise InvalidParameterError("step_size", None, "given, since the SSD has no FixedStepAlgorithm baseStepSize")
+        raise InvalidParameterError("step_size", None, "given (nfal run --step S), since the SSD has no OSP "
+                                    "FixedStepAlgorithm baseStepSize annotation (the step annotations of other tools "
+                                    "are not read)")
     step = require_positive("step_size", step)
     steps = _step_count(require_finite("start_time", start), require_finite("stop_time", stop), step)
     _require_step_count(steps, float(stop), step, max_steps)

@@ -10,7 +10,7 @@ import pytest
 from toy_fmus import build_toys, without_dependencies
 from toy_fmus.ssd import bindings, component, connection, connector, pack, parameter_set, ssd, system, write_folder
 
-from nfal.errors import UnknownConnectorError
+from nfal.errors import InvalidParameterError, UnknownConnectorError
 from nfal.models.reference import Staircase
 from nfal.orchestration import (AlgebraicLoopError, CausalityError, Finding, FmuCallError, Master, PlotPanel,
                                 RunCheckError, read_ssp, resolve, run_structure, staircase)
@@ -93,6 +93,7 @@ def test_algebraic_loop_is_reported_with_its_variables(tmp_path, toys):
     with pytest.raises(AlgebraicLoopError, match=r"A\.y -> B\.u -> B\.y -> A\.u -> A\.y") as caught:
         run_structure(folder, out_dir=tmp_path / "out", progress=False)
     assert set(caught.value.variables) == {"A.y", "B.u", "B.y", "A.u"}
+    assert "nfal run --algorithm jacobi" in str(caught.value)  # the way out, as the command line spells it
     assert not (tmp_path / "out").exists()  # found before anything runs or is written
     result = run_structure(folder, algorithm="jacobi", out_dir=tmp_path / "jacobi", progress=False, plot=False)
     assert result.summary["status"] == "ok"  # jacobi breaks the loop with its delay
@@ -296,3 +297,11 @@ def test_a_system_input_whose_targets_are_driven_directly_is_not_said_to_be_undr
         assert "not driven" not in caplog.text
         outputs.append(result["Controller.y"][-1])
     assert outputs[0] == outputs[1] != 0.0
+
+
+def test_a_structure_without_a_step_says_which_option_gives_it(tmp_path, toys):
+    """An SSD from a tool that writes its step in its own annotation (OMSimulator's): the step is asked for as the
+    command line gives it (the message said 'step_size = None is invalid')."""
+    text = ssd(system("one", (component("A", "Gain"),)), stop_time=1.0)
+    with pytest.raises(InvalidParameterError, match=r"nfal run --step S.*other tools are not read"):
+        run_structure(write_folder(tmp_path / "one", text, toys), out_dir=tmp_path / "out", progress=False)
