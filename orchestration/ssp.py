@@ -27,7 +27,7 @@ import tempfile
 import urllib.parse
 import urllib.request
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from lxml import etree
@@ -275,21 +275,32 @@ def read_ssp(path: str | os.PathLike, *, ssd_name: str = DEFAULT_SSD) -> SystemS
     temporary: list = []
     try:
         ssd_path = _locate_ssd(path, ssd_name, temporary)
-        reader = _SsdReader(temporary)
+        reader = _SsdReader(temporary, lambda text: _as_given(text, temporary, path))
         structure = reader.read(ssd_path)
     except BaseException as exc:
         for holder in temporary:
             holder.cleanup()
-        if temporary and isinstance(exc, StructureError) and len(exc.args) == 1 and isinstance(exc.args[0], str):
-            # the archive's unpacked folder, deleted now: the user's archive is what the message names
-            folder = str(Path(temporary[0].name).resolve())
-            exc.args = (exc.args[0].replace(folder + os.sep, f"{path}: ").replace(folder, str(path)),)
+        if isinstance(exc, StructureError) and len(exc.args) == 1 and isinstance(exc.args[0], str):
+            exc.args = (_as_given(exc.args[0], temporary, path),)
         raise
     structure.path = path
     structure._temporary.extend(temporary)
     logger.info("read %s: system %r with %d components", path, structure.system.name,
                 sum(1 for _ in structure.system.components()))
     return structure
+
+
+def _as_given(text: str, temporary: list, path: Path) -> str:
+    """``text`` naming the archive ``path`` where it names the folder the archive was unpacked to (deleted when the
+    structure closes: the user's archive is what a message must name)."""
+    if not temporary:
+        return text
+    folder = str(Path(temporary[0].name).resolve())
+    return text.replace(folder + os.sep, f"{path}: ").replace(folder, str(path))
+
+
+#: Warnings given in this process (each once: a command may read its structure twice).
+_WARNED: set[str] = set()
 
 
 def _locate_ssd(path: Path, ssd_name: str, temporary: list) -> Path:
@@ -458,8 +469,8 @@ def read_parameter_set(element, *, source: Path | None = None, where: str = "") 
 class _SsdReader:
     """Reads one SSD and, recursively, the SSDs its components reference."""
 
-    def __init__(self, temporary: list) -> None:
-        self.temporary = temporary
+    def __init__(self, temporary: list, as_given: Callable[[str], str] = str) -> None:
+        self.temporary, self.as_given = temporary, as_given
         self.units: dict[str, Unit] = {}
         self._stack: list[Path] = []
 
@@ -478,8 +489,10 @@ class _SsdReader:
                     f"{ssd_path}: not an SSP 1.0 system structure: the root element is {etree.QName(root).localname!r} "
                     f"in namespace {etree.QName(root).namespace!r}, expected SystemStructureDescription in {SSD_NS!r}")
             version = root.get("version", "")
-            if not version.startswith("1."):
-                logger.warning("%s: SSP version %r; reading it as SSP 1.0", ssd_path, version)
+            warning = self.as_given(f"{ssd_path}: SSP version {version!r}; reading it as SSP 1.0")
+            if not version.startswith("1.") and warning not in _WARNED:
+                _WARNED.add(warning)
+                logger.warning("%s", warning)
             units = _read_units(root.find(_q(SSD_NS, "Units")), str(ssd_path))
             self._merge_units(units, ssd_path)
             system_element = root.find(_q(SSD_NS, "System"))

@@ -151,6 +151,15 @@ def test_parse_parameter(text, expected):
     assert parse_parameter(text) == expected
 
 
+def test_a_stop_before_the_start_is_one_error_with_no_note_before_it(capsys, tmp_path, fig7_archives):
+    """The SSD's stopTime (3.7 s) differs from the reference's length, which is a note, but it is also before the
+    start: the run is refused, and the note on which stop time governs came first, for nothing."""
+    assert main(["run", str(fig7_archives["fig7_slow"]), "--start-time", "5", "--reference",
+                 "staircase:60e-6,100e-6:0.2:0.1", "--out", str(tmp_path / "run")]) == 2
+    said = capsys.readouterr().err
+    assert "after the start time 5 s" in said and "governs" not in said
+
+
 def test_an_input_may_be_a_system_inputs_name():
     """``--input ref=constant:1e-4`` drives a system input (as --reference-input ref does); it was refused as not
     ELEMENT.VAR=SIGNAL. A name that is neither is named by the master, with the inputs there are."""

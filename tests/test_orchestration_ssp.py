@@ -288,6 +288,18 @@ def test_an_archives_errors_name_the_archive_not_its_deleted_unpacked_folder(tmp
     assert f"looked for {archive}: resources/Gain.fmu" in str(raised.value) and "nfal-ssp-" not in str(raised.value)
 
 
+def test_another_ssp_version_is_said_once_naming_the_archive(tmp_path, toys, caplog):
+    """An SSP 2.0 archive: the warning came twice (nfal run reads a structure twice) and named the unpacked SSD, a
+    temporary folder gone by then."""
+    text = loop_text().replace('name="toy" version="1.0"', 'name="toy" version="2.0"')
+    folder = write_folder(tmp_path / "loop", text, toys)
+    archive = pack(folder, tmp_path / "two.ssp")
+    for _ in range(2):
+        read_ssp(archive).close()
+    warned = [r.getMessage() for r in caplog.records if "SSP version" in r.getMessage()]
+    assert warned == [f"{archive}: SystemStructure.ssd: SSP version '2.0'; reading it as SSP 1.0"]
+
+
 def test_a_text_longer_than_the_xml_reader_takes_is_named_so(tmp_path, toys):
     """A 12 MB annotation: libxml2's limit (kept: it stops XML bombs) read as "not well-formed XML ...
     XML_PARSE_HUGE"."""

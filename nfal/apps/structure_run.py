@@ -92,12 +92,12 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
         raise InvalidParameterError("--compiled", True, f"the master driving {REFERENCE} alone (no --input, no "
                                     "--reference-input, no ReferenceGenerator element)")
     stop_time, note = _stop_time(request.stop_time, ssd_stop, reference if reference_input != "none" else None)
-    if note:
+    start = request.start_time if request.start_time is not None else ssd_start
+    if note and stop_time > start:  # else the run is refused for it, and the note would only come first
         notice(note)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = request.out if request.out is not None else Path("runs") / f"{structure.stem}-{stamp}"
     fig7 = reference_input == driven
-    start = request.start_time if request.start_time is not None else ssd_start
     steps, no_steps = step_reference(reference, start, stop_time) if fig7 and stop_time is not None else (None, None)
     metrics = (lambda table: loop_metrics(table, steps, columns, no_steps=no_steps)) if fig7 else None
     experiment = {"reference": generated.source if from_structure else (reference_input if fig7 else None),
