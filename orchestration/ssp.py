@@ -19,6 +19,7 @@ connection transformations, parameter connections between elements) raise
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 import math
@@ -348,6 +349,13 @@ def _check_archive(path: Path, archive: zipfile.ZipFile) -> None:
                              "(FMUs are a few MiB); unzip it yourself and run the folder if it is right")
 
 
+def _refuse_repeated(names: list[str], what: str, why: str = "") -> None:
+    """Raise StructureError ``<what> named <the names given more than once><why>``, if any are."""
+    repeated = sorted(name for name, count in collections.Counter(names).items() if count > 1)
+    if repeated:
+        raise StructureError(f"{what} named {', '.join(map(repr, repeated))}{why}")
+
+
 def _q(namespace: str, tag: str) -> str:
     return f"{{{namespace}}}{tag}"
 
@@ -500,11 +508,8 @@ class _SsdReader:
                 raise StructureError(f"{ssd_path}: no ssd:System")
             system = self._system(system_element, ssd_path.parent, ssd_path.name)
             if len(self._stack) == 1:  # the whole tree read: its hierarchical names
-                names = [name for name, _ in system.components()]
-                shared = sorted({name for name in names if names.count(name) > 1})
-                if shared:
-                    raise StructureError(f"{ssd_path.name}: more than one element named {', '.join(map(repr, shared))} "
-                                         "by its hierarchical name (a dot in an element's name meets a sub-system's)")
+                _refuse_repeated([name for name, _ in system.components()], f"{ssd_path.name}: more than one element",
+                                 " by its hierarchical name (a dot in an element's name meets a sub-system's)")
             return SystemStructure(root.get("name", system.name), system, dict(self.units),
                                    self._default_experiment(root, ssd_path), ssd_path, ssd_path)
         finally:
@@ -558,10 +563,7 @@ class _SsdReader:
             elif localname == "SignalDictionaryReference":
                 raise UnsupportedFeatureError(f"{where}: element {child.get('name')!r}: signal dictionary references "
                                               "are not supported")
-        names = [e.name for e in elements]
-        duplicates = sorted({n for n in names if names.count(n) > 1})
-        if duplicates:
-            raise StructureError(f"{where}: more than one element named {', '.join(map(repr, duplicates))}")
+        _refuse_repeated([e.name for e in elements], f"{where}: more than one element")
         system = System(name, connectors, tuple(elements), (), self._bindings(element, base, where))
         connections = tuple(self._connection(c, system, where)
                             for c in element.iterfind(f"{_q(SSD_NS, 'Connections')}/{_q(SSD_NS, 'Connection')}"))
@@ -580,10 +582,7 @@ class _SsdReader:
             kind_type = etree.QName(typed).localname if typed is not None else None
             unit = typed.get("unit") if typed is not None and kind_type == "Real" else None
             connectors.append(Connector(name, kind, kind_type, unit))
-        names = [c.name for c in connectors]
-        duplicates = sorted({n for n in names if names.count(n) > 1})
-        if duplicates:
-            raise StructureError(f"{where}: more than one connector named {', '.join(map(repr, duplicates))}")
+        _refuse_repeated([c.name for c in connectors], f"{where}: more than one connector")
         return tuple(connectors)
 
     def _component(self, element, base: Path, where: str) -> Component | System:
