@@ -300,7 +300,7 @@ def _as_given(text: str, temporary: list, path: Path) -> str:
     return text.replace(folder + os.sep, f"{path}: ").replace(folder, str(path))
 
 
-#: Warnings given in this process (each once: a command may read its structure twice).
+#: Warnings given in this process (:meth:`_SsdReader._warn_once`).
 _WARNED: set[str] = set()
 
 
@@ -497,10 +497,8 @@ class _SsdReader:
                     f"{ssd_path}: not an SSP 1.0 system structure: the root element is {etree.QName(root).localname!r} "
                     f"in namespace {etree.QName(root).namespace!r}, expected SystemStructureDescription in {SSD_NS!r}")
             version = root.get("version", "")
-            warning = self.as_given(f"{ssd_path}: SSP version {version!r}; reading it as SSP 1.0")
-            if not version.startswith("1.") and warning not in _WARNED:
-                _WARNED.add(warning)
-                logger.warning("%s", warning)
+            if not version.startswith("1."):
+                self._warn_once(f"{ssd_path}: SSP version {version!r}; reading it as SSP 1.0")
             units = _read_units(root.find(_q(SSD_NS, "Units")), str(ssd_path))
             self._merge_units(units, ssd_path)
             system_element = root.find(_q(SSD_NS, "System"))
@@ -514,6 +512,13 @@ class _SsdReader:
                                    self._default_experiment(root, ssd_path), ssd_path, ssd_path)
         finally:
             self._stack.pop()
+
+    def _warn_once(self, text: str) -> None:
+        """Log ``text`` (naming the user's archive) once in this process: a command may read its structure twice."""
+        text = self.as_given(text)
+        if text not in _WARNED:
+            _WARNED.add(text)
+            logger.warning("%s", text)
 
     def _inside_archive(self, path: Path, base: Path, where: str) -> Path:
         """``path``, unless an SSD unpacked from an archive (``base`` in its folder) points outside that archive."""

@@ -51,15 +51,15 @@ class LoopColumns:
         for name in element_names:
             paths.setdefault(name.rpartition(".")[2], []).append(name)
 
-        def located(column: str) -> str:
+        def place(column: str) -> str:
             element, _, variable = column.partition(".")
             found = paths.get(element, [])
             return f"{found[0]}.{variable}" if len(found) == 1 else column
 
         fields = ("height", "measured", "excitation", "frequency", "resting", "reference", "command", "saturated")
         return dataclasses.replace(
-            self, **{field: located(getattr(self, field)) for field in fields},
-            extra_panels=tuple((tuple(map(located, names)), *rest) for names, *rest in self.extra_panels))
+            self, **{field: place(getattr(self, field)) for field in fields},
+            extra_panels=tuple((tuple(map(place, names)), *rest) for names, *rest in self.extra_panels))
 
 
 SIMULATED = LoopColumns("Plant.height", "SensorChain.measured_height", "ResonanceTracker.excitation_amplitude",

@@ -58,8 +58,7 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
         raise InvalidParameterError("--max-steps", request.max_steps, "a whole number of steps >= 1")
     parameters = matched_design(dict(request.parameters))
     structure = _structure_path(request)
-    names, ssd_start, ssd_stop, generated = _read_structure(structure, parameters)
-    columns = loop_columns(names)
+    columns, controlled, ssd_start, ssd_stop, generated = _read_structure(structure, parameters)
     if columns.hardware and not str(parameters.get("proxy.port", "")).strip():
         raise InvalidParameterError("proxy.port", None, "given: --param proxy.port=PORT, the rig's serial port (a "
                                     "device path or socket://host:port); no rig? start `nfal rig-emulator` and give "
@@ -79,7 +78,7 @@ def run_request(request: RunRequest, notice: Callable[[str], None] = lambda text
     if request.rt_priority is not None and not realtime:
         raise InvalidParameterError("--rt-priority", request.rt_priority, "used with --realtime (a paced run)")
     driven = columns.reference  # Controller.reference, wherever the structure has its Controller
-    reference_input = request.reference_input or (driven if driven.rpartition(".")[0] in names else "none")
+    reference_input = request.reference_input or (driven if controlled else "none")
     from_structure = request.reference is None and reference_input == driven and generated is not None
     if from_structure:  # the experiment in the archive: its ReferenceGenerator drives the reference
         reference, inputs = generated.reference, {}
@@ -145,15 +144,15 @@ def _reference(spec: str | None, hardware: bool, structure: Path):
 
 
 def _read_structure(structure: Path, parameters: dict):
-    """(the FMU elements' hierarchical names, the DefaultExperiment's start time (0 if none) and stop time (or None),
-    the GeneratedReference or None)."""
+    """(the loop's columns where the structure has them, whether it has a Controller, the DefaultExperiment's start
+    time (0 if none) and stop time (or None), the GeneratedReference or None)."""
     with read_ssp(structure) as read:
         names = [name for name, _ in read.system.components()]
+        columns = loop_columns(names)
+        controlled = columns.reference.rpartition(".")[0] in names  # Controller.reference, located
         start, stop = read.default_experiment.start_time or 0.0, read.default_experiment.stop_time
-        driven = loop_columns(names).reference
-        generated = generated_reference(resolve(read, parameters), driven) if driven.rpartition(".")[0] in names \
-            else None
-    return names, start, stop, generated
+        generated = generated_reference(resolve(read, parameters), columns.reference) if controlled else None
+    return columns, controlled, start, stop, generated
 
 
 def _stop_time(asked: float | None, ssd_stop: float | None, reference) -> tuple[float | None, str | None]:
