@@ -457,7 +457,7 @@ class Master:
                                         f"connector (inputs: {', '.join(known) or 'none'})")
         variable = element.variables[variable_name]
         if variable.causality != "input":
-            raise CausalityError(f"external input {name!r}: {name} is a {variable.causality}, not an input "
+            raise CausalityError(f"external input {name!r}: {name} is of causality {variable.causality}, not an input "
                                  "(set parameters with parameter overrides)")
         if (element_name, variable_name) in linked:
             link = linked[(element_name, variable_name)]

@@ -155,11 +155,13 @@ def test_staircase_drives_an_input_like_the_python_loop_sees_it(tmp_path, toys):
 
 @pytest.mark.parametrize("inputs, error", [
     ({"Controller.k": 1.0}, CausalityError),  # a parameter
+    ({"Plant.x": 1.0}, CausalityError),  # an output ("is a output", it said)
     ({"Controller.nothing": 1.0}, UnknownConnectorError),
 ])
 def test_bad_external_inputs_are_named(loop, tmp_path, inputs, error):
-    with pytest.raises(error, match=list(inputs)[0].replace(".", r"\.")):
+    with pytest.raises(error, match=list(inputs)[0].replace(".", r"\.")) as raised:
         run_structure(loop, inputs=inputs, out_dir=tmp_path, progress=False)
+    assert " a output" not in str(raised.value)
 
 
 @pytest.mark.parametrize("algorithm", ["causal", "jacobi"])
