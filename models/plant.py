@@ -14,6 +14,7 @@ gaps, as the rig shows (Sec. 3.3).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Callable
 
@@ -158,9 +159,13 @@ class SimplifiedPlant:
         # sigma h^2 and the damping coefficient h^3 (eqs. 2, 6) for the per-sample path of local_film
         self._sigma_scale = float(rig.squeeze_number(1.0))
         self._damping_scale = float(rig.squeeze_film_damping(1.0))
-        # K at rest_gap, for the rest test a resting object's every step makes: levitation_force's numpy on one
-        # number made the resting plant's step 36 us, 13-15 us with this (bench/bench_rig_truth.py, resting row)
-        self._rest_gap_k = float(calibration(rig.squeeze_number(self.rest_gap)))
+
+    @functools.cached_property
+    def _rest_gap_k(self) -> float:
+        """K at rest_gap, for the rest test a resting object's every step makes: levitation_force's numpy on one
+        number made the resting plant's step 36 us, 13-15 us with this (bench/bench_rig_truth.py, resting row). On
+        first use: a plant is rebuilt at each change of the drive frequency, and this costs 15 us."""
+        return float(self.calibration(self.rig.squeeze_number(self.rest_gap)))
 
     # --- forces -------------------------------------------------------------------------------
     def levitation_force(self, height, excitation):
