@@ -195,6 +195,8 @@ class NfalSlave(Fmi2Slave):
         self._declarations: dict[str, _Declaration] = {}
         self.time = 0.0
         self.start_time = 0.0
+        #: the stop time the host declared in setupExperiment (FMI 2.0), None when it declared none
+        self.stop_time: float | None = None
         self.initialized = False
         self._in_initialization = False
         self._settings_changed = True
@@ -332,6 +334,7 @@ class NfalSlave(Fmi2Slave):
     def setup_experiment(self, start_time: float, stop_time=None, tolerance=None) -> None:
         def run():
             self.start_time = self.time = float(start_time)
+            self.stop_time = None if stop_time is None else float(stop_time)
         self._guard("setup_experiment", run)
 
     def enter_initialization_mode(self) -> None:

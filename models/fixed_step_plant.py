@@ -15,7 +15,8 @@ clearance's change; touchdown is the first sub-step that reaches the rest gap. I
 path within 1 % of the clearance through a lift-off (tests/test_fixed_step_plant_fast.py).
 
 The right-hand side, RK4 and the fast near-surface integrator are compiled (:mod:`nfal.models.slow_kernels`)
-for every K (a calibration or a film table) and damping correction this package has.
+for every K (a calibration or a film table) and damping correction this package has; ``compiled=False`` leaves
+them Python (the same bits, about 15x slower a step) for a run too short to pay numba's 1.2 s load back.
 
 About 10x faster than the adaptive LSODA path for the closed-loop runs of Figs. 9-10, and equal to it
 within 1e-10 m per 0.5 ms step (|v| <= 5 mm/s, 40-200 um) and over a closed-loop run
@@ -53,7 +54,7 @@ def damping_correction(model: ExcessDamping | DampingCorrection | None) -> tuple
 class FixedStepPlant:
     """:meth:`advance` like :class:`SimplifiedPlant`'s, by fixed-step RK4 away from the surface."""
 
-    def __init__(self, plant: SimplifiedPlant, *, near_surface: str = "exact") -> None:
+    def __init__(self, plant: SimplifiedPlant, *, near_surface: str = "exact", compiled: bool = True) -> None:
         if not isinstance(plant, SimplifiedPlant):
             raise InvalidParameterError("plant", type(plant).__name__, "a SimplifiedPlant")
         if near_surface not in NEAR_SURFACE:
@@ -69,7 +70,8 @@ class FixedStepPlant:
         self.model = (float(rig.film_force_scale / rig.mass), float(rig.squeeze_number(1.0)),
                       float(rig.squeeze_film_damping(1.0)) / rig.mass, float(rig.gravity), K,
                       damping_correction(plant.excess_damping))
-        slow_kernels.load(self.model)  # loaded at import for these types; a call here costs microseconds
+        if compiled:  # else the kernels run as Python until someone compiles them: a short run's choice
+            slow_kernels.load()
 
     def acceleration(self, h: float, v: float, a: float) -> float:
         """Eq. (13) in SI [m/s^2], as the integrators evaluate it."""

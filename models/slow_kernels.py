@@ -19,22 +19,18 @@ c(h) h^3 / m, g, K curve, damping correction)``.
 In plain Python the slow truth's RK4 cost the rig emulator ~105 us of its 500 us tick (bench/bench_rig_truth.py).
 
 Every curve and model has the same numba types (float64 C arrays, floats, an int kind: curves are made by
-:func:`nfal.models.piecewise.curve`), so one compiled specialisation serves all; :func:`load` loads it at
-import. Loading later, from numba's cache, re-imports this module by name (numba rebuilds the kernels'
-environment so): inside an FMU, after its bundle loader has set its copy of nfal aside
-(fmus/bundle_loader.py), that import would put a second copy into the host's process.
+:func:`nfal.models.piecewise.curve`), so one compiled specialisation serves all; :func:`load` compiles and loads it
+(models/jit.py: until then the kernels run as Python, bit for bit the same).
 """
 
 from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from . import numba_cache, piecewise
-
-numba_cache.install()  # before the kernels below: their compiled code outlives an FMU's temporary folder
+from . import jit, piecewise
+from .jit import kernel
 
 #: Largest (damping rate x sub-step) taken (RK4's stability limit is 2.79).
 STIFFNESS_STEP = 0.25
@@ -46,7 +42,7 @@ FAST_MAX_SUBSTEPS = 2000
 NO_CORRECTION, POWER_CORRECTION, CURVE_CORRECTION = 0, 1, 2
 
 
-@numba.njit(cache=True)
+@kernel
 def curve_value(log_axis, breaks, pieces, low, high, delta_max, x, delta):
     """The curve (module docstring) at ``x`` and ``delta``."""
     x = min(max(x, low), high)
@@ -64,7 +60,7 @@ def curve_value(log_axis, breaks, pieces, low, high, delta_max, x, delta):
     return value
 
 
-@numba.njit(cache=True)
+@kernel
 def damping_factor(correction, h):
     """The damping correction's factor on eq. (6) at the clearance ``h``."""
     kind, height, exponent, curve = correction
@@ -75,26 +71,26 @@ def damping_factor(correction, h):
     return 1.0
 
 
-@numba.njit(cache=True)
+@kernel
 def damping_rate(model, h):
     """c(h) f(h) / m [1/s]."""
     return model[2] / (h * h * h) * damping_factor(model[5], h)
 
 
-@numba.njit(cache=True)
+@kernel
 def drift(model, h, a):
     """The acceleration [m/s^2] at rest: film force / m - g."""
     ratio = a / h
     return model[0] * ratio * ratio * curve_value(*model[4], model[1] / (h * h), ratio) - model[3]
 
 
-@numba.njit(cache=True)
+@kernel
 def acceleration(model, h, v, a):
     """Eq. (13) in SI: (film force - c(h) f(h) v) / m - g."""
     return drift(model, h, a) - damping_rate(model, h) * v
 
 
-@numba.njit(cache=True)
+@kernel
 def substeps(model, step, lowest, highest):
     """RK4 sub-steps for ``step`` s over clearances [lowest, highest]: the damping rate's largest value there
     is at one end (for ExcessDamping, h^-3 + h^(n-3) / H^n falls and then rises; a table's PCHIP pieces vary
@@ -103,7 +99,7 @@ def substeps(model, step, lowest, highest):
     return math.ceil(step * rate / STIFFNESS_STEP)
 
 
-@numba.njit(cache=True)
+@kernel
 def free_flight(model, h, v, a, step, count, floor):
     """Classical RK4 over ``step`` s in ``count`` sub-steps: (h, v, stayed above ``floor`` and finite)."""
     dt = step / count
@@ -119,7 +115,7 @@ def free_flight(model, h, v, a, step, count, floor):
     return h, v, True
 
 
-@numba.njit(cache=True)
+@kernel
 def exponential_advance(model, h, v, a, step, rest):
     """Exponential Euler over ``step`` s with the clearance frozen over sub-steps that move it by at most
     FAST_HEIGHT_FRACTION: exact for the damping term at any stiffness. Returns (h, v, landed): landed when
@@ -139,14 +135,20 @@ def exponential_advance(model, h, v, a, step, rest):
     return h, v, False
 
 
-def load(model: tuple) -> None:
-    """Load (or compile) every kernel for ``model``'s types: before a real-time loop, or a bundle's import ends."""
+#: A model of the types every model has (the module's docstring): what :func:`load` loads the kernels for.
+ANY_MODEL = (1.0, 1.0, 1.0, 9.81, piecewise.NO_CURVE, (NO_CORRECTION, 1.0, 1.0, piecewise.NO_CURVE))
+
+
+def _call_every_kernel() -> None:
     h = 100e-6
-    free_flight(model, h, 0.0, 0.0, 1e-6, 1, 0.0)
-    exponential_advance(model, h, 0.0, 0.0, 1e-9, 0.0)
-    substeps(model, 1e-6, h, h)
-    acceleration(model, h, 0.0, 0.0)
-    curve_value(*model[4], 1.0, 0.0)
+    free_flight(ANY_MODEL, h, 0.0, 0.0, 1e-6, 1, 0.0)
+    exponential_advance(ANY_MODEL, h, 0.0, 0.0, 1e-9, 0.0)
+    substeps(ANY_MODEL, 1e-6, h, h)
+    acceleration(ANY_MODEL, h, 0.0, 0.0)
+    curve_value(*ANY_MODEL[4], 1.0, 0.0)
 
 
-load((1.0, 1.0, 1.0, 9.81, piecewise.NO_CURVE, (NO_CORRECTION, 1.0, 1.0, piecewise.NO_CURVE)))
+def load() -> None:
+    """Compile the kernels and load them (every model has the same types): before a real-time loop, or a run long
+    enough to pay the 1.25 s back (models/jit.py). A call after the first returns at once."""
+    jit.load(_call_every_kernel)

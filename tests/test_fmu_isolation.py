@@ -114,6 +114,34 @@ class Stamp(NfalSlave):
 '''
 
 
+KERNELS_COMPILED = textwrap.dedent('''
+    import sys
+    import fmpy
+    # a run long enough that the SlowPlant compiles its kernels at set-up (fmus/rig_contract.py), inside the FMU
+    fmpy.simulate_fmu(sys.argv[1], stop_time=1.0, step_size=5e-4, output_interval=0.1,
+                      start_values={"excitation_amplitude": 3e-6})
+    (slave_module,) = sys.modules["_nfal_fmu_bundles"].bundles.values()
+    kernels = slave_module.FixedStepPlant.__init__.__globals__["slow_kernels"]
+    locator = kernels.free_flight._cache._impl.locator
+    source = type(locator).get_source_stamp.__code__.co_filename  # the copy that defined the locator
+    own = source == kernels.__file__.replace("slow_kernels", "numba_cache")
+    print(type(locator).__name__, own, "nfal" in sys.modules)
+''')
+
+
+@pytest.mark.slow  # an FMU built and run in a Python of its own
+def test_an_fmu_compiles_its_kernels_with_its_own_copy_and_imports_no_other(tmp_path_factory, tmp_path):
+    """numba re-imports a kernel's module by name as it loads it (models/jit.py): the FMU's copy of nfal, set aside,
+    must serve it, and its own numba_cache (the content-keyed cache). When the installed nfal served it instead, that
+    copy entered the host's process and its cache locator passed the FMU's kernels over: ecos compiled them anew in
+    every run (6.2 s of CPU a 10 ms fig7_slow run, against 2.1)."""
+    fmu = build.build_fmus(tmp_path_factory.mktemp("kernels"), ["SlowPlant"])["SlowPlant"]
+    done = subprocess.run([sys.executable, "-c", KERNELS_COMPILED, str(fmu)], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.split() == ["ContentKeyedCacheLocator", "True", "False"]
+
+
 @pytest.mark.parametrize("order", [(1, 2), (2, 1)])
 def test_two_versions_of_one_fmu_in_one_process(tmp_path_factory, monkeypatch, order):
     """Two builds with different nfal versions, alive side by side: each answers with its own."""

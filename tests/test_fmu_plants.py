@@ -4,6 +4,8 @@ CoupledModel they use: each checked against the pure-Python model stepped the sa
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import fmpy
 import numpy as np
@@ -153,6 +155,32 @@ def test_slow_plant_object_steps_like_fixed_step_plant():
         slave.do_step(k * STEP, STEP)
         out.append((slave.height, slave.velocity))
     np.testing.assert_array_equal(np.array(out), reference_slow(EXCITATIONS))
+
+
+@pytest.mark.parametrize("plant", [SlowPlant, ReynoldsPlant])
+def test_a_plant_compiles_its_kernels_at_set_up_unless_the_host_declares_a_short_run(plant):
+    """fmus/rig_contract.py: a declared stop time within the plant's python_steps of 0.5 ms leaves its kernels
+    Python for that many steps (then they are compiled all the same); no stop time, or a later one, compiles them at
+    set-up."""
+    longest = plant.python_steps * STEP
+    for stop, python_steps in [(None, None), (longest * 1.01, None), (longest, plant.python_steps)]:
+        slave = plant(instance_name="plant")
+        slave.setup_experiment(0.0, stop)
+        slave.exit_initialization_mode()
+        assert slave._python_steps == python_steps, stop
+    for k in range(plant.python_steps + 1):
+        assert slave._python_steps == plant.python_steps - k
+        slave.do_step(k * STEP / 4, STEP / 4)  # steps 4x smaller: the run outlasts the declared time, not the count
+    assert slave._python_steps is None
+
+
+def test_a_short_run_of_the_slow_plant_never_imports_numba():
+    """What the Python kernels are for: a host's 10 ms check of the FMU pays no 1.2 s of numba (models/jit.py)."""
+    code = ("import sys; from nfal.fmus.slow_plant import SlowPlant; s = SlowPlant(instance_name='p'); "
+            "s.setup_experiment(0.0, 0.01); s.exit_initialization_mode(); s.excitation_amplitude = 3e-6; "
+            "[s.do_step(k * 5e-4, 5e-4) for k in range(20)]; print(s.height > 60e-6, 'numba' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split() == \
+        ["True", "False"]
 
 
 def test_slow_plant_fmu_trajectory_equals_fixed_step_plant(slow):

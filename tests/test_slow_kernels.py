@@ -2,7 +2,8 @@
 
 Every K (PolynomialK, TabulatedK, a FilmForceTable) and damping correction (ExcessDamping, DampingCorrection)
 is carried into compiled code as data: each must evaluate as its object does, inside its range and held at
-its ends outside it, to round-off (1e-12 relative).
+its ends outside it, to round-off (1e-12 relative). The kernels run as Python until compiled (models/jit.py), and
+both give the same bits.
 """
 
 import numpy as np
@@ -18,6 +19,7 @@ from nfal.models.plant import ExcessDamping, SimplifiedPlant
 from nfal.models.rig import RigParameters
 
 RIG = RigParameters()
+slow_kernels.load()  # what these tests check is compiled code
 HEIGHTS = np.array([50e-6, 75e-6, 100e-6, 130e-6, 160e-6, 200e-6])
 CALIBRATIONS = {"polynomial": paper_calibration(),
                 "table": TabulatedK([1, 2, 3, 4, 8], [0.1, 0.4, 0.6, 0.7, 0.72], name="t"),
@@ -59,3 +61,21 @@ def test_the_compiled_acceleration_is_the_plant_s(name):
     fixed = FixedStepPlant(plant)
     for h, v, a in [(60e-6, 0.0, 1.6e-6), (120e-6, -2e-3, 3e-6), (190e-6, 4e-3, 6e-6)]:
         assert fixed.acceleration(h, v, a) == pytest.approx(float(plant.acceleration(h, v, a)), rel=1e-10, abs=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(CORRECTIONS))
+def test_python_and_compiled_kernels_give_the_same_bits(name):
+    """A short run steps the kernels as Python (fmus/rig_contract.py): it must follow the compiled path to the bit,
+    through free flight, the near-surface integrator and a landing."""
+    plant = FixedStepPlant(SimplifiedPlant(RIG, perturbation_calibration(PistonShape(), points=40),
+                                           excess_damping=CORRECTIONS[name]))
+    model, rest = plant.model, plant.plant.rest_gap
+    for h, v, a in [(60e-6, 0.0, 1.6e-6), (120e-6, -2e-3, 3e-6), (190e-6, 4e-3, 6e-6), (40e-6, -0.2, 0.5e-6)]:
+        for kernel, args in [("free_flight", (h, v, a, 5e-4, 8, 3 * rest)),
+                             ("exponential_advance", (h, v, a, 5e-4, rest)), ("substeps", (5e-4, h, 2 * h)),
+                             ("acceleration", (h, v, a))]:
+            compiled = getattr(slow_kernels, kernel)
+            assert compiled.py_func(model, *args) == compiled(model, *args), (kernel, h, v, a)
+    landing = (model, 1.2 * rest, 0.0, 0.0, 5e-3, 1.1999 * rest)  # a rest gap just below: reached in the step
+    assert slow_kernels.exponential_advance.py_func(*landing) == slow_kernels.exponential_advance(*landing)
+    assert slow_kernels.exponential_advance(*landing)[2]

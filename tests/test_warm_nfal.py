@@ -8,6 +8,7 @@ import resource
 from pathlib import Path
 
 import pytest
+from helpers import warm_nfal
 from helpers.warm_nfal import NFAL, WarmProcess, popen
 
 OPEN_FILES = 200
@@ -31,3 +32,16 @@ def test_a_new_session_and_a_preexec_fn_are_both_kept(fig7_archives, tmp_path):
     finally:
         process.terminate()
         process.communicate(timeout=20)
+
+
+def _kernels_compiled() -> bool:
+    from nfal.models import slow_kernels
+
+    return hasattr(slow_kernels.free_flight, "py_func")  # a numba function, not the Python one (models/jit.py)
+
+
+def test_what_is_forked_has_the_plants_kernels_compiled():
+    """The fork server's preload (multiprocessing skips a module it cannot import, without a word)."""
+    warm_nfal._start_server()
+    with warm_nfal._CONTEXT.Pool(1) as pool:
+        assert pool.apply(_kernels_compiled)

@@ -15,6 +15,7 @@ other command), not this.
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import shutil
 import signal
@@ -26,11 +27,25 @@ from collections.abc import Callable
 from pathlib import Path
 
 #: What the fork server imports before it forks: the commands the suite starts this way and the kernels of the
-#: emulator's plant.
+#: emulator's plant, compiled (multiprocessing skips a preload module it cannot import: ``test_warm_nfal.py`` checks).
 PRELOAD = ["nfal.cli", "nfal.cli.commands.hil", "nfal.cli.commands.identify", "nfal.cli.commands.cosim",
-           "nfal.apps.rig_emulator_session"]
+           "nfal.apps.rig_emulator_session", "helpers.compiled_kernels"]
 _CONTEXT = multiprocessing.get_context("forkserver")
 _CONTEXT.set_forkserver_preload(PRELOAD)
+
+
+def _start_server() -> None:
+    """Start the fork server (once) with ``helpers`` importable for its preload: Python 3.11's fork server ignores the
+    sys.path it is sent, and its own starts from the working folder."""
+    held = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).resolve().parent.parent), held]))
+    try:
+        multiprocessing.forkserver.ensure_running()
+    finally:
+        if held is None:
+            del os.environ["PYTHONPATH"]
+        else:
+            os.environ["PYTHONPATH"] = held
 #: How ``python -m nfal`` starts in a command line (what :func:`popen` forks instead).
 NFAL = [sys.executable, "-m", "nfal"]
 
@@ -97,6 +112,7 @@ class WarmProcess:
                  start_new_session: bool = False, preexec_fn: Callable[[], None] | None = None) -> None:
         self.args = ["nfal", *argv]
         self._folder = Path(tempfile.mkdtemp(prefix="nfal-warm-"))
+        _start_server()
         # daemonic: ended with the test worker if a test left it running
         self._process = _CONTEXT.Process(
             target=_run, daemon=True,
