@@ -147,6 +147,38 @@ def test_another_python_active_and_another_folder(fmi_version, fmus, fmus3, c_ho
     assert all(outputs == expected for outputs in runs.outputs)
 
 
+BLAS_PROBE = '''"""Test slave: its output is the OPENBLAS_NUM_THREADS its process has (0: none)."""
+import os
+
+from nfal.fmus.base import NfalSlave
+
+
+class BlasProbe(NfalSlave):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.add_output("blas_threads", unit="1", description="OPENBLAS_NUM_THREADS",
+                        getter=lambda: float(os.environ.get("OPENBLAS_NUM_THREADS", 0)))
+
+    def setup(self):
+        pass
+
+    def step(self, current_time, step_size):
+        pass
+'''
+
+
+def test_the_python_an_fmu_starts_runs_one_blas_thread_unless_the_host_says(c_host, tmp_path, monkeypatch):
+    """fmus/loader/loader.c: the embedded Python's OpenBLAS pools start one thread, not one per core, unless the
+    host's environment sets OPENBLAS_NUM_THREADS (which stays as it is)."""
+    script = tmp_path / "blas_probe.py"
+    script.write_text(BLAS_PROBE, encoding="utf-8")
+    monkeypatch.setitem(build.FMU_SCRIPTS, "BlasProbe", str(script))
+    fmu = build.build_fmu("BlasProbe", tmp_path / "fmu")
+    for environment, threads in [(bare_environment(), 1.0), (bare_environment(OPENBLAS_NUM_THREADS="3"), 3.0)]:
+        runs = run_in_c_host(c_host, fmu, tmp_path / f"run{threads:g}", runs=1, env=environment)
+        assert runs.outputs == [{"blas_threads": threads}], runs.first_failure[-3000:]
+
+
 def _one_line(runs, *needles: str) -> None:
     """Each run: not killed, and exactly one line naming all ``needles`` in the host's log (stdout) and on stderr."""
     assert runs.signals == 0, runs.exit_codes
