@@ -14,7 +14,10 @@ Each measurement is a new Python, as a host's embedded interpreter or `nfal rig-
   (orchestration/fmu_folders.py), against the baseline, in the same run, of every FMU extracted anew for each run
   (each folder forgotten after its run, as before fmu_folders): wall time of the runs, the process's peak memory;
 * an FMU built (``build_fmu(..., force=True)``) against the same FMU built into another folder, a copy from the
-  nfal cache (fmus/build.py), after one warm-up build.
+  nfal cache (fmus/build.py), after one warm-up build;
+* the SlowPlant slave's import, set-up and a 10 ms run (20 steps of 0.5 ms), CPU time, with the host's stop time of
+  10 ms declared (its kernels as Python: fmus/slow_plant.py) against the baseline, in the same run, of no stop time
+  declared (compiled at set-up); then the mean wall time of 200 more steps, each way.
 """
 
 from __future__ import annotations
@@ -77,6 +80,33 @@ def repeated_runs(archive: Path, runs: int, mode: str) -> dict:
     return {key: round(value, 2) for key, value in json.loads(done.stdout.splitlines()[-1]).items()}
 
 
+#: A plant slave in a new Python: import, set-up with ``stop`` declared, 20 steps (CPU time), 200 more (a step's time).
+#: (ReynoldsPlant's kernels are compiled at set-up whatever the host declares: in this bench its 10 ms run in Python
+#: cost 0.98x the compiled one's CPU, its steps 52x as long.)
+PLANT = """import resource, time
+from nfal.fmus.{module} import {name}
+slave = {name}(instance_name="p")
+slave.setup_experiment(0.0, {stop}); slave.exit_initialization_mode(); slave.excitation_amplitude = 3e-6
+for k in range(20):
+    slave.do_step(k * 5e-4, 5e-4)
+usage = resource.getrusage(resource.RUSAGE_SELF)
+started = time.perf_counter()
+for k in range(20, 220):
+    slave.do_step(k * 5e-4, 5e-4)
+print(usage.ru_utime + usage.ru_stime, (time.perf_counter() - started) / 200)
+"""
+PLANTS = {"SlowPlant": "slow_plant"}
+STOPS = {"10 ms declared: kernels as Python": 0.01, "baseline: no stop declared: compiled at set-up": None}
+
+
+def plant_run(name: str, stop: float | None) -> tuple[float, float]:
+    """(CPU [s] of a 10 ms run from the process's start, one step's wall time [s] after it)."""
+    done = subprocess.run([sys.executable, "-c", PLANT.format(module=PLANTS[name], name=name, stop=stop)],
+                          capture_output=True, text=True, check=True)
+    cpu, step = done.stdout.split()[-2:]
+    return float(cpu), float(step)
+
+
 def build_seconds(folder: Path, force: bool) -> float:
     started = time.perf_counter()
     build_fmu("SlowPlant", folder, force=force)
@@ -123,6 +153,14 @@ def main() -> None:
             for name, force in zip(data["build_s"], (False, True)):
                 data["build_s"][name].append(round(build_seconds(Path(folder) / f"{run}-{force}", force), 4))
         print(data["repeated_runs"], data["build_s"], flush=True)
+    data["plants"] = {name: {mode: {"cpu_s": [], "step_s": []} for mode in STOPS} for name in PLANTS}
+    for run in range(args.runs):  # interleaved
+        for name, modes in data["plants"].items():
+            for mode, stop in STOPS.items():
+                cpu, step = plant_run(name, stop)
+                modes[mode]["cpu_s"].append(round(cpu, 3))
+                modes[mode]["step_s"].append(round(step, 7))
+    print(data["plants"], flush=True)
     print(record.save("startup", data))
     record.show(tables(data), findings(data))
 
@@ -142,7 +180,11 @@ def tables(result: dict) -> list[record.Table]:
             record.Table(f"{REPEATED} fig7_slow runs of 0.01 s in one Python:",
                          ["FMUs", "wall [s]", "peak memory [MiB]"],
                          [[name, f"{row['wall_s']:.2f}", f"{row['peak_mib']:.0f}"]
-                          for name, row in result["repeated_runs"].items()])]
+                          for name, row in result["repeated_runs"].items()]),
+            record.Table(f"A plant slave in a new Python, {result['runs']} runs each, interleaved:",
+                         ["plant", "host's stop time", "CPU of import, set-up and 20 steps [s]", "a step after [µs]"],
+                         [[name, mode, _span(row["cpu_s"]), _span([1e6 * s for s in row["step_s"]], 0)]
+                          for name, modes in result["plants"].items() for mode, row in modes.items()])]
 
 
 def findings(result: dict) -> list[str]:
@@ -158,7 +200,15 @@ def findings(result: dict) -> list[str]:
             f"{once['peak_mib'] / fresh['peak_mib']:.2f}x the peak memory with each FMU extracted once per content, "
             "against extracted anew for each run (the baseline, same run).",
             f"A build of an FMU already built from the same sources takes {copied / built:.3f}x a build "
-            "(the baseline, same run): a copy from the nfal cache."]
+            "(the baseline, same run): a copy from the nfal cache.",
+            *(_plant_finding(name, modes) for name, modes in result["plants"].items())]
+
+
+def _plant_finding(name: str, modes: dict) -> str:
+    (short, compiled), (python, fast) = ([np.median(row[key]) for row in modes.values()] for key in ("cpu_s", "step_s"))
+    return (f"A 10 ms {name} run with its stop time declared costs {short / compiled:.2f}x the CPU of one that "
+            f"compiles its kernels at set-up (the baseline, same run); a step in Python takes {python / fast:.0f}x a "
+            "compiled one.")
 
 
 if __name__ == "__main__":

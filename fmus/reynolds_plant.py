@@ -50,9 +50,6 @@ class ReynoldsPlant(RigSlave):
 
     description = "Full squeeze-film model (Reynolds eq. 3-5 coupled to the object, eq. 4/15); inputs held over a step"
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.01, step_size=5e-4)
-    #: Harmonic balance: in Python a step costs 2.5 ms, compiled 0.04 ms; the kernels' load 0.8 s of CPU (numba is
-    #: imported with the film's solvers) (``python bench/bench_startup.py``).
-    python_steps = 300
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
@@ -91,10 +88,8 @@ class ReynoldsPlant(RigSlave):
     def _harmonic_balance(self, shape, contact: Contact) -> HarmonicBalanceFilm:
         """The periodic film force, tabulated once (and kept on disk)."""
         table = cached_table(shape, nodes=int(self.radial_nodes), harmonics=int(self.harmonics), rig=self.build_rig())
-        film = HarmonicBalanceFilm(self.build_rig, self.checked_frequency(), table, contact,
-                                   near_surface=str(self.near_surface), compiled=False)
-        self.plan_kernels()
-        return film
+        return HarmonicBalanceFilm(self.build_rig, self.checked_frequency(), table, contact,
+                                   near_surface=str(self.near_surface))
 
     def _time_marching(self, shape, contact: Contact) -> TimeMarchingFilm:
         return TimeMarchingFilm(self.build_rig, self.checked_frequency(), shape, contact, nodes=int(self.radial_nodes),
@@ -106,7 +101,6 @@ class ReynoldsPlant(RigSlave):
 
     # --- stepping -----------------------------------------------------------------------------------
     def step(self, current_time: float, step_size: float) -> None:
-        self.count_kernel_step()
         body = Body(self.height, self.velocity, self.resting, self.oscillation_amplitude)
         self._publish(self._film.advance(body, self.checked_excitation(), self.checked_frequency(), current_time,
                                          step_size))

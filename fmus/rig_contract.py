@@ -14,7 +14,6 @@ from nfal.errors import InvalidParameterError, require_amplitude, require_positi
 from nfal.fmus.base import NfalSlave
 from nfal.models.calibration import (CalibrationFunction, RigCalibration, load_rig_calibration, paper_calibration,
                                      perturbation_calibration)
-from nfal.models import slow_kernels
 from nfal.models.excitation import parse_shape
 from nfal.models.plant import DEFAULT_REST_GAP
 from nfal.models.plausibility import MAX_CLEARANCE_M, MAX_EXCITATION_M, require_plausible
@@ -49,11 +48,6 @@ class RigSlave(NfalSlave):
     """An :class:`~nfal.fmus.base.NfalSlave` of the rig's loop: declares the rig parameters and the plant interface,
     checks their values and builds the models from them."""
 
-    #: A plant's steps with its kernels in Python that cost about what compiling them costs (models/jit.py); the
-    #: plant sets it. Steps left of them in this run: None once compiled (:meth:`plan_kernels`).
-    python_steps = 0
-    _python_steps: int | None = None
-
     def add_rig_parameters(self) -> None:
         """Declare the contract's rig parameters (:data:`RIG_PARAMETERS`) and ``calibration``."""
         for name, start, unit, description in RIG_PARAMETERS:
@@ -78,26 +72,6 @@ class RigSlave(NfalSlave):
         self.add_parameter("rest_gap", DEFAULT_REST_GAP, unit="m",
                            description="closest approach: the object lands and rests here")
         self.add_rig_parameters()
-
-    def plan_kernels(self) -> None:
-        """At a plant's set-up: compile its kernels now, unless the host declared a stop time within
-        :attr:`python_steps` of the loop's steps (the default experiment's); then they stay Python for that many
-        steps, whatever their size (:meth:`count_kernel_step`)."""
-        short = self.stop_time is not None and \
-            self.stop_time - self.start_time <= self.python_steps * type(self).default_experiment.step_size
-        self._python_steps = self.python_steps if short else None
-        if not short:
-            slow_kernels.load()
-
-    def count_kernel_step(self) -> None:
-        """At each step of a plant: compile its kernels once its steps in Python are used up."""
-        if self._python_steps is None:
-            return
-        if self._python_steps == 0:
-            slow_kernels.load()
-            self._python_steps = None
-        else:
-            self._python_steps -= 1
 
     def checked_release(self) -> tuple[float, float, float]:
         """(rest_gap, initial_height, initial_velocity) of the plant interface, checked."""

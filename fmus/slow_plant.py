@@ -28,6 +28,7 @@ import math
 from nfal.errors import InvalidParameterError, require_finite, require_non_negative
 from nfal.fmus.base import DefaultExperiment
 from nfal.fmus.rig_contract import RigSlave
+from nfal.models import slow_kernels
 from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import DampingModel, ExcessDamping, PlantState, SimplifiedPlant
 from nfal.models.rig import frequency_changed
@@ -39,8 +40,8 @@ class SlowPlant(RigSlave):
     description = ("Slow (time-averaged) levitation model, eq. (13), with touchdown and lift-off; inputs held over "
                    "a step")
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.1, step_size=5e-4)
-    #: In Python a step costs 0.68 ms, compiled 0.02 ms; numba's import and the kernels' load 1.25 s of CPU
-    #: (``python bench/bench_startup.py``): 1500 steps in Python cost about as much.
+    #: Steps in Python (models/jit.py) that cost about what compiling the kernels costs: a 10 ms run in a new Python
+    #: 0.35-0.48 s of CPU so, 1.37-1.54 s compiled; a step 0.37-0.61 ms in Python (``python bench/bench_startup.py``).
     python_steps = 1500
 
     def __init__(self, **kwargs) -> None:
@@ -57,6 +58,7 @@ class SlowPlant(RigSlave):
         self._excess_damping: DampingModel | None = None
         self._plant: FixedStepPlant | None = None
         self._plant_frequency = math.nan
+        self._python_steps: int | None = None  # steps left with the kernels in Python; None: compiled
 
     # --- the model --------------------------------------------------------------------------------
     def setup(self) -> None:
@@ -70,9 +72,27 @@ class SlowPlant(RigSlave):
                                             f"0 when the calibration {self.calibration} has its own damping correction")
             self._excess_damping = calibration.damping
         self._rebuild(self.checked_frequency())
-        self.plan_kernels()
+        self._plan_kernels()
         self.height, self.velocity = height, velocity
         self.resting = self._plant.plant.rests(PlantState(self.height, self.velocity), self.checked_excitation())
+
+    def _plan_kernels(self) -> None:
+        """Compile the kernels now, unless the host declared a stop time within :attr:`python_steps` steps of the
+        loop's 0.5 ms; then they stay Python for that many steps, whatever their size."""
+        short = self.stop_time is not None and \
+            self.stop_time - self.start_time <= self.python_steps * type(self).default_experiment.step_size
+        self._python_steps = self.python_steps if short else None
+        if not short:
+            slow_kernels.load()
+
+    def _count_kernel_step(self) -> None:
+        if self._python_steps is None:
+            return
+        if self._python_steps == 0:
+            slow_kernels.load()
+            self._python_steps = None
+        else:
+            self._python_steps -= 1
 
     def checked_excess_damping(self) -> ExcessDamping | None:
         """The excess damping the parameters ask for (None when ``excess_damping_height`` is 0), checked."""
@@ -95,7 +115,7 @@ class SlowPlant(RigSlave):
     def step(self, current_time: float, step_size: float) -> None:
         excitation = self.checked_excitation()
         frequency = self.checked_frequency()
-        self.count_kernel_step()
+        self._count_kernel_step()
         if frequency_changed(frequency, self._plant_frequency):
             self._rebuild(frequency)
         state = self._plant.advance(PlantState(self.height, self.velocity, self.resting), excitation, step_size)

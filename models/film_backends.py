@@ -97,14 +97,13 @@ class HarmonicBalanceFilm:
     """The periodic film force, tabulated once, driving the object's slow motion (faster than real time)."""
 
     def __init__(self, rig_at: RigAt, frequency: float, table: FilmForceTable, contact: Contact, *,
-                 near_surface: str, compiled: bool = True) -> None:
+                 near_surface: str) -> None:
         self.rig_at, self.table, self.contact, self.near_surface = rig_at, table, contact, near_surface
-        self.compiled = compiled  # the stepper's kernels (FixedStepPlant): False leaves them to the caller
         self._stepper = self._build(frequency)
 
     def _build(self, frequency: float) -> FixedStepPlant:
         plant = AveragedFilmPlant(self.rig_at(frequency), self.table, rest_gap=self.contact.rest_gap)
-        return FixedStepPlant(plant, near_surface=self.near_surface, compiled=self.compiled)
+        return FixedStepPlant(plant, near_surface=self.near_surface)
 
     def release(self, height: float, velocity: float, excitation: float, time_s: float) -> Body:
         return Body(height, velocity, self._stepper.plant.rests(PlantState(height, velocity), excitation))

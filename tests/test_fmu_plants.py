@@ -157,19 +157,17 @@ def test_slow_plant_object_steps_like_fixed_step_plant():
     np.testing.assert_array_equal(np.array(out), reference_slow(EXCITATIONS))
 
 
-@pytest.mark.parametrize("plant", [SlowPlant, ReynoldsPlant])
-def test_a_plant_compiles_its_kernels_at_set_up_unless_the_host_declares_a_short_run(plant):
-    """fmus/rig_contract.py: a declared stop time within the plant's python_steps of 0.5 ms leaves its kernels
-    Python for that many steps (then they are compiled all the same); no stop time, or a later one, compiles them at
-    set-up."""
-    longest = plant.python_steps * STEP
-    for stop, python_steps in [(None, None), (longest * 1.01, None), (longest, plant.python_steps)]:
-        slave = plant(instance_name="plant")
+def test_the_slow_plant_compiles_its_kernels_at_set_up_unless_the_host_declares_a_short_run():
+    """A declared stop time within python_steps steps of 0.5 ms leaves the kernels Python for that many steps (then
+    they are compiled all the same); no stop time, or a later one, compiles them at set-up."""
+    longest = SlowPlant.python_steps * STEP
+    for stop, python_steps in [(None, None), (longest * 1.01, None), (longest, SlowPlant.python_steps)]:
+        slave = SlowPlant(instance_name="plant")
         slave.setup_experiment(0.0, stop)
         slave.exit_initialization_mode()
         assert slave._python_steps == python_steps, stop
-    for k in range(plant.python_steps + 1):
-        assert slave._python_steps == plant.python_steps - k
+    for k in range(SlowPlant.python_steps + 1):
+        assert slave._python_steps == SlowPlant.python_steps - k
         slave.do_step(k * STEP / 4, STEP / 4)  # steps 4x smaller: the run outlasts the declared time, not the count
     assert slave._python_steps is None
 
