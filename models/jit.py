@@ -3,8 +3,9 @@
 A :func:`kernel` is plain Python (numba's ``nopython`` subset) until :func:`load`: that imports numba (0.4 s), makes
 every kernel a cached ``numba.njit`` function, bound in place of the Python one under every name a kernel module
 gives it, and runs the caller's ``loader``, which calls the kernels to load their compiled code for its types (0.8 s
-from numba's cache, models/numba_cache.py). Both compute the same bits, the Python function 35-65x slower a step: a
-run of a few hundred steps (an FMU checked in a foreign host) is over before numba would have loaded.
+from numba's cache, models/numba_cache.py). Both compute the same bits, the SlowPlant's step 24-34x slower in Python
+(``python bench/bench_startup.py``): a run of a few hundred steps (an FMU checked in a foreign host) is over before
+numba would have loaded.
 
 numba's cache re-imports a kernel's module by name to rebuild its environment, and this copy of nfal must serve its
 own ``numba_cache``. Inside an FMU the carried copy is not in ``sys.modules`` once its bundle loader has set it aside

@@ -150,5 +150,5 @@ def _call_every_kernel() -> None:
 
 def load() -> None:
     """Compile the kernels and load them (every model has the same types): before a real-time loop, or a run long
-    enough to pay the 1.25 s back (models/jit.py). A call after the first returns at once."""
+    enough to pay that back (models/jit.py). A call after the first returns at once."""
     jit.load(_call_every_kernel)
