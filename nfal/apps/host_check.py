@@ -73,9 +73,9 @@ def bare_environment(**extra: str) -> dict[str, str]:
 
 
 def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False) -> Path:
-    """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir``; return the executable (``windows``: a
-    win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`). Compiled once per source (the headers
-    beside it included), compiler and command line into the nfal cache
+    """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir`` (made if missing); return the executable
+    (``windows``: a win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`). Compiled once per
+    source (the headers beside it included), compiler and command line into the nfal cache
     (:func:`~nfal.models.disk_cache.cache_root`), and copied from there; where the cache cannot be written, into
     ``out_dir`` directly."""
     source = C_HOST_SOURCES[fmi_version]
@@ -86,6 +86,7 @@ def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False
         if compiler is None:
             raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
     executable = Path(out_dir) / name
+    executable.parent.mkdir(parents=True, exist_ok=True)  # else the copy fails, and then cc on a folder not there
 
     def compile_to(path: Path) -> None:
         subprocess.run([compiler, *C_HOST_FLAGS, "-o", str(path), str(source), *flags], check=True,
