@@ -24,6 +24,7 @@ clearance): what the real-time rig emulator needs.
 from __future__ import annotations
 
 import math
+import sys
 
 from nfal.errors import InvalidParameterError, require_finite, require_non_negative
 from nfal.fmus.base import DefaultExperiment
@@ -78,8 +79,9 @@ class SlowPlant(RigSlave):
 
     def _plan_kernels(self) -> None:
         """Compile the kernels now, unless the host declared a stop time within :attr:`python_steps` steps of the
-        loop's 0.5 ms; then they stay Python for that many steps, whatever their size."""
-        short = self.stop_time is not None and \
+        loop's 0.5 ms and numba is not in the process yet (its import and start are most of what compiling costs);
+        then they stay Python for that many steps, whatever their size."""
+        short = self.stop_time is not None and "numba" not in sys.modules and \
             self.stop_time - self.start_time <= self.python_steps * type(self).default_experiment.step_size
         self._python_steps = self.python_steps if short else None
         if not short:

@@ -9,8 +9,9 @@ numba would have loaded.
 
 numba's cache re-imports a kernel's module by name to rebuild its environment, and this copy of nfal must serve its
 own ``numba_cache``. Inside an FMU the carried copy is not in ``sys.modules`` once its bundle loader has set it aside
-(fmus/bundle_loader.py), so :func:`load` puts this copy's packages and kernel modules there while it works, under
-numba's process-wide compiler lock, and then leaves the process's nfal modules as they were.
+(fmus/bundle_loader.py), and a host's own nfal may be: so :func:`load` sets the process's nfal modules aside and puts
+this copy's packages and kernel modules there while it works, under numba's process-wide compiler lock, then puts
+the process's back.
 """
 
 from __future__ import annotations
@@ -68,13 +69,13 @@ def _compile() -> None:
 
 @contextlib.contextmanager
 def _importable() -> Iterator[None]:
-    """This copy's packages and kernel modules in ``sys.modules`` by name; afterwards, every module of the package's
-    name as before (what was imported meanwhile, from this copy, taken out again)."""
+    """Only this copy's packages and kernel modules in ``sys.modules`` under the package's name (what they import
+    comes from this copy); afterwards, the process's modules of that name as before."""
     root = _PACKAGES[0].__name__
     if sys.modules.get(root) is _PACKAGES[0]:  # this copy is the process's nfal: nothing set aside
         yield
         return
-    held = {name: module for name, module in sys.modules.items() if name == root or name.startswith(root + ".")}
+    held = {name: sys.modules.pop(name) for name in list(sys.modules) if name == root or name.startswith(root + ".")}
     sys.modules.update({module.__name__: module for module in [*_PACKAGES, *_MODULES]})
     try:
         yield

@@ -157,14 +157,24 @@ def test_slow_plant_object_steps_like_fixed_step_plant():
     np.testing.assert_array_equal(np.array(out), reference_slow(EXCITATIONS))
 
 
-def test_the_slow_plant_compiles_its_kernels_at_set_up_unless_the_host_declares_a_short_run():
+def test_the_slow_plant_compiles_its_kernels_at_set_up_unless_the_host_declares_a_short_run(monkeypatch):
     """A declared stop time within python_steps steps of 0.5 ms leaves the kernels Python for that many steps (then
-    they are compiled all the same); no stop time, or a later one, compiles them at set-up."""
+    they are compiled all the same); no stop time, or a later one, compiles them at set-up, and so does a short run in
+    a process that has imported numba already."""
     longest = SlowPlant.python_steps * STEP
-    for stop, python_steps in [(None, None), (longest * 1.01, None), (longest, SlowPlant.python_steps)]:
+
+    def planned(stop):
         slave = SlowPlant(instance_name="plant")
         slave.setup_experiment(0.0, stop)
         slave.exit_initialization_mode()
+        return slave
+
+    import numba  # noqa: F401 - on use: a process that has it compiles even a short run (little more than a load)
+
+    assert planned(longest)._python_steps is None
+    monkeypatch.delitem(sys.modules, "numba")  # a process without it (the kernels here are loaded: nothing imports it)
+    for stop, python_steps in [(None, None), (longest * 1.01, None), (longest, SlowPlant.python_steps)]:
+        slave = planned(stop)
         assert slave._python_steps == python_steps, stop
     for k in range(SlowPlant.python_steps + 1):
         assert slave._python_steps == SlowPlant.python_steps - k
