@@ -40,6 +40,7 @@ def _kernels_compiled() -> bool:
     return hasattr(slow_kernels.free_flight, "py_func")  # a numba function, not the Python one (models/jit.py)
 
 
+@pytest.mark.slow  # a fork server started, its preload compiled
 def test_what_is_forked_has_the_plants_kernels_compiled():
     """The fork server's preload (multiprocessing skips a module it cannot import, without a word)."""
     warm_nfal._start_server()

@@ -32,6 +32,8 @@ PRELOAD = ["nfal.cli", "nfal.cli.commands.hil", "nfal.cli.commands.identify", "n
            "nfal.apps.rig_emulator_session", "helpers.compiled_kernels"]
 _CONTEXT = multiprocessing.get_context("forkserver")
 _CONTEXT.set_forkserver_preload(PRELOAD)
+#: How ``python -m nfal`` starts in a command line (what :func:`popen` forks instead).
+NFAL = [sys.executable, "-m", "nfal"]
 
 
 def _start_server() -> None:
@@ -46,8 +48,6 @@ def _start_server() -> None:
             del os.environ["PYTHONPATH"]
         else:
             os.environ["PYTHONPATH"] = held
-#: How ``python -m nfal`` starts in a command line (what :func:`popen` forks instead).
-NFAL = [sys.executable, "-m", "nfal"]
 
 
 def _run(argv: list[str], environment: dict[str, str], cwd: str, stdout: str, stderr: str, new_session: bool,
