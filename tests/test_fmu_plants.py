@@ -182,6 +182,7 @@ def test_the_slow_plant_compiles_its_kernels_at_set_up_unless_the_host_declares_
     assert slave._python_steps is None
 
 
+@pytest.mark.slow  # a Python of its own
 def test_a_short_run_of_the_slow_plant_never_imports_numba():
     """What the Python kernels are for: a host's 10 ms check of the FMU pays no 1.2 s of numba (models/jit.py)."""
     code = ("import sys; from nfal.fmus.slow_plant import SlowPlant; s = SlowPlant(instance_name='p'); "
