@@ -42,7 +42,7 @@ class SlowPlant(RigSlave):
                    "a step")
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.1, step_size=5e-4)
     #: Steps in Python (models/jit.py) that cost about what compiling the kernels costs: a 10 ms run in a new Python
-    #: 0.35-0.48 s of CPU so, 1.37-1.54 s compiled; a step 0.37-0.61 ms in Python (``python bench/bench_startup.py``).
+    #: 0.38-0.45 s of CPU so, 1.61-1.75 s compiled; a step 0.27-0.52 ms in Python (``python bench/bench_startup.py``).
     python_steps = 1500
 
     def __init__(self, **kwargs) -> None:
@@ -88,8 +88,6 @@ class SlowPlant(RigSlave):
             slow_kernels.load()
 
     def _count_kernel_step(self) -> None:
-        if self._python_steps is None:
-            return
         if self._python_steps == 0:
             slow_kernels.load()
             self._python_steps = None
@@ -117,7 +115,8 @@ class SlowPlant(RigSlave):
     def step(self, current_time: float, step_size: float) -> None:
         excitation = self.checked_excitation()
         frequency = self.checked_frequency()
-        self._count_kernel_step()
+        if self._python_steps is not None:  # kernels still Python: counts down to compiling them
+            self._count_kernel_step()
         if frequency_changed(frequency, self._plant_frequency):
             self._rebuild(frequency)
         state = self._plant.advance(PlantState(self.height, self.velocity, self.resting), excitation, step_size)

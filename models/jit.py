@@ -1,11 +1,11 @@
 """numba kernels compiled when a caller asks, not when their module is imported.
 
-A :func:`kernel` is plain Python (numba's ``nopython`` subset) until :func:`load`: that imports numba (0.4 s), makes
-every kernel a cached ``numba.njit`` function, bound in place of the Python one under every name a kernel module
-gives it, and runs the caller's ``loader``, which calls the kernels to load their compiled code for its types (0.8 s
-from numba's cache, models/numba_cache.py). Both compute the same bits, the SlowPlant's step 24-34x slower in Python
-(``python bench/bench_startup.py``): a run of a few hundred steps (an FMU checked in a foreign host) is over before
-numba would have loaded.
+A :func:`kernel` is plain Python (numba's ``nopython`` subset) until :func:`load`: that imports numba, makes every
+kernel a cached ``numba.njit`` function, bound in place of the Python one under every name a kernel module gives it,
+and runs the caller's ``loader``, which calls the kernels to load their compiled code for its types from numba's cache
+(models/numba_cache.py): about 1 s of CPU together. Both compute the same bits, a SlowPlant step about 30x slower in
+Python: a run of a few hundred steps (an FMU checked in a foreign host) is over before numba would have loaded
+(``python bench/bench_startup.py``).
 
 numba's cache re-imports a kernel's module by name to rebuild its environment, and this copy of nfal must serve its
 own ``numba_cache``. Inside an FMU the carried copy is not in ``sys.modules`` once its bundle loader has set it aside
@@ -75,11 +75,14 @@ def _importable() -> Iterator[None]:
     if sys.modules.get(root) is _PACKAGES[0]:  # this copy is the process's nfal: nothing set aside
         yield
         return
-    held = {name: sys.modules.pop(name) for name in list(sys.modules) if name == root or name.startswith(root + ".")}
+
+    def take_out() -> dict:
+        return {name: sys.modules.pop(name) for name in list(sys.modules) if name.partition(".")[0] == root}
+
+    held = take_out()
     sys.modules.update({module.__name__: module for module in [*_PACKAGES, *_MODULES]})
     try:
         yield
     finally:
-        for name in [name for name in sys.modules if name == root or name.startswith(root + ".")]:
-            del sys.modules[name]
+        take_out()
         sys.modules.update(held)
