@@ -25,6 +25,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from unittest import mock
 
 #: What the fork server imports before it forks: the commands the suite starts this way and the kernels of the
 #: emulator's plant, compiled (multiprocessing skips a preload module it cannot import: ``test_warm_nfal.py`` checks).
@@ -39,15 +40,9 @@ NFAL = [sys.executable, "-m", "nfal"]
 def _start_server() -> None:
     """Start the fork server (once) with ``helpers`` importable for its preload: Python 3.11's fork server ignores the
     sys.path it is sent, and its own starts from the working folder."""
-    held = os.environ.get("PYTHONPATH")
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).resolve().parent.parent), held]))
-    try:
+    tests = str(Path(__file__).resolve().parent.parent)
+    with mock.patch.dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [tests, os.environ.get("PYTHONPATH")]))):
         multiprocessing.forkserver.ensure_running()
-    finally:
-        if held is None:
-            del os.environ["PYTHONPATH"]
-        else:
-            os.environ["PYTHONPATH"] = held
 
 
 def _run(argv: list[str], environment: dict[str, str], cwd: str, stdout: str, stderr: str, new_session: bool,
