@@ -17,13 +17,19 @@ Each measurement is a new Python, as a host's embedded interpreter or `nfal rig-
   nfal cache (fmus/build.py), after one warm-up build;
 * the SlowPlant slave's import, set-up and a 10 ms run (20 steps of 0.5 ms), CPU time, with the host's stop time of
   10 ms declared (its kernels as Python: fmus/slow_plant.py) against the baseline, in the same run, of no stop time
-  declared (compiled at set-up); then the mean wall time of 200 more steps, each way.
+  declared (compiled at set-up); then the mean wall time of 200 more steps, each way;
+* a 10 ms run of the SlowPlant and of the Controller FMU in the C host (fmus/hosts/fmi2_host.c, nothing else in its
+  environment), CPU per run, the Python the FMU starts running one OpenBLAS thread (fmus/loader/loader.c) against the
+  baseline, in the same run, of the host asking for one per core (``OPENBLAS_NUM_THREADS=<nproc>``: each pool's
+  threads spin idle at its start, as they all did before the loader set one).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -35,7 +41,8 @@ import record
 from machine import cpu_seconds
 
 from nfal.apps.build import build_all
-from nfal.fmus.build import build_fmu
+from nfal.apps.host_check import bare_environment, compile_c_host, run_in_c_host
+from nfal.fmus.build import build_fmu, build_fmus
 
 #: The Controller's set-up in a fresh process, timed there; ``{before}`` is what runs first.
 CONTROLLER = """import time
@@ -80,12 +87,10 @@ def repeated_runs(archive: Path, runs: int, mode: str) -> dict:
     return {key: round(value, 2) for key, value in json.loads(done.stdout.splitlines()[-1]).items()}
 
 
-#: A plant slave in a new Python: import, set-up with ``stop`` declared, 20 steps (CPU time), 200 more (a step's time).
-#: (ReynoldsPlant's kernels are compiled at set-up whatever the host declares: in this bench its 10 ms run in Python
-#: cost 0.98x the compiled one's CPU, its steps 52x as long.)
-PLANT = """import resource, time
-from nfal.fmus.{module} import {name}
-slave = {name}(instance_name="p")
+#: The SlowPlant slave in a new Python: import, set-up with ``stop`` declared, 20 steps (CPU time), 200 more (a step).
+SLOW_PLANT = """import resource, time
+from nfal.fmus.slow_plant import SlowPlant
+slave = SlowPlant(instance_name="p")
 slave.setup_experiment(0.0, {stop}); slave.exit_initialization_mode(); slave.excitation_amplitude = 3e-6
 for k in range(20):
     slave.do_step(k * 5e-4, 5e-4)
@@ -95,16 +100,29 @@ for k in range(20, 220):
     slave.do_step(k * 5e-4, 5e-4)
 print(usage.ru_utime + usage.ru_stime, (time.perf_counter() - started) / 200)
 """
-PLANTS = {"SlowPlant": "slow_plant"}
 STOPS = {"10 ms declared: kernels as Python": 0.01, "baseline: no stop declared: compiled at set-up": None}
+#: The C host's environment: nothing set up, or (the baseline) a BLAS thread per core asked for.
+BLAS = {"nothing set up: one BLAS thread": {},
+        "baseline: OPENBLAS_NUM_THREADS=nproc": {"OPENBLAS_NUM_THREADS": str(os.cpu_count())}}
+C_HOST_FMUS = ("SlowPlant", "Controller")
 
 
-def plant_run(name: str, stop: float | None) -> tuple[float, float]:
+def slow_plant_run(stop: float | None) -> tuple[float, float]:
     """(CPU [s] of a 10 ms run from the process's start, one step's wall time [s] after it)."""
-    done = subprocess.run([sys.executable, "-c", PLANT.format(module=PLANTS[name], name=name, stop=stop)],
-                          capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", SLOW_PLANT.format(stop=stop)], capture_output=True, text=True,
+                          check=True)
     cpu, step = done.stdout.split()[-2:]
     return float(cpu), float(step)
+
+
+def c_host_cpu(host: Path, fmu: Path, folder: Path, extra: dict[str, str]) -> float:
+    """CPU [s] of one 10 ms run of ``fmu`` in the C host, in an environment of ``extra`` alone."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    runs = run_in_c_host(host, fmu, folder, runs=1, env=bare_environment(**extra))
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if runs.exit_codes != [0]:
+        raise RuntimeError(f"the C host failed on {fmu.name}: {runs.first_failure[-2000:]}")
+    return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
 
 
 def build_seconds(folder: Path, force: bool) -> float:
@@ -153,14 +171,21 @@ def main() -> None:
             for name, force in zip(data["build_s"], (False, True)):
                 data["build_s"][name].append(round(build_seconds(Path(folder) / f"{run}-{force}", force), 4))
         print(data["repeated_runs"], data["build_s"], flush=True)
-    data["plants"] = {name: {mode: {"cpu_s": [], "step_s": []} for mode in STOPS} for name in PLANTS}
-    for run in range(args.runs):  # interleaved
-        for name, modes in data["plants"].items():
+    data["slow_plant"] = {mode: {"cpu_s": [], "step_s": []} for mode in STOPS}
+    data["c_host_cpu_s"] = {name: {mode: [] for mode in BLAS} for name in C_HOST_FMUS}
+    with tempfile.TemporaryDirectory() as folder:
+        fmus = build_fmus(Path(folder) / "fmus", C_HOST_FMUS)
+        host = compile_c_host(Path(folder) / "host")
+        for run in range(args.runs):  # interleaved
             for mode, stop in STOPS.items():
-                cpu, step = plant_run(name, stop)
-                modes[mode]["cpu_s"].append(round(cpu, 3))
-                modes[mode]["step_s"].append(round(step, 7))
-    print(data["plants"], flush=True)
+                cpu, step = slow_plant_run(stop)
+                data["slow_plant"][mode]["cpu_s"].append(round(cpu, 3))
+                data["slow_plant"][mode]["step_s"].append(round(step, 7))
+            for name, modes in data["c_host_cpu_s"].items():
+                for mode, extra in BLAS.items():
+                    modes[mode].append(round(c_host_cpu(host, fmus[name], Path(folder) / f"{name}-{mode[:8]}-{run}",
+                                                        extra), 3))
+    print(data["slow_plant"], data["c_host_cpu_s"], flush=True)
     print(record.save("startup", data))
     record.show(tables(data), findings(data))
 
@@ -181,10 +206,14 @@ def tables(result: dict) -> list[record.Table]:
                          ["FMUs", "wall [s]", "peak memory [MiB]"],
                          [[name, f"{row['wall_s']:.2f}", f"{row['peak_mib']:.0f}"]
                           for name, row in result["repeated_runs"].items()]),
-            record.Table(f"A plant slave in a new Python, {result['runs']} runs each, interleaved:",
-                         ["plant", "host's stop time", "CPU of import, set-up and 20 steps [s]", "a step after [µs]"],
-                         [[name, mode, _span(row["cpu_s"]), _span([1e6 * s for s in row["step_s"]], 0)]
-                          for name, modes in result["plants"].items() for mode, row in modes.items()])]
+            record.Table(f"The SlowPlant slave in a new Python, {result['runs']} runs each, interleaved:",
+                         ["host's stop time", "CPU of import, set-up and 20 steps [s]", "a step after [µs]"],
+                         [[mode, _span(row["cpu_s"]), _span([1e6 * s for s in row["step_s"]], 0)]
+                          for mode, row in result["slow_plant"].items()]),
+            record.Table(f"A 10 ms run in the C host, {result['runs']} runs each, interleaved:",
+                         ["FMU", "host's environment", "CPU [s]"],
+                         [[name, mode, _span(values)] for name, modes in result["c_host_cpu_s"].items()
+                          for mode, values in modes.items()])]
 
 
 def findings(result: dict) -> list[str]:
@@ -201,14 +230,21 @@ def findings(result: dict) -> list[str]:
             "against extracted anew for each run (the baseline, same run).",
             f"A build of an FMU already built from the same sources takes {copied / built:.3f}x a build "
             "(the baseline, same run): a copy from the nfal cache.",
-            *(_plant_finding(name, modes) for name, modes in result["plants"].items())]
+            _slow_plant_finding(*result["slow_plant"].values()),
+            *(_c_host_finding(name, *modes.values()) for name, modes in result["c_host_cpu_s"].items())]
 
 
-def _plant_finding(name: str, modes: dict) -> str:
-    (short, compiled), (python, fast) = ([np.median(row[key]) for row in modes.values()] for key in ("cpu_s", "step_s"))
-    return (f"A 10 ms {name} run with its stop time declared costs {short / compiled:.2f}x the CPU of one that "
-            f"compiles its kernels at set-up (the baseline, same run); a step in Python takes {python / fast:.0f}x a "
-            "compiled one.")
+def _slow_plant_finding(python: dict, compiled: dict) -> str:
+    def ratio(key: str) -> float:
+        return np.median(python[key]) / np.median(compiled[key])
+    return (f"A 10 ms SlowPlant run with its stop time declared costs {ratio('cpu_s'):.2f}x the CPU of one that "
+            f"compiles its kernels at set-up (the baseline, same run); a step in Python takes {ratio('step_s'):.0f}x "
+            "a compiled one.")
+
+
+def _c_host_finding(name: str, one: list[float], per_core: list[float]) -> str:
+    return (f"A 10 ms {name} run in the C host with nothing set up costs {np.median(one) / np.median(per_core):.2f}x "
+            "the CPU of one whose host asks for a BLAS thread per core (the baseline, same run).")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ path within 1 % of the clearance through a lift-off (tests/test_fixed_step_plant
 
 The right-hand side, RK4 and the fast near-surface integrator are compiled (:mod:`nfal.models.slow_kernels`)
 for every K (a calibration or a film table) and damping correction this package has; ``compiled=False`` leaves
-them Python (models/jit.py: the same bits, a step 24-34x slower) for a run too short to pay numba's load back.
+them Python (models/jit.py: the same bits, a step about 30x slower) for a run too short to pay numba's load back.
 
 About 10x faster than the adaptive LSODA path for the closed-loop runs of Figs. 9-10, and equal to it
 within 1e-10 m per 0.5 ms step (|v| <= 5 mm/s, 40-200 um) and over a closed-loop run

@@ -140,8 +140,8 @@ def test_an_fmu_compiles_its_kernels_with_its_own_copy_and_imports_no_other(tmp_
     """numba re-imports a kernel's module by name as it loads it (models/jit.py): the FMU's copy of nfal, set aside,
     must serve it, and its own numba_cache (the content-keyed cache), whether the host has no nfal or its own one,
     which stays as it was. When the installed nfal served it, that copy entered the host's process and its cache
-    locator passed the FMU's kernels over: ecos compiled them anew in every run (6.2 s of CPU a 10 ms fig7_slow run,
-    against 2.1); with the host's own numba_cache in sys.modules, so did every FMPy run in it (10-14 s for 1 s)."""
+    locator passed the FMU's kernels over, so that ecos compiled them anew, into the FMU's temporary folder, in every
+    run; with the host's own numba_cache in sys.modules, so did every FMPy run in it."""
     fmu = build.build_fmus(tmp_path_factory.mktemp("kernels"), ["SlowPlant"])["SlowPlant"]
     done = subprocess.run([sys.executable, "-c", KERNELS_COMPILED, str(fmu), host], cwd=tmp_path, capture_output=True,
                           text=True, timeout=300)

@@ -345,7 +345,7 @@ static int nfal_start_python(const nfal_python *python, const char *fix, char *m
     char code[sizeof literal + sizeof executable + 512];
     /* one OpenBLAS thread, unless the host's environment names a number: the FMUs' linear algebra is small, and each
        of numpy's and scipy's pools starts a thread per core that spins idle at its start (a Controller's 10 ms run in
-       the C host: 0.84 s of CPU with two threads, 0.54 s with one, docs/cosimulation.md) */
+       the C host: 0.80x the CPU of one with a thread per core, `python bench/bench_startup.py`) */
     snprintf(code, sizeof code,
              "import os, site, sys\n"
              "os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n"
