@@ -7,6 +7,8 @@
  * VR=TEXT sets the String variable VR to TEXT before initialisation (e.g. the HardwareProxy's port);
  * prints "t=<stop>" and then "vr=<value>" (%.17g) for each Real value reference VR;
  * every FMI log message goes to stdout as "log <status> <category>: <message>".
+ * With NFAL_HOST_THREAD_PER_STEP=1 in its environment (not on Windows), each fmi2DoStep runs on a thread of its own,
+ * as a host that makes a thread per call does.
  * Exit codes: 0 ok; 1 library or symbol not found; 2 fmi2Instantiate failed; 3 an FMI call did not
  * return fmi2OK (the call is named on stdout).
  */
@@ -16,6 +18,9 @@
 #include <string.h>
 
 #include "host_common.h"
+#ifndef _WIN32
+#include <pthread.h>
+#endif
 
 typedef void *Component;
 typedef int Status; /* fmi2OK = 0, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending */
@@ -44,6 +49,36 @@ static void log_message(void *env, const char *instance, Status status, const ch
     vprintf(message, args);
     va_end(args);
     printf(" [%s]\n", instance);
+}
+
+typedef struct {
+    DoStep do_step;
+    Component c;
+    double t, step;
+    Status status;
+} StepCall;
+
+static void *step_call(void *call) {
+    StepCall *s = call;
+    s->status = s->do_step(s->c, s->t, s->step, 1);
+    return NULL;
+}
+
+/* fmi2DoStep, on a thread of its own if ``own_thread`` */
+static Status do_one_step(DoStep do_step, Component c, double t, double step, int own_thread) {
+    StepCall call = {do_step, c, t, step, 0};
+#ifndef _WIN32
+    pthread_t thread;
+    if (own_thread) {
+        if (pthread_create(&thread, NULL, step_call, &call) != 0 || pthread_join(thread, NULL) != 0) {
+            printf("pthread_create failed\n");
+            exit(3);
+        }
+        return call.status;
+    }
+#endif
+    step_call(&call);
+    return call.status;
 }
 
 int main(int argc, char **argv) {
@@ -81,8 +116,10 @@ int main(int argc, char **argv) {
     check(enter(c), "fmi2EnterInitializationMode");
     check(exit_init(c), "fmi2ExitInitializationMode");
     long n = (long)(stop / step + 0.5);
+    const char *per_step = getenv("NFAL_HOST_THREAD_PER_STEP");
+    int own_thread = per_step && strcmp(per_step, "1") == 0;
     for (long k = 0; k < n; ++k, t = k * step) {
-        check(do_step(c, t, step, 1), "fmi2DoStep");
+        check(do_one_step(do_step, c, t, step, own_thread), "fmi2DoStep");
     }
     printf("t=%.17g\n", n * step);
     for (int i = 6; i < argc; ++i) {

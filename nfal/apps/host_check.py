@@ -82,7 +82,7 @@ def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False
     if windows:
         compiler, flags, name = mingw_tool("gcc"), ("-static",), f"{source.stem}.exe"
     else:
-        compiler, flags, name = shutil.which("cc") or shutil.which("gcc"), ("-ldl",), source.stem
+        compiler, flags, name = shutil.which("cc") or shutil.which("gcc"), ("-ldl", "-pthread"), source.stem
         if compiler is None:
             raise HostUnavailableError("the C host needs a C compiler: apt-get install gcc")
     executable = Path(out_dir) / name
