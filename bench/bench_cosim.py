@@ -302,7 +302,7 @@ class Clocks:
     def __enter__(self) -> "Clocks":
         from nfal.fmus.bundle_loader import _registry
 
-        clocks, bundles = self, _registry()  # the loader's registry (made if no FMU was loaded yet)
+        clocks, bundles = self, _registry().bundles  # the loader's registry (made if no FMU was loaded yet)
 
         class Patching(dict):
             """The loader's registry: each FMU's slave module patched as it is registered."""
