@@ -29,6 +29,8 @@ from nfal.fmus.export_runtime import PYTHON_CONFIG, PYTHON_OVERRIDE_ENV, RUNTIME
 from nfal.apps.host_check import bare_environment, compile_c_host, ecos_executable, run_in_c_host, run_in_ecos
 from nfal.orchestration.ssp_archive import pack
 
+from helpers.probe_fmus import build_probe
+
 # one worker runs the module (its xdist group), so that its module fixtures are built once
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("host_compatibility"),
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the loader is built for Linux only")]
@@ -147,102 +149,31 @@ def test_another_python_active_and_another_folder(fmi_version, fmus, fmus3, c_ho
     assert all(outputs == expected for outputs in runs.outputs)
 
 
-BLAS_PROBE = '''"""Test slave: its output is the OPENBLAS_NUM_THREADS its process has (0: none)."""
-import os
-
-from nfal.fmus.base import NfalSlave
-
-
-class BlasProbe(NfalSlave):
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.add_output("blas_threads", unit="1", description="OPENBLAS_NUM_THREADS",
-                        getter=lambda: float(os.environ.get("OPENBLAS_NUM_THREADS", 0)))
-
-    def setup(self):
-        pass
-
-    def step(self, current_time, step_size):
-        pass
-'''
-
-
 def test_the_python_an_fmu_starts_runs_one_blas_thread_unless_the_host_says(c_host, tmp_path, monkeypatch):
     """fmus/loader/loader.c: the embedded Python's OpenBLAS pools start one thread, not one per core, unless the
     host's environment sets OPENBLAS_NUM_THREADS (which stays as it is)."""
-    script = tmp_path / "blas_probe.py"
-    script.write_text(BLAS_PROBE, encoding="utf-8")
-    monkeypatch.setitem(build.FMU_SCRIPTS, "BlasProbe", str(script))
-    fmu = build.build_fmu("BlasProbe", tmp_path / "fmu")
+    fmu = build_probe("BlasProbe", tmp_path, monkeypatch)
     for environment, threads in [(bare_environment(), 1.0), (bare_environment(OPENBLAS_NUM_THREADS="3"), 3.0)]:
         runs = run_in_c_host(c_host, fmu, tmp_path / f"run{threads:g}", runs=1, env=environment)
         assert runs.outputs == [{"blas_threads": threads}], runs.first_failure[-3000:]
 
 
-THREAD_STATE_PROBE = '''"""Test slave: how many Python thread states have stepped it (a threading.local lives as long as
-one) and how many the interpreter holds."""
-import ctypes
-import threading
-
-from nfal.fmus.base import NfalSlave
-
-api = ctypes.pythonapi
-api.PyInterpreterState_Get.restype = ctypes.c_void_p
-api.PyInterpreterState_ThreadHead.restype = api.PyThreadState_Next.restype = ctypes.c_void_p
-api.PyInterpreterState_ThreadHead.argtypes = api.PyThreadState_Next.argtypes = [ctypes.c_void_p]
-
-
-def interpreter_thread_states():
-    count, state = 0, api.PyInterpreterState_ThreadHead(api.PyInterpreterState_Get())
-    while state:
-        count, state = count + 1, api.PyThreadState_Next(state)
-    return count
-
-
-class ThreadStateProbe(NfalSlave):
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self._local, self._stepped_by = threading.local(), 0
-        self.add_output("stepped_by", unit="1", description="Python thread states that stepped this instance",
-                        getter=lambda: float(self._stepped_by))
-        self.add_output("held", unit="1", description="Python thread states the interpreter holds",
-                        getter=lambda: float(interpreter_thread_states()))
-
-    def setup(self):
-        pass
-
-    def step(self, current_time, step_size):
-        if not getattr(self._local, "seen", False):
-            self._local.seen = True
-            self._stepped_by += 1
-'''
-
-
-@pytest.fixture
-def thread_state_probe(tmp_path, monkeypatch):
-    """``probe(fmi_version)``: the ThreadStateProbe FMU."""
-    script = tmp_path / "thread_state_probe.py"
-    script.write_text(THREAD_STATE_PROBE, encoding="utf-8")
-    monkeypatch.setitem(build.FMU_SCRIPTS, "ThreadStateProbe", str(script))
-    return lambda fmi_version: build.build_fmu("ThreadStateProbe", tmp_path / f"fmu{fmi_version}",
-                                               fmi_version=fmi_version)
-
-
 @pytest.mark.parametrize("fmi_version", [2, 3])
 def test_a_host_calling_from_threads_of_its_own_gets_one_python_thread_state_per_thread(fmi_version, ecos, tmp_path,
-                                                                                         thread_state_probe):
+                                                                                         monkeypatch):
     """The runtimes' keep_thread_state (PySlaveInstance.cpp): ecos steps an FMU from its worker threads, and each
     keeps one Python thread state over the run, where every call made (and mapped) a new one."""
-    runs = run_in_ecos(ecos, thread_state_probe(fmi_version), tmp_path, runs=1, stop_time=0.1)  # 200 steps
+    fmu = build_probe("ThreadStateProbe", tmp_path, monkeypatch, fmi_version)
+    runs = run_in_ecos(ecos, fmu, tmp_path, runs=1, stop_time=0.1)  # 200 steps
     assert runs.exit_codes == [0], runs.first_failure[-3000:]
     (stepped_by,) = {values[-1] for name, values in runs.outputs[0].items() if name.endswith("stepped_by")}
     assert 1 <= stepped_by <= 8  # ecos's threads; a new state per call: 200
 
 
-def test_a_host_making_a_thread_per_step_leaves_at_most_64_python_thread_states(c_host, tmp_path, thread_state_probe):
+def test_a_host_making_a_thread_per_step_leaves_at_most_64_python_thread_states(c_host, tmp_path, monkeypatch):
     """keep_thread_state keeps the states of 64 threads at most: a host that makes a new thread for every call does
     not pile them up (the C host's NFAL_HOST_THREAD_PER_STEP)."""
-    fmu = thread_state_probe(2)
+    fmu = build_probe("ThreadStateProbe", tmp_path, monkeypatch)
     runs = run_in_c_host(c_host, fmu, tmp_path, runs=1, stop_time=0.15, step_size=STEP_S,
                          env=bare_environment(NFAL_HOST_THREAD_PER_STEP="1"))
     assert runs.exit_codes == [0], runs.first_failure[-3000:]
