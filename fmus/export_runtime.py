@@ -19,8 +19,9 @@ FMI 2.0 only: the slave module's borrowed ``__dict__`` is no longer released (``
 escaped (the FMI 2.0 logger takes a printf format; FMI 3.0's does not), and a second ``fmi2FreeInstance``
 of an instance does nothing (``fmi2.cpp`` keeps the set of live instances). FMI 3.0 only: the log queue is
 read after the exception is taken (it was read with the exception pending: SIGSEGV), an import failure is no
-longer printed away before it is reported, a NULL logger callback is allowed, two leaks are closed, and a
-failed reset leaves no dangling references.
+longer printed away before it is reported, a NULL logger callback is allowed, two leaks are closed, a
+failed reset leaves no dangling references, and the start and stop time of ``fmi3EnterInitializationMode`` reach the
+slave (they were dropped).
 
 :func:`runtime_library` builds one with CMake for the running Python (once; the result is cached by
 the hash of the sources) and :mod:`nfal.fmus.build` puts it into every FMU as ``<model>_runtime.so``.

@@ -16,11 +16,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fmpy import read_model_description, simulate_fmu
+from fmpy import extract, instantiate_fmu, read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
 from nfal.cli import main
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
+
+from helpers.probe_fmus import build_probe
 
 pytestmark = [pytest.mark.slow,  # the FMI 3.0 FMUs built, run in FMPy, ecos and a C host
               pytest.mark.xdist_group("fmi3")]  # one worker: its module fixtures built once
@@ -74,6 +76,41 @@ def test_fmi3_results_equal_fmi2_in_fmpy(builds, name):
         np.testing.assert_array_equal(runs[1][column], runs[0][column], err_msg=f"{name}.{column}")
     moving = [c for c in runs[0].dtype.names if c != "time" and np.ptp(runs[0][c].astype(float)) > 0]
     assert moving, f"{name}: nothing changes in the scenario, so the comparison says little"
+
+
+@pytest.mark.parametrize("stop", [0.01, None], ids=["stop declared", "no stop"])
+def test_the_slave_gets_the_start_and_stop_time_the_host_declares_as_in_fmi2(stop, tmp_path, monkeypatch):
+    """fmi3EnterInitializationMode's start and stop time reach the slave's setup_experiment (the runtime's
+    SetupExperiment), as fmi2SetupExperiment's do: pythonfmu3's runtime dropped them."""
+    for version in (2, 3):
+        fmu = build_probe("TimesProbe", tmp_path, monkeypatch, version)
+        model = read_model_description(str(fmu))
+        values = {v.name: v.valueReference for v in model.modelVariables}
+        instance = instantiate_fmu(extract(str(fmu), str(fmu.parent / "extracted")), model, fmi_type="CoSimulation")
+        try:
+            if version == 2:
+                instance.setupExperiment(startTime=0.25, stopTime=stop)
+                instance.enterInitializationMode()
+            else:
+                instance.enterInitializationMode(startTime=0.25, stopTime=stop)
+            instance.exitInitializationMode()
+            read = instance.getReal if version == 2 else instance.getFloat64
+            declared = read([values["declared_start"], values["declared_stop"]])
+        finally:
+            instance.terminate()
+            instance.freeInstance()
+        assert declared == [0.25, -1.0 if stop is None else stop], f"FMI {version}.0"
+
+
+@pytest.mark.parametrize("name", ["Controller", "SensorChain"])
+def test_fmi3_samples_where_fmi2_does_from_a_start_off_the_sample_grid(builds, name):
+    """A start time half a period off the 0.5 ms grid: both builds sample from the host's start time (the FMI 3.0
+    build sampled from t = 0, so never, while the runtime dropped the start time)."""
+    start_values, stop = SCENARIOS[name]
+    runs = [simulate_fmu(str(builds[v][name]), start_time=STEP / 2, stop_time=STEP / 2 + stop, step_size=STEP,
+                         output_interval=STEP, fmi_type="CoSimulation", start_values=start_values) for v in (2, 3)]
+    for column in runs[0].dtype.names:
+        np.testing.assert_array_equal(runs[1][column], runs[0][column], err_msg=f"{name}.{column}")
 
 
 @pytest.mark.parametrize("name", sorted(SCENARIOS))

@@ -205,10 +205,14 @@ fmi3Status fmi3SetDebugLogging(
     return fmi3OK;
 }
 
-fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean, fmi3Float64, fmi3Float64, fmi3Boolean, fmi3Float64)
+// nfal: the experiment's tolerance, start and stop time reach the slave (SetupExperiment, as FMI 2.0's
+// fmi2SetupExperiment does): upstream dropped them, and a slave sampled from t = 0 whatever the host's start time.
+fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
+    fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime)
 {
     const auto component = reinterpret_cast<Component*>(c);
     try {
+        component->slave->SetupExperiment(toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime);
         component->slave->EnterInitializationMode();
         return fmi3OK;
     } catch (const cppfmu::FatalError& e) {

@@ -222,10 +222,16 @@ void PySlaveInstance::initialize(PyGILState_STATE gilState)
     pMessages_ = PyObject_CallMethod(pInstance_, "_get_log_queue", nullptr);
 }
 
-void PySlaveInstance::SetupExperiment(cppfmu::FMIBoolean, cppfmu::FMIFloat64, cppfmu::FMIFloat64 startTime, cppfmu::FMIBoolean, cppfmu::FMIFloat64)
+// nfal: the stop time and tolerance too, None where the host declares none (FMI 2.0's runtime passes the same)
+void PySlaveInstance::SetupExperiment(cppfmu::FMIBoolean toleranceDefined, cppfmu::FMIFloat64 tolerance,
+    cppfmu::FMIFloat64 startTime, cppfmu::FMIBoolean stopTimeDefined, cppfmu::FMIFloat64 stopTime)
 {
-    py_safe_run([this, startTime](PyGILState_STATE gilState) {
-        auto f = PyObject_CallMethod(pInstance_, "setup_experiment", "(d)", startTime);
+    py_safe_run([this, toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime](PyGILState_STATE gilState) {
+        PyObject* pyStop = stopTimeDefined ? PyFloat_FromDouble(stopTime) : (Py_INCREF(Py_None), Py_None);
+        PyObject* pyTol = toleranceDefined ? PyFloat_FromDouble(tolerance) : (Py_INCREF(Py_None), Py_None);
+        auto f = PyObject_CallMethod(pInstance_, "setup_experiment", "(dOO)", startTime, pyStop, pyTol);
+        Py_DECREF(pyStop);
+        Py_DECREF(pyTol);
         if (f == nullptr) {
             handle_py_exception("[setupExperiment] PyObject_CallMethod", gilState);
         }
