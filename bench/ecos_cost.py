@@ -6,7 +6,7 @@
 Builds fig7_slow.ssp (``nfal build``), then runs, alternately, ``ecos simulate`` (3.7 s at 0.5 ms, with nothing set up:
 ``host_check.run_in_ecos``) and ``python -m nfal run --algorithm jacobi --no-plot`` on it, N times each, and records
 each run's wall time and CPU (user and system, the process and its children). ecos calls the FMUs from threads of its
-own, where every call once made a new Python thread state (the runtimes' ``keep_thread_state``). Needs ecospy and
+own, where every call once made a new Python thread state (the runtimes' ``py_safe_run``). Needs ecospy and
 Debian's libtbb12.
 """
 

@@ -13,7 +13,7 @@ error status (not fatal) and its ``str()`` as the one logged line, and leaves th
 (``handle_py_exception``); errors reach the host's logger even when logging is off; each instance
 imports its own slave module; the ``PyState`` pointer is never destroyed by ``exit()``, so the library's
 destructor does not release it a second time (a host aborted at exit, "corrupted double-linked list"); a thread
-of the host keeps its Python thread state from one call to the next (``keep_thread_state``: a new one per call was a
+of the host keeps its Python thread state from one call to the next (``py_safe_run``: a new one per call was a
 quarter of ecos's CPU).
 FMI 2.0 only: the slave module's borrowed ``__dict__`` is no longer released (``findClass``), ``%`` is
 escaped (the FMI 2.0 logger takes a printf format; FMI 3.0's does not), and a second ``fmi2FreeInstance``

@@ -160,28 +160,22 @@ PyObject* findClass(const std::string& resources, const std::string& moduleName)
 
 // nfal: a host that calls from threads of its own (ecos's and libcosim's workers) gave every call a new Python
 // thread state: PyGILState_Ensure made one, with a data stack it maps, and the matching Release freed both (mmap,
-// munmap and their page faults were a quarter of ecos's CPU over fig7_slow). The first call on a thread now keeps its
-// thread state for the thread's life (one Ensure more, never released), on at most kPinnedThreads threads: a host
-// that makes a thread per call keeps that many and churns on the rest, as before. The interpreter is never
+// munmap and their page faults were a quarter of ecos's CPU over fig7_slow). A thread that has no state when it calls
+// now keeps the one made for it for the thread's life (one Ensure more, never released), on at most kPinnedThreads
+// threads: a host that makes a thread per call keeps that many and churns on the rest, as before. Python's own threads
+// and the thread that started the interpreter have a state already and are left as they are. The interpreter is never
 // finalised (PyState.hpp); a Python that is finalises the states with it.
 constexpr int kPinnedThreads = 64;
 int pinnedThreads = 0; // guarded by the GIL
-thread_local PyThreadState* pinnedState = nullptr;
-
-void keep_thread_state()
-{
-    PyThreadState* current = PyThreadState_Get();
-    if (current != pinnedState && pinnedThreads < kPinnedThreads) {
-        PyGILState_Ensure();
-        pinnedState = current;
-        ++pinnedThreads;
-    }
-}
 
 void py_safe_run(const std::function<void(PyGILState_STATE gilState)>& f)
 {
+    const bool stateless = PyGILState_GetThisThreadState() == nullptr;
     PyGILState_STATE gil_state = PyGILState_Ensure();
-    keep_thread_state();
+    if (stateless && pinnedThreads < kPinnedThreads) {
+        PyGILState_Ensure(); // never released: the thread keeps its state
+        ++pinnedThreads;
+    }
     f(gil_state);
     PyGILState_Release(gil_state);
 }
