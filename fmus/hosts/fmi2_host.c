@@ -71,7 +71,7 @@ static Status do_one_step(DoStep do_step, Component c, double t, double step, in
     pthread_t thread;
     if (own_thread) {
         if (pthread_create(&thread, NULL, step_call, &call) != 0 || pthread_join(thread, NULL) != 0) {
-            printf("pthread_create failed\n");
+            printf("fmi2DoStep's thread could not be started or joined\n");
             exit(3);
         }
         return call.status;
