@@ -75,7 +75,8 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Status, Fmi2Variability
 from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 
 from nfal import __version__
-from nfal.errors import (FmuStateError, InvalidParameterError, SlaveCallError, require_positive)
+from nfal.errors import (FmuStateError, InvalidParameterError, SlaveCallError, require_finite,
+                         require_positive)
 
 logger = logging.getLogger(__name__)
 
@@ -332,8 +333,8 @@ class NfalSlave(Fmi2Slave):
         self.log(str(error), Fmi2Status.error)
 
     def setup_experiment(self, start_time: float, stop_time=None, tolerance=None) -> None:
-        def run():
-            self.start_time = self.time = float(start_time)
+        def run():  # the start anchors every sample clock; the stop only plans (nothing fails on a strange one)
+            self.start_time = self.time = require_finite("start time", start_time)
             self.stop_time = None if stop_time is None else float(stop_time)
         self._guard("setup_experiment", run)
 

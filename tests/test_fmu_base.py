@@ -114,6 +114,17 @@ def test_real_inputs_must_be_finite(scale_class):
     assert slave.log_queue and slave.log_queue[-1].msg.endswith("(in setReal)")
 
 
+@pytest.mark.parametrize("start", [math.nan, math.inf])
+def test_a_start_time_must_be_finite(scale_class, start):
+    """Every sample clock is anchored at it (an FMI 3.0 host's reaches the slave too): NaN sampled never."""
+    slave = scale_class(instance_name="s")
+    with pytest.raises(InvalidParameterError, match="start time"):
+        slave.setup_experiment(start, 1.0)
+    assert slave.log_queue and "setup_experiment" in slave.log_queue[-1].msg
+    slave.setup_experiment(0.5, math.nan)  # a stop time only plans: a strange one is taken as given
+    assert slave.start_time == 0.5
+
+
 def test_a_value_reference_of_another_type_is_refused_saying_so_once(scale_class):
     """The exchange's fast path answers only what it can; the checked path raises and logs, once."""
     slave = scale_class(instance_name="s")
