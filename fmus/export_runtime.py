@@ -49,6 +49,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import cmake
+
 from nfal.errors import RuntimeBuildError
 from nfal.fmus.runtime_upstream import tree_files
 from nfal.fmus.windows_python import check_windows_python
@@ -108,6 +110,10 @@ WINDOWS_PYTHON_CONFIG = "python-win64.cfg"
 #: The environment variable that overrides it (a Python executable).
 PYTHON_OVERRIDE_ENV = "NFAL_FMU_PYTHON"
 BUILD_TIMEOUT_S = 600
+#: CMake from its PyPI package (an install requirement), not whichever cmake PATH finds first: the runtime's
+#: CMakeLists.txt builds on Python's stable ABI only with CMake 3.26 or newer (Debian 12's 3.25 built it on the
+#: full API, and the cache kept whichever came first).
+CMAKE = str(Path(cmake.CMAKE_BIN_DIR) / "cmake")
 #: The lock file beside each cached build: one process builds it, the others wait (disk_cache.exclusive).
 BUILD_LOCK = ".build.lock"
 
@@ -272,8 +278,8 @@ def forwarders_source(functions, exported: set[str], fmi_version: int) -> str:
 
 
 def _digest(runtime: Runtime) -> str:
-    """Hash of the sources and of the Python they are built for (the cache key)."""
-    digest = hashlib.sha256(sysconfig.get_paths()["include"].encode())
+    """Hash of the sources, of the Python they are built for and of the CMake that builds them (the cache key)."""
+    digest = hashlib.sha256(sysconfig.get_paths()["include"].encode() + cmake.__version__.encode())
     for path in runtime.source_files():
         if path == LOADER_SOURCE:  # the loader has its own key (loader_library)
             continue
@@ -341,22 +347,22 @@ def runtime_library(fmi_version: int = 2) -> Path:
 
 
 def _build_runtime(runtime: Runtime, target: Path) -> None:
-    if shutil.which("cmake") is None or shutil.which("c++") is None:
-        raise RuntimeBuildError("building the FMU runtime needs CMake and a C++ compiler: "
-                                "apt-get install cmake g++ (and python3-dev for the headers)")
+    if shutil.which("c++") is None:
+        raise RuntimeBuildError("building the FMU runtime needs a C++ compiler: "
+                                "apt-get install g++ (and python3-dev for the headers)")
     logger.info("compiling the patched FMI %d.0 runtime with CMake: once for this Python, kept in %s",
                 runtime.fmi_version, target.parent)
     with tempfile.TemporaryDirectory(prefix="nfal_runtime_", dir=target.parent) as build:
-        commands = [["cmake", "-S", str(runtime.sources), "-B", build, "-DCMAKE_BUILD_TYPE=Release",
+        commands = [[CMAKE, "-S", str(runtime.sources), "-B", build, "-DCMAKE_BUILD_TYPE=Release",
                      f"-DPython3_EXECUTABLE={sys.executable}",
                      # this interpreter's headers: with its venv not activated and pyenv's shims on PATH, CMake's
                      # own search found none and the build failed on a cold cache (tests/test_fmu_loader.py)
                      f"-DPython3_INCLUDE_DIR={sysconfig.get_paths()['include']}"],
-                    ["cmake", "--build", build, "--parallel", "2"]]
+                    [CMAKE, "--build", build, "--parallel", "2"]]
         for command in commands:
             done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
             if done.returncode != 0:
-                raise RuntimeBuildError(f"{' '.join(command[:2])} failed for the FMU runtime in {runtime.sources}:\n"
+                raise RuntimeBuildError(f"cmake {command[1]} failed for the FMU runtime in {runtime.sources}:\n"
                                         f"{(done.stdout + done.stderr)[-2000:]}")
         os.replace(Path(build) / runtime.platform / LIBRARY_NAME, target)
 

@@ -5,6 +5,7 @@ tests/test_host_compatibility.py (hosts with nothing set up) and tests/test_fmu_
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -98,3 +99,9 @@ def test_the_runtime_builds_from_a_cold_cache_with_this_pythons_headers(version,
     library = runtime_library(version)
     assert library.is_file() and tmp_path in library.parents
     assert f"fmi{version}DoStep" in exported_functions(library)
+    # on Python's stable ABI whatever cmake PATH finds first (here Debian's 3.25, with which the FMI 2.0 runtime's
+    # CMakeLists.txt built it on the full API; FMI 3.0's always asks for it): Py_CompileString is a function of the
+    # limited API, and a macro for Py_CompileStringExFlags in the full one
+    imported = subprocess.run(["nm", "-D", "--undefined-only", str(library)], capture_output=True, text=True,
+                              check=True).stdout.split()
+    assert "Py_CompileStringExFlags" not in imported
