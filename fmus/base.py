@@ -204,6 +204,8 @@ class NfalSlave(Fmi2Slave):
         # each variable type's getters and setters by value reference: the exchange's hot path (_get, _set)
         self._getters: dict[type, dict[int, Callable[[], Any]]] = {kind: {} for kind in _COERCE}
         self._setters: dict[type, dict[int, Callable[[Any], None]]] = {kind: {} for kind in _COERCE}
+        #: the runtime's value cache (:meth:`_bind_value_cache`): its buffer, None until bound or outside the runtime
+        self._value_cache = None
 
     # --- declarations -------------------------------------------------------------------------------
     def add_parameter(self, name: str, start: float | int | bool | str, *, unit: str | None = None,
@@ -358,7 +360,10 @@ class NfalSlave(Fmi2Slave):
         self._guard("exit_initialization_mode, the set-up from the parameters", run)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        cache = self._value_cache
         try:  # not through _guard: the hot path builds no closure and no message unless it fails
+            if cache is not None and cache[0]:
+                self._take_inputs()
             if not self.initialized:
                 raise InvalidParameterError("doStep", current_time, "called after initialisation ends")
             if not (math.isfinite(step_size) and step_size > 0):
@@ -369,6 +374,10 @@ class NfalSlave(Fmi2Slave):
         except Exception as exc:  # noqa: BLE001 - every error must reach the master as a logged FMI status
             self._fail(f"doStep at t = {current_time:.9g} s", exc)
             raise
+        finally:
+            if cache is not None:  # the state's outputs; the computed ones wait for a read (the runtime knows)
+                for slot, getter in self._cache_outputs:
+                    cache[slot] = getter()
 
     def terminate(self) -> None:
         pass
@@ -382,18 +391,97 @@ class NfalSlave(Fmi2Slave):
         if not self._in_initialization:
             try:
                 getters, convert = self._getters[kind], _COERCE[kind]
+                cache = self._value_cache
+                if cache is not None:  # the runtime asks: computed outputs out of date, or not its variables
+                    self._write_computed()
+                    slots = self._cache_slots[kind]
+                    return [convert(cache[slots[vr]]) if vr in slots else convert(getters[vr]()) for vr in vrs]
                 return [convert(getters[vr]()) for vr in vrs]
             except Exception:  # noqa: BLE001 - answered by the checked path
                 pass
         return self._read(what, checked, vrs)
 
     def _set(self, kind: type, vrs, values, what: str, checked: Callable) -> None:
+        if self._value_cache is not None and self._value_cache[0]:
+            self._take_inputs()  # set before these, by the runtime
         try:
             setters = self._setters[kind]
             for vr, value in zip(vrs, values):
                 setters[vr](value)
         except Exception:  # noqa: BLE001 - answered by the checked path
             self._guard(what, checked, vrs, values)
+        finally:
+            if self._value_cache is not None:
+                self._write_cache(computed=False)
+                self._value_cache[1] = 1.0  # the computed outputs: at the next read
+
+    # --- the runtime's value cache -----------------------------------------------------------------------
+    # Our FMI 2.0 runtime (fmus/runtime/, PySlaveInstance.cpp's ValueCache) answers the gets and sets of every step
+    # from a buffer of the Real and Boolean inputs and outputs that it binds at the end of initialisation, without
+    # entering Python. Slot 0 is 1 while inputs it took wait here: every call that reads them takes them first. After
+    # a step the slave writes its state's outputs. Slot 1 is 1 while the outputs computed from inputs are out of date:
+    # the runtime sends their next read here, which writes them all and clears it.
+    def _value_cache_layout(self) -> list[tuple[int, bool, int]]:
+        """(value reference, is Boolean, role: 0 input, 1 output of the state, 2 output computed from inputs) of the
+        variables the runtime keeps, slot 2 onwards in this order."""
+        return [(d.variable.value_reference, type(d.variable) is Boolean, role)
+                for d, role in self._cached_declarations()]
+
+    def _cached_declarations(self) -> list[tuple[_Declaration, int]]:
+        cached = []
+        for declaration in self._declarations.values():
+            variable = declaration.variable
+            if type(variable) not in (Real, Boolean):
+                continue
+            if variable.causality == Fmi2Causality.input:
+                cached.append((declaration, 0))
+            elif variable.causality == Fmi2Causality.output:
+                cached.append((declaration, 2 if declaration.depends_on else 1))
+        return cached
+
+    def _bind_value_cache(self, buffer: bytearray) -> None:
+        """The runtime's buffer (``_value_cache_layout``'s slots, doubles), filled with the current values; the view
+        kept of it pins it (a bytearray with a view cannot be resized)."""
+        cached = list(enumerate(self._cached_declarations(), start=2))
+        self._cache_inputs = [(slot, d.variable.name, _COERCE[type(d.variable)]) for slot, (d, role) in cached
+                              if role == 0]
+        self._cache_outputs = [(slot, d.variable.getter) for slot, (d, role) in cached if role == 1]
+        self._cache_computed = [(slot, d.variable.getter) for slot, (d, role) in cached if role == 2]
+        self._cache_slots = {kind: {d.variable.value_reference: slot for slot, (d, _) in cached
+                                    if type(d.variable) is kind} for kind in _COERCE}
+        cache = memoryview(buffer).cast("d")
+        self._value_cache = cache
+        self._write_cache()
+
+    def _take_inputs(self) -> None:
+        """The inputs the runtime was set, into their attributes (finite, as the setters check)."""
+        cache = self._value_cache
+        cache[0] = 0.0
+        for slot, name, coerce in self._cache_inputs:
+            setattr(self, name, coerce(cache[slot]))
+        self._settings_changed = True
+
+    def _write_cache(self, computed: bool = True) -> None:
+        """Every cached variable's current value into the buffer (the computed outputs' if ``computed``), the inputs
+        it holds taken first."""
+        cache = self._value_cache
+        if cache[0]:
+            self._take_inputs()
+        for slot, name, _ in self._cache_inputs:
+            cache[slot] = getattr(self, name)
+        for slot, getter in self._cache_outputs:
+            cache[slot] = getter()
+        if computed:
+            self._write_computed()
+
+    def _write_computed(self) -> None:
+        """The outputs computed from the inputs (taken first), into the buffer, which then has them up to date."""
+        cache = self._value_cache
+        if cache[0]:
+            self._take_inputs()
+        for slot, getter in self._cache_computed:
+            cache[slot] = getter()
+        cache[1] = 0.0
 
     def set_real(self, vrs, values) -> None:
         self._set(Real, vrs, values, "setReal", super().set_real)
@@ -421,6 +509,9 @@ class NfalSlave(Fmi2Slave):
 
     # --- FMU state ---------------------------------------------------------------------------------
     def _get_fmu_state(self) -> dict:
+        if self._value_cache is not None and self._value_cache[0]:
+            self._take_inputs()
+
         def run():
             values = {name: getattr(self, name) for name, d in self._declarations.items() if not d.computed}
             return {"model": self.modelName, "time": self.time, "start_time": self.start_time,
@@ -445,6 +536,10 @@ class NfalSlave(Fmi2Slave):
             self.initialized = bool(state["initialized"])
             self.set_internal_state(copy.deepcopy(state["internal"]))
         self._guard("setFMUstate", run)
+        if self._value_cache is not None:  # the state's inputs replace any waiting; computed outputs wait for a read
+            self._value_cache[0] = 0.0
+            self._write_cache(computed=False)
+            self._value_cache[1] = 1.0
 
     @staticmethod
     def _fmu_state_to_bytes(state: dict) -> bytes:

@@ -346,6 +346,66 @@ def test_fmu_state_round_trip_reproduces_the_continuation(scale):
     scale.fmu.freeFMUstate(restored)
 
 
+def _slave_of(instance_name: str):
+    """The Scale slave behind an instance our runtime made in this process (the FMU's own copy of the class)."""
+    (slave,) = [o for o in gc.get_objects() if type(o).__name__ == "Scale" and o.instance_name == instance_name]
+    return slave
+
+
+def test_the_runtime_answers_the_gets_and_sets_of_a_step_from_its_value_cache(scale_fmu):
+    """fmus/runtime's ValueCache: after initialisation a step's sets and the reads of the state's outputs do not
+    enter Python; a computed output's first read after a set or a step does, once, and sees the new input."""
+    instance = Instance(*scale_fmu, name="counted")
+    try:
+        instance.initialize(u=0.25)
+        slave = _slave_of("counted")
+        calls = []
+        for method in ("get_real", "get_boolean", "set_real"):
+            original = getattr(slave, method)
+            setattr(slave, method, lambda *args, _f=original, _m=method: (calls.append(_m), _f(*args))[1])
+        for k in range(3):
+            instance.set(u=0.1 * (k + 1))
+            instance.step(1e-3)
+            total = 2.0 * 1e-3 * 0.1 * sum(range(1, k + 2))
+            assert instance.get("total", "positive", "u") == (pytest.approx(total), True, pytest.approx(0.1 * (k + 1)))
+        assert calls == []  # sets, a step, reads of the state's outputs and of an input: the cache's
+        instance.set(u=0.5)
+        assert instance.get("y") == 1.0  # computed from the input just set
+        assert instance.get("y") == 1.0
+        assert calls == ["get_real"]  # the first read after the set, once
+        instance.step(1e-3)
+        instance.get("y")
+        assert calls == ["get_real", "get_real"]  # and after a step
+    finally:
+        instance.free()
+
+
+def test_what_the_value_cache_holds_stays_what_the_slave_says(scale):
+    """A tunable parameter set after initialisation moves the computed output at once; an input set to NaN is
+    refused by the slave, saying why, and the input keeps its value; an input set just before getFMUstate is in
+    the state; after fmi2Reset the new instance's values are served."""
+    scale.initialize(u=0.2)
+    assert scale.get("y") == pytest.approx(0.4)
+    scale.set(offset=1.0)
+    assert scale.get("y") == pytest.approx(1.4)
+    with pytest.raises(FMICallException):
+        scale.set(u=math.nan)
+    assert "u = nan is invalid" in scale.errors()[-1]
+    assert scale.get("u", "y") == (0.2, pytest.approx(1.4))
+    scale.set(u=0.6)
+    saved = scale.fmu.getFMUstate()
+    scale.set(u=-0.6)
+    scale.step(1e-3)
+    scale.fmu.setFMUstate(saved)
+    assert scale.get("u", "y", "total") == (0.6, pytest.approx(2.2), 0.0)
+    scale.fmu.freeFMUstate(saved)
+    scale.fmu.reset()
+    scale.time = 0.0
+    scale.initialize(u=0.1)
+    scale.step(1e-3)
+    assert scale.get("u", "y", "total", "positive") == (0.1, pytest.approx(0.2), pytest.approx(2e-4), True)
+
+
 def test_a_damaged_serialized_state_is_an_error(scale):
     scale.initialize()
     state = scale.fmu.deSerializeFMUstate(b"not json")

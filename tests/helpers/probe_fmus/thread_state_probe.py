@@ -1,5 +1,6 @@
 """Test slave: how many Python thread states have stepped it (a threading.local lives as long as
-one) and how many the interpreter holds."""
+one) and how many the interpreter holds while it steps (the stepping thread's own included): outputs of its
+state, which the runtime's value cache holds from the end of each step."""
 import ctypes
 import threading
 
@@ -22,10 +23,8 @@ class ThreadStateProbe(NfalSlave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self._local, self._stepped_by = threading.local(), 0
-        self.add_output("stepped_by", unit="1", description="Python thread states that stepped this instance",
-                        getter=lambda: float(self._stepped_by))
-        self.add_output("held", unit="1", description="Python thread states the interpreter holds",
-                        getter=lambda: float(interpreter_thread_states()))
+        self.add_output("stepped_by", unit="1", description="Python thread states that stepped this instance")
+        self.add_output("held", unit="1", description="Python thread states the interpreter holds while it steps")
 
     def setup(self):
         pass
@@ -34,3 +33,4 @@ class ThreadStateProbe(NfalSlave):
         if not getattr(self._local, "seen", False):
             self._local.seen = True
             self._stepped_by += 1
+        self.stepped_by, self.held = float(self._stepped_by), float(interpreter_thread_states())

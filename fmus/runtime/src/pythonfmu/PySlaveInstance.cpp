@@ -5,6 +5,8 @@
 #include "pythonfmu/PyState.hpp"
 #include "pythonfmu/SlaveInstance.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -12,7 +14,9 @@
 #include <regex>
 #include <sstream>
 #include <string>
+#include <unordered_map>
 #include <utility>
+#include <vector>
 
 using namespace pythonfmu;
 
@@ -180,6 +184,135 @@ void py_safe_run(const std::function<void(PyGILState_STATE gilState)>& f)
     PyGILState_Release(gil_state);
 }
 
+
+// nfal: the value cache. An nfal slave (fmus/base.py, NfalSlave._value_cache_layout) names its Real and Boolean inputs
+// and outputs; the runtime keeps their values in a bytearray the slave holds a memoryview of (so it cannot move), and
+// answers the gets and sets of every step from it without entering Python. Slot 0 is 1 while inputs set here wait for the slave, which
+// takes them at the start of its next call; after a step it writes its state's outputs. Slot 1 is 1 while the outputs
+// computed from the inputs (``depends_on``) are out of date (an input was set, the state stepped or was restored):
+// a read of one then goes to Python, which computes and writes them all and clears it. A set value that is not
+// finite, a value reference the layout does not name, or any other call goes to Python as before, so every error is
+// the slave's own.
+class ValueCache
+{
+public:
+    enum Role { input = 0, output = 1, computed = 2 };
+
+    // With the GIL. The slave's layout, then its buffer bound; the cache stays off if the slave has none.
+    void bind(PyObject* slave)
+    {
+        release();
+        if (!PyObject_HasAttrString(slave, "_value_cache_layout")) {
+            return;
+        }
+        PyObject* layout = PyObject_CallMethod(slave, "_value_cache_layout", nullptr);
+        if (layout == nullptr || !PyList_Check(layout)) {
+            Py_XDECREF(layout);
+            PyErr_Clear();
+            return;
+        }
+        const Py_ssize_t n = PyList_Size(layout);
+        buffer_ = PyByteArray_FromStringAndSize(nullptr, (n + 2) * static_cast<Py_ssize_t>(sizeof(double)));
+        if (buffer_ == nullptr) {
+            Py_DECREF(layout);
+            PyErr_Clear();
+            return;
+        }
+        values_ = reinterpret_cast<double*>(PyByteArray_AsString(buffer_));
+        std::fill(values_, values_ + n + 2, 0.0);
+        for (Py_ssize_t i = 0; i < n; i++) {
+            PyObject* item = PyList_GetItem(layout, i); // (value reference, is Boolean, role)
+            const auto vr = static_cast<fmi2ValueReference>(PyLong_AsUnsignedLong(PyTuple_GetItem(item, 0)));
+            const bool boolean = PyObject_IsTrue(PyTuple_GetItem(item, 1)) == 1;
+            const auto role = static_cast<Role>(PyLong_AsLong(PyTuple_GetItem(item, 2)));
+            (boolean ? booleans_ : reals_)[vr] = Slot{static_cast<std::size_t>(i) + 2, role};
+            hasComputed_ = hasComputed_ || role == computed;
+        }
+        Py_DECREF(layout);
+        PyObject* bound = PyErr_Occurred() != nullptr ? nullptr
+                                                       : PyObject_CallMethod(slave, "_bind_value_cache", "(O)", buffer_);
+        if (bound == nullptr) {
+            PyErr_Clear();
+            release();
+            return;
+        }
+        Py_DECREF(bound);
+        active_ = true;
+    }
+
+    // With the GIL: off, and the buffer let go.
+    void release()
+    {
+        active_ = hasComputed_ = false;
+        reals_.clear();
+        booleans_.clear();
+        values_ = nullptr;
+        Py_CLEAR(buffer_);
+    }
+
+    // The values of vr[0..nvr) if the buffer holds them all, current.
+    template<typename T>
+    bool get(bool boolean, const fmi2ValueReference* vr, std::size_t nvr, T* values) const
+    {
+        if (!active_) {
+            return false;
+        }
+        const auto& slots = boolean ? booleans_ : reals_;
+        for (std::size_t i = 0; i < nvr; i++) {
+            const auto slot = slots.find(vr[i]);
+            if (slot == slots.end() || (slot->second.role == computed && values_[1] != 0.0)) {
+                return false;
+            }
+            values[i] = static_cast<T>(values_[slot->second.index]);
+        }
+        return true;
+    }
+
+    // Whether vr[0..nvr) were set: all inputs of the buffer, all finite.
+    template<typename T>
+    bool set(bool boolean, const fmi2ValueReference* vr, std::size_t nvr, const T* values)
+    {
+        if (!active_) {
+            return false;
+        }
+        const auto& slots = boolean ? booleans_ : reals_;
+        for (std::size_t i = 0; i < nvr; i++) {
+            const auto slot = slots.find(vr[i]);
+            if (slot == slots.end() || slot->second.role != input || !std::isfinite(static_cast<double>(values[i]))) {
+                return false;
+            }
+        }
+        for (std::size_t i = 0; i < nvr; i++) {
+            values_[slots.find(vr[i])->second.index] = boolean ? (values[i] ? 1.0 : 0.0) : static_cast<double>(values[i]);
+        }
+        values_[0] = 1.0; // inputs waiting for the slave
+        stepped();
+        return true;
+    }
+
+    // The computed outputs are out of date (an input was set, the state stepped or was restored).
+    void stepped()
+    {
+        if (active_ && hasComputed_) {
+            values_[1] = 1.0;
+        }
+    }
+
+private:
+    struct Slot
+    {
+        std::size_t index;
+        Role role;
+    };
+    bool active_ = false;
+    bool hasComputed_ = false;
+    PyObject* buffer_ = nullptr; // the bytearray
+    // its doubles: [0] 1 while inputs wait for the slave; [1] 1 while the computed outputs are out of date; then one
+    // value per variable of the layout
+    double* values_ = nullptr;
+    std::unordered_map<fmi2ValueReference, Slot> reals_, booleans_;
+};
+
 } // namespace
 
 class PySlaveInstance : public SlaveInstance
@@ -220,6 +353,9 @@ public:
     void clearLogBuffer() const
     {
         clearLogStrBuffer();
+        if (pMessages_ != nullptr && PyList_Check(pMessages_) && PyList_Size(pMessages_) == 0) {
+            return; // nfal: nothing logged (most calls): no field names built and released
+        }
 
         PyObject* msgField = Py_BuildValue("s", "msg");
         PyObject* categoryField = Py_BuildValue("s", "category");
@@ -318,6 +454,7 @@ public:
             }
             Py_DECREF(f);
             clearLogBuffer();
+            cache_.bind(pInstance_); // nfal: the value cache
         });
     }
 
@@ -326,6 +463,7 @@ public:
         bool status;
         py_safe_run([this, &status, currentTime, stepSize](PyGILState_STATE gilState) {
             auto f = PyObject_CallMethod(pInstance_, "do_step", "(dd)", currentTime, stepSize);
+            cache_.stepped(); // nfal: the value cache
             if (f == nullptr) {
                 handle_py_exception("[doStep] PyObject_CallMethod", gilState);
             }
@@ -340,6 +478,7 @@ public:
     void Reset() override
     {
         py_safe_run([this](PyGILState_STATE gilState) {
+            cache_.release(); // nfal: the value cache is the old slave's
             initialize(gilState);
         });
     }
@@ -358,6 +497,9 @@ public:
 
     void SetReal(const fmi2ValueReference* vr, std::size_t nvr, const fmi2Real* values) override
     {
+        if (cache_.set(false, vr, nvr, values)) { // nfal: the value cache
+            return;
+        }
         py_safe_run([this, &vr, nvr, &values](PyGILState_STATE gilState) {
             PyObject* vrs = PyList_New(nvr);
             PyObject* refs = PyList_New(nvr);
@@ -400,6 +542,9 @@ public:
 
     void SetBoolean(const fmi2ValueReference* vr, std::size_t nvr, const fmi2Boolean* values) override
     {
+        if (cache_.set(true, vr, nvr, values)) { // nfal: the value cache
+            return;
+        }
         py_safe_run([this, &vr, nvr, &values](PyGILState_STATE gilState) {
             PyObject* vrs = PyList_New(nvr);
             PyObject* refs = PyList_New(nvr);
@@ -442,6 +587,9 @@ public:
 
     void GetReal(const fmi2ValueReference* vr, std::size_t nvr, fmi2Real* values) const override
     {
+        if (cache_.get(false, vr, nvr, values)) { // nfal: the value cache
+            return;
+        }
         py_safe_run([this, &vr, nvr, &values](PyGILState_STATE gilState) {
             PyObject* vrs = PyList_New(nvr);
             for (int i = 0; i < nvr; i++) {
@@ -487,6 +635,9 @@ public:
 
     void GetBoolean(const fmi2ValueReference* vr, std::size_t nvr, fmi2Boolean* values) const override
     {
+        if (cache_.get(true, vr, nvr, values)) { // nfal: the value cache
+            return;
+        }
         py_safe_run([this, &vr, nvr, &values](PyGILState_STATE gilState) {
             PyObject* vrs = PyList_New(nvr);
             for (int i = 0; i < nvr; i++) {
@@ -548,6 +699,7 @@ public:
         py_safe_run([this, &state](PyGILState_STATE gilState) {
             auto pyState = reinterpret_cast<PyObject*>(state);
             auto f = PyObject_CallMethod(pInstance_, "_set_fmu_state", "(O)", pyState);
+            cache_.stepped(); // nfal: the value cache: the slave wrote its state's outputs
             if (f == nullptr) {
                 handle_py_exception("[_set_fmu_state] PyObject_CallMethod", gilState);
             }
@@ -629,6 +781,7 @@ private:
     PyObject* pClass_{};
     PyObject* pInstance_{};
     PyObject* pMessages_{};
+    mutable ValueCache cache_; // nfal: the value cache
 
     mutable std::vector<PyObject*> strBuffer;
     mutable std::vector<PyObject*> logStrBuffer;
@@ -670,6 +823,7 @@ private:
 
     void cleanPyObject() const
     {
+        cache_.release(); // nfal: the value cache
         clearLogBuffer();
         clearLogStrBuffer();
         clearStrBuffer();
