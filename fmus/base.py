@@ -416,11 +416,11 @@ class NfalSlave(Fmi2Slave):
                 self._value_cache[1] = 1.0  # the computed outputs: at the next read
 
     # --- the runtime's value cache -----------------------------------------------------------------------
-    # Our FMI 2.0 runtime (fmus/runtime/, PySlaveInstance.cpp's ValueCache) answers the gets and sets of every step
-    # from a buffer of the Real and Boolean inputs and outputs that it binds at the end of initialisation, without
-    # entering Python. Slot 0 is 1 while inputs it took wait here: every call that reads them takes them first. After
-    # a step the slave writes its state's outputs. Slot 1 is 1 while the outputs computed from inputs are out of date:
-    # the runtime sends their next read here, which writes them all and clears it.
+    # Our runtimes (fmus/runtime/, fmus/runtime3/; the ValueCache of fmus/value_cache/) answer the gets and sets of
+    # every step from a buffer of the Real and Boolean inputs and outputs that they bind at the end of initialisation,
+    # without entering Python. Slot 0 is 1 while inputs they took wait here: every call that reads them takes them
+    # first. After a step the slave writes its state's outputs. Slot 1 is 1 while the outputs computed from inputs are
+    # out of date: the runtime sends their next read here, which writes them all and clears it.
     def _value_cache_layout(self) -> list[tuple[int, bool, int]]:
         """(value reference, is Boolean, role: 0 input, 1 output of the state, 2 output computed from inputs) of the
         variables the runtime keeps, slot 2 onwards in this order."""

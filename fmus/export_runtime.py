@@ -76,8 +76,9 @@ class Runtime:
     windows_platform: str
 
     def source_files(self) -> list[Path]:
-        """The runtime's sources and the loader's (the FMU's binaries are built from both)."""
-        return [self.sources / name for name in tree_files(self.sources)] + [LOADER_SOURCE]  # not the patch series
+        """The runtime's sources, the value cache both runtimes include, and the loader's (the FMU's binaries are
+        built from them)."""
+        return [self.sources / name for name in tree_files(self.sources)] + [VALUE_CACHE_HEADER, LOADER_SOURCE]
 
     @property
     def function_types(self) -> Path:
@@ -90,6 +91,8 @@ _HERE = Path(__file__).resolve().parent
 #: The loader every FMU's binary is (fmus/loader/loader.c; on Windows with fmus/loader/loader_windows.h).
 LOADER_SOURCE = _HERE / "loader" / "loader.c"
 LOADER_WINDOWS_HEADER = _HERE / "loader" / "loader_windows.h"
+#: nfal's value cache (docs/cosimulation.md), a header both runtimes include (their CMakeLists name its folder).
+VALUE_CACHE_HEADER = _HERE / "value_cache" / "nfal_value_cache.hpp"
 #: FMI version -> its runtime.
 RUNTIMES: dict[int, Runtime] = {
     2: Runtime(_HERE / "runtime", "linux64", "pythonfmu-export", 2, "win64"),
@@ -439,7 +442,8 @@ def windows_runtime_library(fmi_version: int, python_root: Path) -> Path:
 def _cross_compile_runtime(runtime: Runtime, include: Path, python3: Path, target: Path) -> None:
     sources = sorted(str(p) for p in (runtime.sources / "src").rglob("*.cpp"))
     partial = target.with_name(f".{target.name}.{os.getpid()}")
-    command = [mingw_tool("g++"), *WINDOWS_RUNTIME_FLAGS, f"-I{runtime.sources / 'src'}", f"-I{include}", "-o",
+    command = [mingw_tool("g++"), *WINDOWS_RUNTIME_FLAGS, f"-I{runtime.sources / 'src'}",
+               f"-I{VALUE_CACHE_HEADER.parent}", f"-I{include}", "-o",
                str(partial), *sources, str(python3), "-static", "-static-libgcc", "-static-libstdc++"]
     done = subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
     if done.returncode != 0:

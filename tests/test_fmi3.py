@@ -8,6 +8,7 @@ fmus/hosts/fmi3_host.c) every run must also exit with 0: the patched runtime of 
 
 from __future__ import annotations
 
+import gc
 import json
 import subprocess
 import zipfile
@@ -220,6 +221,49 @@ def test_fmi3_bad_parameter_is_one_logged_error_not_a_crash(builds):
     assert json.loads(lines[2]) == ["SlowPlant: mass = -1.0 is invalid: must be a finite number > 0 "
                                     "(in exit_initialization_mode, the set-up from the parameters)"] * 2
     assert 0 < float(lines[-1]) < 1e-3  # the same process still runs the FMU
+
+
+def _sensor_readings(fmu: Path, folder: Path, heights) -> tuple[list[float], list[str]]:
+    """A SensorChain run in this process: each step sets true_height, steps, reads measured_height twice; the
+    readings, and the calls that reached the slave's Python getters and setters of Reals (the value cache's)."""
+    description = read_model_description(str(fmu))
+    refs = {v.name: v.valueReference for v in description.modelVariables}
+    instance = instantiate_fmu(extract(str(fmu), str(folder)), description, fmi_type="CoSimulation")
+    fmi3 = description.fmiVersion.startswith("3")
+    get, set_ = (instance.getFloat64, instance.setFloat64) if fmi3 else (instance.getReal, instance.setReal)
+    try:
+        if fmi3:
+            instance.enterInitializationMode(startTime=0.0)
+        else:
+            instance.setupExperiment(startTime=0.0)
+            instance.enterInitializationMode()
+        instance.exitInitializationMode()
+        gc.collect()  # an instance freed before (its slave is in reference cycles)
+        (slave,) = [o for o in gc.get_objects() if type(o).__name__ == "SensorChain" and
+                    getattr(o, "instance_name", None) == instance.instanceName and o._value_cache is not None]
+        calls = []
+        for method in ("get_real", "set_real"):
+            original = getattr(slave, method)
+            setattr(slave, method, lambda *args, _f=original, _m=method: (calls.append(_m), _f(*args))[1])
+        readings = []
+        for k, height in enumerate(heights):
+            set_([refs["true_height"]], [height])
+            instance.doStep(k * STEP, STEP)
+            readings += get([refs["measured_height"]]) + get([refs["measured_height"]])
+        return readings, calls
+    finally:
+        instance.terminate()
+        instance.freeInstance()
+
+
+def test_both_runtimes_answer_from_the_value_cache_alike(builds, tmp_path):
+    """fmus/value_cache/ in both runtimes: the set of an input never reaches the slave; the computed measurement is
+    computed once after each step (its first read), and both builds read the same values."""
+    heights = [80e-6 + 1e-7 * k for k in range(40)]
+    (readings2, calls2), (readings3, calls3) = (
+        _sensor_readings(builds[version]["SensorChain"], tmp_path / f"fmi{version}", heights) for version in (2, 3))
+    assert readings3 == readings2 and len(set(readings2)) > 2
+    assert calls2 == calls3 == ["get_real"] * len(heights)
 
 
 def test_nfal_build_fmi3_builds_the_fmus_and_packs_the_structures(capsys, tmp_path):

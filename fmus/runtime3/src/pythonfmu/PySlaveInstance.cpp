@@ -151,6 +151,9 @@ PySlaveInstance::PySlaveInstance(std::string instanceName, std::string resources
 void PySlaveInstance::clearLogBuffer() const
 {
     clearLogStrBuffer();
+    if (pMessages_ != nullptr && PyList_Check(pMessages_) && PyList_Size(pMessages_) == 0) {
+        return; // nfal: nothing logged (most calls): no field names built and released
+    }
 
     PyObject* debugField = Py_BuildValue("s", "debug");
     PyObject* msgField = Py_BuildValue("s", "msg");
@@ -255,6 +258,7 @@ void PySlaveInstance::ExitInitializationMode()
         }
         Py_DECREF(f);
         clearLogBuffer();
+        cache_.bind(pInstance_); // nfal: the value cache
     });
 }
 
@@ -269,6 +273,7 @@ cppfmu::FMIStatus PySlaveInstance::DoStep(cppfmu::FMIFloat64 currentTime,
     cppfmu::FMIStatus fmuStatus = cppfmu::FMIOK;
     py_safe_run([this, &fmuStatus, currentTime, stepSize, terminateSimulation](PyGILState_STATE gilState) {
         auto f = PyObject_CallMethod(pInstance_, "do_step", "(dd)", currentTime, stepSize);
+        cache_.stepped(); // nfal: the value cache
         if (f == nullptr) {
             handle_py_exception("[doStep] PyObject_CallMethod", gilState);
         }
@@ -303,6 +308,7 @@ cppfmu::FMIStatus PySlaveInstance::DoStep(cppfmu::FMIFloat64 currentTime,
 void PySlaveInstance::Reset()
 {
     py_safe_run([this](PyGILState_STATE gilState) {
+        cache_.release(); // nfal: the value cache is the old slave's
         initialize(gilState);
     });
 }
@@ -321,6 +327,9 @@ void PySlaveInstance::Terminate()
 
 void PySlaveInstance::SetFloat64(const cppfmu::FMIValueReference* vr, std::size_t nvr, const cppfmu::FMIFloat64* values, std::size_t nValues)
 {
+    if (nValues == nvr && cache_.set(false, vr, nvr, values)) { // nfal: the value cache
+        return;
+    }
     py_safe_run([this, &vr, nvr, &values, nValues](PyGILState_STATE gilState) {
         PyObject* vrs = PyList_New(nvr);
         PyObject* refs = PyList_New(nValues);
@@ -414,6 +423,9 @@ void PySlaveInstance::SetUInt64(const cppfmu::FMIValueReference* vr, std::size_t
 
 void PySlaveInstance::SetBoolean(const cppfmu::FMIValueReference* vr, std::size_t nvr, const cppfmu::FMIBoolean* values, std::size_t nValues)
 {
+    if (nValues == nvr && cache_.set(true, vr, nvr, values)) { // nfal: the value cache
+        return;
+    }
     py_safe_run([this, &vr, nvr, &values, nValues](PyGILState_STATE gilState) {
         PyObject* vrs = PyList_New(nvr);
         PyObject* refs = PyList_New(nValues);
@@ -460,6 +472,9 @@ void PySlaveInstance::SetString(const cppfmu::FMIValueReference* vr, std::size_t
 
 void PySlaveInstance::GetFloat64(const cppfmu::FMIValueReference* vr, std::size_t nvr, cppfmu::FMIFloat64* values, std::size_t nValues) const
 {
+    if (nValues == nvr && cache_.get(false, vr, nvr, values)) { // nfal: the value cache
+        return;
+    }
     py_safe_run([this, &vr, nvr, &values, nValues](PyGILState_STATE gilState) {
         PyObject* vrs = PyList_New(nvr);
         for (int i = 0; i < nvr; i++) {
@@ -554,6 +569,9 @@ void PySlaveInstance::GetUInt64(const cppfmu::FMIValueReference* vr, std::size_t
 
 void PySlaveInstance::GetBoolean(const cppfmu::FMIValueReference* vr, std::size_t nvr, cppfmu::FMIBoolean* values, std::size_t nValues) const
 {
+    if (nValues == nvr && cache_.get(true, vr, nvr, values)) { // nfal: the value cache
+        return;
+    }
     py_safe_run([this, &vr, nvr, &values, nValues](PyGILState_STATE gilState) {
         PyObject* vrs = PyList_New(nvr);
         for (int i = 0; i < nvr; i++) {
@@ -793,6 +811,7 @@ void PySlaveInstance::SetFMUstate(const fmi3FMUState& state)
     py_safe_run([this, &state](PyGILState_STATE gilState) {
         auto pyState = reinterpret_cast<PyObject*>(state);
         auto f = PyObject_CallMethod(pInstance_, "_set_fmu_state", "(O)", pyState);
+        cache_.stepped(); // nfal: the value cache: the slave wrote its state's outputs
         if (f == nullptr) {
             handle_py_exception("[_set_fmu_state] PyObject_CallMethod", gilState);
         }

@@ -6,6 +6,8 @@
 #include "pythonfmu/IPyState.hpp"
 
 #include <Python.h>
+
+#include "nfal_value_cache.hpp" // nfal: the value cache (fmus/value_cache/)
 #include <string>
 #include <vector>
 
@@ -82,6 +84,7 @@ private:
     PyObject* pClass_{};  // nfal: initialised (released by cleanPyObject)
     PyObject* pInstance_{};
     PyObject* pMessages_{};
+    mutable nfal::ValueCache<cppfmu::FMIValueReference> cache_; // nfal: the value cache
 
     const bool visible_;
     const std::string instanceName_;
@@ -115,6 +118,7 @@ private:
 
     inline void cleanPyObject() const
     {
+        cache_.release(); // nfal: the value cache
         clearLogBuffer();
         clearLogStrBuffer();
         clearStrBuffer();
