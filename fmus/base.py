@@ -62,6 +62,7 @@ must not change state (it may be read any number of times).
 from __future__ import annotations
 
 import abc
+import contextlib
 import copy
 import json
 import logging
@@ -362,22 +363,23 @@ class NfalSlave(Fmi2Slave):
     def do_step(self, current_time: float, step_size: float) -> bool:
         cache = self._value_cache
         try:  # not through _guard: the hot path builds no closure and no message unless it fails
-            if cache is not None and cache[0]:
-                self._take_inputs()
+            if cache is not None:
+                self._take_from_cache()
             if not self.initialized:
                 raise InvalidParameterError("doStep", current_time, "called after initialisation ends")
             if not (math.isfinite(step_size) and step_size > 0):
                 raise InvalidParameterError("communication step size", step_size, "a finite number > 0 s")
             self.step(float(current_time), float(step_size))
             self.time = float(current_time) + float(step_size)
+            if cache is not None:  # the state's outputs; the computed ones wait for a read (the runtime knows)
+                self._write_state_outputs()
             return True
         except Exception as exc:  # noqa: BLE001 - every error must reach the master as a logged FMI status
+            if cache is not None:  # what the failed step left, as far as it reads: the error is the step's
+                with contextlib.suppress(Exception):
+                    self._write_state_outputs()
             self._fail(f"doStep at t = {current_time:.9g} s", exc)
             raise
-        finally:
-            if cache is not None:  # the state's outputs; the computed ones wait for a read (the runtime knows)
-                for slot, getter in self._cache_outputs:
-                    cache[slot] = getter()
 
     def terminate(self) -> None:
         pass
@@ -393,8 +395,8 @@ class NfalSlave(Fmi2Slave):
                 getters, convert = self._getters[kind], _COERCE[kind]
                 cache = self._value_cache
                 if cache is not None:  # the runtime asks: computed outputs out of date, or not its variables
-                    self._write_computed()
-                    slots = self._cache_slots[kind]
+                    self._write_computed()  # (what waits for the slave taken first), each computed once
+                    slots = self._computed_slots[kind]
                     return [convert(cache[slots[vr]]) if vr in slots else convert(getters[vr]()) for vr in vrs]
                 return [convert(getters[vr]()) for vr in vrs]
             except Exception:  # noqa: BLE001 - answered by the checked path
@@ -402,8 +404,8 @@ class NfalSlave(Fmi2Slave):
         return self._read(what, checked, vrs)
 
     def _set(self, kind: type, vrs, values, what: str, checked: Callable) -> None:
-        if self._value_cache is not None and self._value_cache[0]:
-            self._take_inputs()  # set before these, by the runtime
+        if self._value_cache is not None:
+            self._take_from_cache()  # inputs set before these, by the runtime; the state its core stepped
         try:
             setters = self._setters[kind]
             for vr, value in zip(vrs, values):
@@ -411,19 +413,21 @@ class NfalSlave(Fmi2Slave):
         except Exception:  # noqa: BLE001 - answered by the checked path
             self._guard(what, checked, vrs, values)
         finally:
-            if self._value_cache is not None:
-                self._write_cache(computed=False)
-                self._value_cache[1] = 1.0  # the computed outputs: at the next read
+            if self._value_cache is not None:  # what a set changes: inputs, and the computed outputs at their read
+                self._write_inputs()
+                self._value_cache[1] = 1.0
 
     # --- the runtime's value cache -----------------------------------------------------------------------
     # Our runtimes (fmus/runtime/, fmus/runtime3/; the ValueCache of fmus/value_cache/) answer the gets and sets of
     # every step from a buffer of the Real and Boolean inputs and outputs that they bind at the end of initialisation,
     # without entering Python. Slot 0 is 1 while inputs they took wait here: every call that reads them takes them
     # first. After a step the slave writes its state's outputs. Slot 1 is 1 while the outputs computed from inputs are
-    # out of date: the runtime sends their next read here, which writes them all and clears it.
+    # out of date: the runtime sends their next read here, which writes them all and clears it. A slave with a
+    # compiled core (_value_cache_core) may have the runtime step it on the buffer: slot 2 then says the state's outputs
+    # and the time (slot 3) are the buffer's, which every call takes first.
     def _value_cache_layout(self) -> list[tuple[int, bool, int]]:
         """(value reference, is Boolean, role: 0 input, 1 output of the state, 2 output computed from inputs) of the
-        variables the runtime keeps, slot 2 onwards in this order."""
+        variables the runtime keeps, slot 4 onwards in this order."""
         return [(d.variable.value_reference, type(d.variable) is Boolean, role)
                 for d, role in self._cached_declarations()]
 
@@ -442,16 +446,42 @@ class NfalSlave(Fmi2Slave):
     def _bind_value_cache(self, buffer: bytearray) -> None:
         """The runtime's buffer (``_value_cache_layout``'s slots, doubles), filled with the current values; the view
         kept of it pins it (a bytearray with a view cannot be resized)."""
-        cached = list(enumerate(self._cached_declarations(), start=2))
+        cached = list(enumerate(self._cached_declarations(), start=4))
         self._cache_inputs = [(slot, d.variable.name, _COERCE[type(d.variable)]) for slot, (d, role) in cached
                               if role == 0]
         self._cache_outputs = [(slot, d.variable.getter) for slot, (d, role) in cached if role == 1]
+        self._cache_state = [(slot, d.variable.name, _COERCE[type(d.variable)]) for slot, (d, role) in cached
+                             if role == 1 and not d.computed]
         self._cache_computed = [(slot, d.variable.getter) for slot, (d, role) in cached if role == 2]
-        self._cache_slots = {kind: {d.variable.value_reference: slot for slot, (d, _) in cached
-                                    if type(d.variable) is kind} for kind in _COERCE}
-        cache = memoryview(buffer).cast("d")
-        self._value_cache = cache
-        self._write_cache()
+        self._computed_slots = {kind: {d.variable.value_reference: slot for slot, (d, role) in cached
+                                       if role == 2 and type(d.variable) is kind} for kind in _COERCE}
+        self._value_cache = memoryview(buffer).cast("d")
+        try:
+            self._write_cache()
+        except Exception:  # the runtime then leaves the cache off: so does the slave
+            self._value_cache = None
+            raise
+
+    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+        """A compiled core for the runtime to step this slave on the buffer (:mod:`nfal.models.plant_core`):
+        (its address, its data's address, the data's size in doubles, the data's owner), or None (the default)."""
+        return None
+
+    def _cache_slot(self, name: str) -> int:
+        """The buffer slot of the cached variable ``name``."""
+        return next(slot for slot, (d, _) in enumerate(self._cached_declarations(), start=4)
+                    if d.variable.name == name)
+
+    def _take_from_cache(self) -> None:
+        """The state the runtime's core stepped (outputs and time) and the inputs it was set, into the attributes."""
+        cache = self._value_cache
+        if cache[2]:
+            cache[2] = 0.0
+            for slot, name, coerce in self._cache_state:
+                setattr(self, name, coerce(cache[slot]))
+            self.time = cache[3]
+        if cache[0]:
+            self._take_inputs()
 
     def _take_inputs(self) -> None:
         """The inputs the runtime was set, into their attributes (finite, as the setters check)."""
@@ -462,23 +492,28 @@ class NfalSlave(Fmi2Slave):
         self._settings_changed = True
 
     def _write_cache(self, computed: bool = True) -> None:
-        """Every cached variable's current value into the buffer (the computed outputs' if ``computed``), the inputs
-        it holds taken first."""
-        cache = self._value_cache
-        if cache[0]:
-            self._take_inputs()
-        for slot, name, _ in self._cache_inputs:
-            cache[slot] = getattr(self, name)
-        for slot, getter in self._cache_outputs:
-            cache[slot] = getter()
+        """Every cached variable's current value into the buffer (the computed outputs' if ``computed``), what it
+        holds for the slave taken first."""
+        self._take_from_cache()
+        self._write_inputs()
+        self._write_state_outputs()
         if computed:
             self._write_computed()
+
+    def _write_inputs(self) -> None:
+        cache = self._value_cache
+        for slot, name, _ in self._cache_inputs:
+            cache[slot] = getattr(self, name)
+
+    def _write_state_outputs(self) -> None:
+        cache = self._value_cache
+        for slot, getter in self._cache_outputs:
+            cache[slot] = getter()
 
     def _write_computed(self) -> None:
         """The outputs computed from the inputs (taken first), into the buffer, which then has them up to date."""
         cache = self._value_cache
-        if cache[0]:
-            self._take_inputs()
+        self._take_from_cache()
         for slot, getter in self._cache_computed:
             cache[slot] = getter()
         cache[1] = 0.0
@@ -509,8 +544,8 @@ class NfalSlave(Fmi2Slave):
 
     # --- FMU state ---------------------------------------------------------------------------------
     def _get_fmu_state(self) -> dict:
-        if self._value_cache is not None and self._value_cache[0]:
-            self._take_inputs()
+        if self._value_cache is not None:
+            self._take_from_cache()
 
         def run():
             values = {name: getattr(self, name) for name, d in self._declarations.items() if not d.computed}
@@ -535,11 +570,17 @@ class NfalSlave(Fmi2Slave):
                     setattr(self, name, value)
             self.initialized = bool(state["initialized"])
             self.set_internal_state(copy.deepcopy(state["internal"]))
-        self._guard("setFMUstate", run)
-        if self._value_cache is not None:  # the state's inputs replace any waiting; computed outputs wait for a read
-            self._value_cache[0] = 0.0
-            self._write_cache(computed=False)
-            self._value_cache[1] = 1.0
+        cache = self._value_cache
+        if cache is not None:  # what waits for the slave first: the state replaces what it holds
+            self._take_from_cache()
+        try:
+            self._guard("setFMUstate", run)
+        finally:
+            if cache is not None:  # what the restore left, as far as it reads (the error is the restore's)
+                with contextlib.suppress(Exception):
+                    self._write_inputs()
+                    self._write_state_outputs()
+                cache[1] = 1.0
 
     @staticmethod
     def _fmu_state_to_bytes(state: dict) -> bytes:

@@ -40,6 +40,7 @@ from nfal.fmus.rig_contract import RigSlave
 from nfal.models.excitation import largest_excursion, parse_shape
 from nfal.models.film_backends import Body, Contact, FilmBackend, HarmonicBalanceFilm, TimeMarchingFilm
 from nfal.models.film_force_table import cached_table
+from nfal.models import plant_core
 from nfal.models.fixed_step_plant import NEAR_SURFACE
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.reynolds import check_grid
@@ -69,6 +70,8 @@ class ReynoldsPlant(RigSlave):
         self.add_parameter("shape", "paper", description="excitation form: 'paper' (Fig. 3 stand-in), 'piston', "
                            "'plate:N' or the path of a CSV of (R, eps)")
         self._film: FilmBackend | None = None
+        self._core_data: np.ndarray | None = None  # the compiled core's (models/plant_core.py), and its stepper
+        self._core_stepper = None
 
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -104,6 +107,22 @@ class ReynoldsPlant(RigSlave):
         body = Body(self.height, self.velocity, self.resting, self.oscillation_amplitude)
         self._publish(self._film.advance(body, self.checked_excitation(), self.checked_frequency(), current_time,
                                          step_size))
+        if self._core_data is not None and self._film.stepper is not self._core_stepper:  # rebuilt for a frequency
+            self._core_data[:] = self._pack_core()
+
+    # --- the compiled core: the runtime steps free flight without Python (models/plant_core.py) ----------------
+    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+        if not isinstance(self._film, HarmonicBalanceFilm):
+            return None
+        address = plant_core.step_address()  # compiled, or loaded from numba's cache, on first use
+        self._core_data = self._pack_core()
+        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _pack_core(self) -> np.ndarray:
+        self._core_stepper = self._film.stepper
+        slots = tuple(self._cache_slot(name) for name in ("excitation_amplitude", "drive_frequency", "height",
+                                                          "velocity", "resting", "oscillation_amplitude"))
+        return plant_core.pack(slots, self._film.stepper, self._film.contact.largest_excursion)
 
     # --- FMU state: the body is in the outputs (saved by the base), the rest is the solver's -----------
     def get_internal_state(self) -> dict:

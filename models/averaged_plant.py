@@ -60,6 +60,10 @@ class AveragedFilmPlant(SimplifiedPlant):
         delta = np.asarray(excitation, dtype=float) / height
         return self.rig.film_force_scale * delta**2 * self.table(self.rig.squeeze_number(height), delta)
 
+    def oscillation_table(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """What :meth:`oscillation` interpolates: sigma h^2, log sigma at the table's points, |zeta / delta| there."""
+        return self._sigma_scale, self._log_sigmas, self._response
+
     def oscillation(self, height: float, excitation: float) -> float:
         """Amplitude chi [m] of the object's fast oscillation (eq. 1), to first order in delta:
         |zeta| hbar = |a| |zeta / delta| (:meth:`FilmForceTable.response`, interpolated linearly in log sigma

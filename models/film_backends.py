@@ -105,6 +105,11 @@ class HarmonicBalanceFilm:
         plant = AveragedFilmPlant(self.rig_at(frequency), self.table, rest_gap=self.contact.rest_gap)
         return FixedStepPlant(plant, near_surface=self.near_surface)
 
+    @property
+    def stepper(self) -> FixedStepPlant:
+        """The free flight's integrator, for the drive frequency of the last step."""
+        return self._stepper
+
     def release(self, height: float, velocity: float, excitation: float, time_s: float) -> Body:
         return Body(height, velocity, self._stepper.plant.rests(PlantState(height, velocity), excitation))
 

@@ -73,6 +73,11 @@ class FixedStepPlant:
         if compiled:  # else the kernels run as Python until someone compiles them: a short run's choice
             slow_kernels.load()
 
+    @property
+    def floor(self) -> float:
+        """The clearance [m] below which the exact (or fast) near-surface integrator takes over."""
+        return self._floor
+
     def acceleration(self, h: float, v: float, a: float) -> float:
         """Eq. (13) in SI [m/s^2], as the integrators evaluate it."""
         return slow_kernels.acceleration(self.model, h, v, a)

@@ -27,7 +27,8 @@ _PACKAGES = [sys.modules[__package__.rpartition(".")[0]], sys.modules[__package_
 _KERNELS: list[Callable] = []
 _MODULES: list[types.ModuleType] = []
 _LOADED: set[Callable[[], None]] = set()
-_compiled = False
+#: The kernels compiled so far (a kernel module imported after a load is compiled at the next).
+_COMPILED: set[Callable] = set()
 
 
 def kernel(function: Callable) -> Callable:
@@ -46,25 +47,24 @@ def load(loader: Callable[[], None]) -> None:
     from numba.core.compiler_lock import global_compiler_lock  # on use: a short run never imports numba
 
     with global_compiler_lock, _importable():
-        if not _compiled:
+        if len(_COMPILED) < len(_KERNELS):
             _compile()
         loader()
         _LOADED.add(loader)
 
 
 def _compile() -> None:
-    global _compiled
     import numba  # on use: as in load
 
     from . import numba_cache  # on use: it imports numba
 
     numba_cache.install()  # before the kernels are made: their compiled code outlives an FMU's temporary folder
-    dispatchers = {function: numba.njit(cache=True)(function) for function in _KERNELS}
+    dispatchers = {function: numba.njit(cache=True)(function) for function in _KERNELS if function not in _COMPILED}
     for module in _MODULES:  # every name bound to a kernel, also those imported from another kernel module
         for name, value in list(vars(module).items()):
             if isinstance(value, types.FunctionType) and value in dispatchers:
                 setattr(module, name, dispatchers[value])
-    _compiled = True
+    _COMPILED.update(dispatchers)
 
 
 @contextlib.contextmanager

@@ -8,7 +8,6 @@ fmus/hosts/fmi3_host.c) every run must also exit with 0: the patched runtime of 
 
 from __future__ import annotations
 
-import gc
 import json
 import subprocess
 import zipfile
@@ -23,6 +22,7 @@ from fmpy.validation import validate_fmu
 from nfal.cli import main
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
 
+from helpers.fmu_instance import runtime_slave
 from helpers.probe_fmus import build_probe
 
 pytestmark = [pytest.mark.slow,  # the FMI 3.0 FMUs built, run in FMPy, ecos and a C host
@@ -238,9 +238,7 @@ def _sensor_readings(fmu: Path, folder: Path, heights) -> tuple[list[float], lis
             instance.setupExperiment(startTime=0.0)
             instance.enterInitializationMode()
         instance.exitInitializationMode()
-        gc.collect()  # an instance freed before (its slave is in reference cycles)
-        (slave,) = [o for o in gc.get_objects() if type(o).__name__ == "SensorChain" and
-                    getattr(o, "instance_name", None) == instance.instanceName and o._value_cache is not None]
+        slave = runtime_slave("SensorChain", instance.instanceName)
         calls = []
         for method in ("get_real", "set_real"):
             original = getattr(slave, method)

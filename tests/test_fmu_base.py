@@ -7,6 +7,7 @@ A small test slave (``Scale``) exercises the base class, first as a Python objec
 from __future__ import annotations
 
 import gc
+import json
 import math
 import subprocess
 import sys
@@ -18,7 +19,7 @@ import pytest
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract
+from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract, runtime_slave
 
 from nfal.errors import InvalidParameterError
 from nfal.fmus import build
@@ -60,6 +61,9 @@ class Scale(NfalSlave):
         self.total += self.k * self.u * step_size
         self.positive = self.total > 0
         self.steps += self.repeat
+
+    def terminate(self):
+        self.positive = False  # an output that changes as the slave terminates (as the HardwareProxy's link_ok)
 
     def get_internal_state(self):
         return {"steps": self.steps}
@@ -346,19 +350,13 @@ def test_fmu_state_round_trip_reproduces_the_continuation(scale):
     scale.fmu.freeFMUstate(restored)
 
 
-def _slave_of(instance_name: str):
-    """The Scale slave behind an instance our runtime made in this process (the FMU's own copy of the class)."""
-    (slave,) = [o for o in gc.get_objects() if type(o).__name__ == "Scale" and o.instance_name == instance_name]
-    return slave
-
-
 def test_the_runtime_answers_the_gets_and_sets_of_a_step_from_its_value_cache(scale_fmu):
     """fmus/runtime's ValueCache: after initialisation a step's sets and the reads of the state's outputs do not
     enter Python; a computed output's first read after a set or a step does, once, and sees the new input."""
     instance = Instance(*scale_fmu, name="counted")
     try:
         instance.initialize(u=0.25)
-        slave = _slave_of("counted")
+        slave = runtime_slave("Scale", "counted")
         calls = []
         for method in ("get_real", "get_boolean", "set_real"):
             original = getattr(slave, method)
@@ -404,6 +402,44 @@ def test_what_the_value_cache_holds_stays_what_the_slave_says(scale):
     scale.initialize(u=0.1)
     scale.step(1e-3)
     assert scale.get("u", "y", "total", "positive") == (0.1, pytest.approx(0.2), pytest.approx(2e-4), True)
+
+
+def _state_bytes(scale, **changes) -> bytes:
+    """The instance's serialized FMU state, its JSON changed (``variables`` or ``internal``)."""
+    saved = scale.fmu.getFMUstate()
+    state = json.loads(bytes(scale.fmu.serializeFMUstate(saved)))
+    scale.fmu.freeFMUstate(saved)
+    for key, value in changes.items():
+        state[key] = value(state[key]) if callable(value) else value
+    return json.dumps(state).encode()
+
+
+def test_the_value_cache_answers_after_a_failed_or_partial_restore_and_after_terminate(scale, scale_fmu):
+    """What the slave holds, whatever the cache held: a restore that fails half-way (its variables set, its internal
+    state refused) answers the restored input; a restore of a state without an input keeps the input set before it;
+    an output the slave changes as it terminates is read as the slave has it."""
+    scale.initialize(u=0.2)
+    scale.step(1e-3)
+    broken = _state_bytes(scale, internal=[])  # u = 0.2, and an internal state set_internal_state refuses
+    without_u = _state_bytes(scale, variables=lambda values: {k: v for k, v in values.items() if k != "u"})
+    scale.set(u=0.7)  # waits in the cache for the slave
+    restored = scale.fmu.deSerializeFMUstate(broken)
+    with pytest.raises(FMICallException):
+        scale.fmu.setFMUstate(restored)
+    assert scale.get("u", "y") == (0.2, pytest.approx(0.4))
+    scale.fmu.freeFMUstate(restored)
+    scale.set(u=0.7)
+    restored = scale.fmu.deSerializeFMUstate(without_u)
+    scale.fmu.setFMUstate(restored)
+    assert scale.get("u", "y") == (0.7, pytest.approx(1.4))
+    scale.fmu.freeFMUstate(restored)
+    ending = Instance(*scale_fmu, name="ending")
+    ending.initialize(u=0.2)
+    ending.step(1e-3)
+    assert ending.get("positive") == 1
+    ending.fmu.terminate()
+    assert ending.get("positive") == 0
+    ending.fmu.freeInstance()
 
 
 def test_a_damaged_serialized_state_is_an_error(scale):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract
+from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract, runtime_slave
 
 from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.reynolds_plant import ReynoldsPlant
@@ -362,6 +362,49 @@ def test_reynolds_plant_follows_the_drive_frequency():
     assert isinstance(film, TimeMarchingFilm)
     assert film.internal_state()["frequency"] == slave.drive_frequency
     assert film.internal_state()["time_s"] == pytest.approx(2 * STEP)
+
+
+#: (|a| [m], drive frequency factor) per step: free flight, a new drive frequency, a touchdown, resting, a lift-off.
+CORE_SCENARIO = [(5e-6, 1.0)] * 40 + [(5.5e-6, 1.01)] * 40 + [(60e-6, 1.01)] * 2 + [(0.0, 1.01)] * 3 + \
+    [(3e-6, 1.01)] * 60
+
+
+def test_the_reynolds_plants_compiled_core_steps_as_its_python(reynolds):
+    """models/plant_core.py: the runtime steps the FMU's free flight with the compiled core (the slave's Python
+    do_step is not called), and every output is the Python slave's to the bit, through a new drive frequency, a
+    touchdown, resting and a lift-off, and across an FMU state saved and restored."""
+    python = ReynoldsPlant(instance_name="python")
+    python.initial_height = 80e-6
+    python.setup_experiment(0.0)
+    python.exit_initialization_mode()
+    reynolds.initialize(initial_height=80e-6)
+    slave = runtime_slave("ReynoldsPlant")
+    calls = []
+    original = slave.do_step
+    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    names = ("height", "velocity", "resting", "oscillation_amplitude")
+    saved, rested = None, []
+    for k, (level, factor) in enumerate(CORE_SCENARIO):
+        reynolds.set(excitation_amplitude=level, drive_frequency=RIG.frequency * factor)
+        python.excitation_amplitude, python.drive_frequency = level, RIG.frequency * factor
+        reynolds.step(STEP)
+        python.do_step(k * STEP, STEP)
+        assert reynolds.get(*names) == tuple(getattr(python, name) for name in names), k
+        rested.append(python.resting)
+        if k == 30:
+            saved, state, at = reynolds.fmu.getFMUstate(), python._get_fmu_state(), reynolds.time
+    assert 0 < len(calls) < len(CORE_SCENARIO) // 3, len(calls)  # the core took the free flight
+    assert any(rested) and not rested[-1]  # landed, and lifted off again
+    reynolds.fmu.setFMUstate(saved)
+    python._set_fmu_state(state)
+    reynolds.time = at
+    for k in range(5):
+        reynolds.set(excitation_amplitude=5e-6, drive_frequency=RIG.frequency)
+        python.excitation_amplitude, python.drive_frequency = 5e-6, RIG.frequency
+        reynolds.step(STEP)
+        python.do_step(at + k * STEP, STEP)
+        assert reynolds.get(*names) == tuple(getattr(python, name) for name in names)
+    reynolds.fmu.freeFMUstate(saved)
 
 
 def test_reynolds_plant_state_round_trip(reynolds):

@@ -19,7 +19,10 @@ namespace nfal
 // next call; after a step it writes its state's outputs. Slot 1 is 1 while the outputs computed from the inputs
 // (``depends_on``) are out of date (an input was set, the state stepped or was restored): a read of one then goes to
 // Python, which computes and writes them all and clears it. A set value that is not finite, a value reference the
-// layout does not name, or any other call goes to Python as before, so every error is the slave's own.
+// layout does not name, or any other call goes to Python as before, so every error is the slave's own. A slave may
+// also have a compiled core (NfalSlave._value_cache_core): a C function that takes a doStep on the buffer and says
+// whether it did (slot 2 then says the state's outputs and the time, slot 3, are newer than the slave's, which takes
+// them at its next call); a step it declines goes to Python, which does it all.
 template<typename ValueReference>
 class ValueCache
 {
@@ -40,20 +43,21 @@ public:
             return;
         }
         const Py_ssize_t n = PyList_Size(layout);
-        buffer_ = PyByteArray_FromStringAndSize(nullptr, (n + 2) * static_cast<Py_ssize_t>(sizeof(double)));
+        buffer_ = PyByteArray_FromStringAndSize(nullptr, (n + kFirstSlot) * static_cast<Py_ssize_t>(sizeof(double)));
         if (buffer_ == nullptr) {
             Py_DECREF(layout);
             PyErr_Clear();
             return;
         }
         values_ = reinterpret_cast<double*>(PyByteArray_AsString(buffer_));
-        std::fill(values_, values_ + n + 2, 0.0);
+        size_ = static_cast<std::size_t>(n) + kFirstSlot;
+        std::fill(values_, values_ + size_, 0.0);
         for (Py_ssize_t i = 0; i < n; i++) {
             PyObject* item = PyList_GetItem(layout, i); // (value reference, is Boolean, role)
             const auto vr = static_cast<ValueReference>(PyLong_AsUnsignedLong(PyTuple_GetItem(item, 0)));
             const bool boolean = PyObject_IsTrue(PyTuple_GetItem(item, 1)) == 1;
             const auto role = static_cast<Role>(PyLong_AsLong(PyTuple_GetItem(item, 2)));
-            (boolean ? booleans_ : reals_)[vr] = Slot{static_cast<std::size_t>(i) + 2, role};
+            (boolean ? booleans_ : reals_)[vr] = Slot{static_cast<std::size_t>(i) + kFirstSlot, role};
             hasComputed_ = hasComputed_ || role == computed;
         }
         Py_DECREF(layout);
@@ -66,6 +70,7 @@ public:
         }
         Py_DECREF(bound);
         active_ = true;
+        bindCore(slave);
     }
 
     // With the GIL: off, and the buffer let go.
@@ -75,7 +80,21 @@ public:
         reals_.clear();
         booleans_.clear();
         values_ = nullptr;
+        size_ = 0;
+        core_ = nullptr;
         Py_CLEAR(buffer_);
+        Py_CLEAR(coreData_);
+    }
+
+    // A doStep by the slave's compiled core, if it has one and takes this step; false: the slave's Python steps.
+    bool step(double t, double dt)
+    {
+        if (!active_ || core_ == nullptr || core_(values_, size_, coreValues_, coreSize_, t, dt) != 0) {
+            return false;
+        }
+        values_[2] = 1.0; // the state's outputs and the time are the buffer's
+        stepped();
+        return true;
     }
 
     // The values of vr[0..nvr) if the buffer holds them all, current.
@@ -127,17 +146,50 @@ public:
     }
 
 private:
+    // int core(double* values, size_t n_values, double* data, size_t n_data, double t, double dt): 0 stepped, else
+    // left to the slave (models/plant_core.py).
+    using Core = int (*)(double*, std::size_t, double*, std::size_t, double, double);
+
+    // With the GIL: the slave's (address, data address, data size, data owner), or None.
+    void bindCore(PyObject* slave)
+    {
+        if (!PyObject_HasAttrString(slave, "_value_cache_core")) {
+            return;
+        }
+        PyObject* core = PyObject_CallMethod(slave, "_value_cache_core", nullptr);
+        if (core != nullptr && PyTuple_Check(core) && PyTuple_Size(core) == 4) {
+            core_ = reinterpret_cast<Core>(PyLong_AsVoidPtr(PyTuple_GetItem(core, 0)));
+            coreValues_ = static_cast<double*>(PyLong_AsVoidPtr(PyTuple_GetItem(core, 1)));
+            coreSize_ = static_cast<std::size_t>(PyLong_AsSize_t(PyTuple_GetItem(core, 2)));
+            coreData_ = PyTuple_GetItem(core, 3);
+            Py_INCREF(coreData_);
+        }
+        Py_XDECREF(core);
+        if (PyErr_Occurred() != nullptr) {
+            PyErr_Clear();
+            core_ = nullptr;
+            Py_CLEAR(coreData_);
+        }
+    }
+
     struct Slot
     {
         std::size_t index;
         Role role;
     };
+    // The buffer's doubles: [0] 1 while inputs wait for the slave; [1] 1 while the computed outputs are out of date;
+    // [2] 1 while the state's outputs and the time [3] are newer than the slave's (its core stepped); then one value
+    // per variable of the layout.
+    static constexpr Py_ssize_t kFirstSlot = 4;
     bool active_ = false;
     bool hasComputed_ = false;
     PyObject* buffer_ = nullptr; // the bytearray
-    // its doubles: [0] 1 while inputs wait for the slave; [1] 1 while the computed outputs are out of date; then one
-    // value per variable of the layout
     double* values_ = nullptr;
+    std::size_t size_ = 0;
+    Core core_ = nullptr;
+    PyObject* coreData_ = nullptr; // what owns the core's data
+    double* coreValues_ = nullptr;
+    std::size_t coreSize_ = 0;
     std::unordered_map<ValueReference, Slot> reals_, booleans_;
 };
 

@@ -3,6 +3,7 @@ once per session and extracted: shared by the FMU tests."""
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import fmpy
@@ -76,3 +77,13 @@ def build_and_extract(tmp_path_factory, *names: str) -> dict[str, tuple[Path, st
     out = tmp_path_factory.mktemp("fmus")
     paths = build.build_fmus(out, names)
     return {name: (path, extract(str(path), str(out / f"{name}_unzipped"))) for name, path in paths.items()}
+
+
+def runtime_slave(class_name: str, instance_name: str | None = None):
+    """The live Python slave of class ``class_name`` (the FMU's own copy of the class) that our runtime made in this
+    process and bound its value cache to (fmus/value_cache/); one of that ``instance_name``, if given."""
+    gc.collect()  # instances freed before: their slaves are in reference cycles
+    (slave,) = [o for o in gc.get_objects() if type(o).__name__ == class_name and
+                getattr(o, "_value_cache", None) is not None and
+                instance_name in (None, getattr(o, "instance_name", None))]
+    return slave

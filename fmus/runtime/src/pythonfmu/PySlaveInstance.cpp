@@ -330,6 +330,9 @@ public:
 
     bool Step(double currentTime, double stepSize) override
     {
+        if (cache_.step(currentTime, stepSize)) { // nfal: the slave's compiled core took the step
+            return true;
+        }
         bool status;
         py_safe_run([this, &status, currentTime, stepSize](PyGILState_STATE gilState) {
             auto f = PyObject_CallMethod(pInstance_, "do_step", "(dd)", currentTime, stepSize);
@@ -362,6 +365,7 @@ public:
             }
             Py_DECREF(f);
             clearLogBuffer();
+            cache_.release(); // nfal: a slave may change its outputs as it terminates (the HardwareProxy's link_ok)
         });
     }
 

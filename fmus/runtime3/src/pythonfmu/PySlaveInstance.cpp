@@ -270,6 +270,9 @@ cppfmu::FMIStatus PySlaveInstance::DoStep(cppfmu::FMIFloat64 currentTime,
     cppfmu::FMIBoolean* earlyReturn,
     cppfmu::FMIFloat64& endOfStep)
 {
+    if (cache_.step(currentTime, stepSize)) { // nfal: the slave's compiled core took the step
+        return cppfmu::FMIOK;
+    }
     cppfmu::FMIStatus fmuStatus = cppfmu::FMIOK;
     py_safe_run([this, &fmuStatus, currentTime, stepSize, terminateSimulation](PyGILState_STATE gilState) {
         auto f = PyObject_CallMethod(pInstance_, "do_step", "(dd)", currentTime, stepSize);
@@ -322,6 +325,7 @@ void PySlaveInstance::Terminate()
         }
         Py_DECREF(f);
         clearLogBuffer();
+        cache_.release(); // nfal: a slave may change its outputs as it terminates (the HardwareProxy's link_ok)
     });
 }
 
