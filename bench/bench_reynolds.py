@@ -3,9 +3,9 @@
     python bench/bench_reynolds.py [--quick]
 
 1. Wall time of ``fig7_reynolds`` (3.7 s of simulated staircase at 0.5 ms, the whole loop as FMUs, set-up
-   included) with ``Plant.film_solver`` = harmonic_balance (the default) and = time_marching (the solver
-   before issue 16: 41 x 64 BDF2, envelope following), one after the other in this process, each after
-   a warm-up run (imports, numba caches); reported as wall time / simulated time and their ratio, with the
+   included) with ``Plant.film_solver`` = harmonic_balance (the default; the median of 3 runs) and = time_marching
+   (the solver before issue 16: 41 x 64 BDF2, envelope following; one run), one after the other in this process, each
+   after a warm-up run (imports, numba caches); reported as wall time / simulated time and their ratio, with the
    time in every FMU's doStep summed (the master's own timing): the floor a faster master could not go below.
    And the other floor: the master over as many compiled FMUs (five FMI Reference FMU Feedthroughs in a chain,
    compiled from tests/reference_fmus/), the same steps: what the loop would take if its slaves cost nothing.
@@ -42,6 +42,8 @@ from nfal.orchestration import run_structure
 
 STEP = 5e-4
 SOLVERS = ("harmonic_balance", "time_marching")
+#: Runs per solver, the median reported (issue 29 judges the loop by the median of 3; time marching takes 20 s a run).
+RUNS = {"harmonic_balance": 3, "time_marching": 1}
 #: The elements of fig7_reynolds, as many compiled FMUs for the master's floor.
 FLOOR_ELEMENTS = ("A", "B", "C", "D", "E")
 
@@ -141,9 +143,12 @@ def main() -> None:
         loops = {}
         for solver in SOLVERS:
             loop_wall_time(archive, solver, 0.01, Path(folder) / f"warm-{solver}")  # imports, numba caches
-            wall, summary = loop_wall_time(archive, solver, stop, Path(folder) / solver)
+            runs = [loop_wall_time(archive, solver, stop, Path(folder) / f"{solver}-{k}")
+                    for k in range(RUNS[solver])]
+            wall, summary = sorted(runs, key=lambda run: run[1]["loop_wall_time_s"])[len(runs) // 2]  # the median
             loops[solver] = {"wall_s": wall, "setup_s": summary["initialization_wall_time_s"],
                              "loop_s": summary["loop_wall_time_s"],
+                             "loops_s": [run[1]["loop_wall_time_s"] for run in runs],
                              "plant_do_step_mean_us": summary["timing"]["Plant"]["do_step_mean_us"],
                              "do_steps_s": sum(fmu["do_step_total_s"] for fmu in summary["timing"].values())}
             print(solver, loops[solver], flush=True)
@@ -162,11 +167,14 @@ def title(result: dict) -> str:
 def tables(result: dict) -> list[record.Table]:
     stop = result["simulated_s"]
     return [record.Table(f"fig7_reynolds, {stop:g} s of its staircase, the whole run as FMUs (set-up included), each "
-                         "solver after a warm-up run:",
+                         "solver after a warm-up run (harmonic balance: the run of median loop time of 3, the loops "
+                         "listed):",
                          ["film solver", "wall [s]", "wall / simulated", "set-up [s]", "loop [s]",
                           "Plant doStep mean [µs]", "every FMU's doSteps [s]"],
                          [[solver, f"{loop['wall_s']:.2f}", f"{loop['wall_s'] / stop:.2f}", f"{loop['setup_s']:.2f}",
-                           f"{loop['loop_s']:.2f}" if "loop_s" in loop else "",
+                           (f"{loop['loop_s']:.2f}" + (f" ({', '.join(f'{x:.2f}' for x in loop['loops_s'])})"
+                                                       if len(loop.get("loops_s", [])) > 1 else ""))
+                           if "loop_s" in loop else "",
                            f"{loop['plant_do_step_mean_us']:.0f}", f"{loop['do_steps_s']:.2f}"]
                           for solver, loop in result["loops"].items()]
                          + ([["none: five compiled Feedthrough FMUs (the master's floor)", "", "", "",
