@@ -37,10 +37,10 @@ import numpy as np
 from nfal.errors import InvalidParameterError
 from nfal.fmus.base import DefaultExperiment
 from nfal.fmus.rig_contract import RigSlave
+from nfal.models import plant_core
 from nfal.models.excitation import largest_excursion, parse_shape
 from nfal.models.film_backends import Body, Contact, FilmBackend, HarmonicBalanceFilm, TimeMarchingFilm
 from nfal.models.film_force_table import cached_table
-from nfal.models import plant_core
 from nfal.models.fixed_step_plant import NEAR_SURFACE
 from nfal.models.plant import SimplifiedPlant
 from nfal.models.reynolds import check_grid
