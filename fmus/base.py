@@ -22,6 +22,10 @@ thin adapter over :mod:`nfal.models`:
 * **Parameters checked at the end of initialisation.** Setters only store (with type coercion and,
   for Real inputs, a finiteness check); :meth:`setup` (abstract) validates and builds the models in
   ``exit_initialization_mode``. A ``fixed`` parameter set after initialisation is an error.
+* **The value cache.** In our runtime a step's gets and sets of Real and Boolean inputs and outputs do not enter
+  Python: the slave shares their values with the runtime in a buffer (``_value_cache_layout``; docs/cosimulation.md,
+  "the value cache"), and a slave may give the runtime a compiled core that steps it there
+  (``_value_cache_core``: the ReynoldsPlant's free flight).
 * **FMU state.** ``_get_fmu_state``/``_set_fmu_state`` save every variable, the time and whatever
   :meth:`get_internal_state` returns (plant state, controller state, RNG state: JSON-ready values);
   states serialize to JSON bytes (``canGetAndSetFMUstate`` and ``canSerializeFMUstate`` are true).
@@ -491,14 +495,12 @@ class NfalSlave(Fmi2Slave):
             setattr(self, name, coerce(cache[slot]))
         self._settings_changed = True
 
-    def _write_cache(self, computed: bool = True) -> None:
-        """Every cached variable's current value into the buffer (the computed outputs' if ``computed``), what it
-        holds for the slave taken first."""
+    def _write_cache(self) -> None:
+        """Every cached variable's current value into the buffer, what it holds for the slave taken first."""
         self._take_from_cache()
         self._write_inputs()
         self._write_state_outputs()
-        if computed:
-            self._write_computed()
+        self._write_computed()
 
     def _write_inputs(self) -> None:
         cache = self._value_cache
