@@ -3,7 +3,7 @@
 Classical RK4 on eq. (13) in SI over one zero-order-hold interval, with the number of sub-steps set by
 the stiffest rate in play, the squeeze-film damping c(h) / m = 3 pi mu r0^4 / (2 m h^3): sub-steps of at
 most ``slow_kernels.STIFFNESS_STEP / (c / m)`` (RK4's stability limit is 2.79). Near the surface (below
-``FALLBACK_FACTOR`` rest gaps), when resting, or when the sub-step count would exceed ``MAX_SUBSTEPS``,
+``FALLBACK_FACTOR`` rest gaps), when resting, or when the sub-step count would exceed ``slow_kernels.MAX_SUBSTEPS``,
 it hands over to :meth:`SimplifiedPlant.advance`, which handles touchdown and lift-off. With the plant's
 ``excess_damping`` (Sec. 3.3) the damping and the stiffest rate are c(h) factor(h) / m, the rate taken
 at the lower and the upper end of the step's reach (it may grow with h); without it nothing changes.
@@ -35,9 +35,6 @@ from .plant import ExcessDamping, PlantState, SimplifiedPlant
 
 #: Below this many rest gaps the exact (event-handling) integrator takes over.
 FALLBACK_FACTOR = 3.0
-MAX_SUBSTEPS = 400
-#: Fewest sub-steps, for RK4's truncation error: over 0.5 ms, 2 leave up to 2.3e-10 m, 4 leave 7e-11 m.
-MIN_SUBSTEPS = 4
 #: ``near_surface`` choices: the exact event-handling integrator, or the fast exponential one.
 NEAR_SURFACE = ("exact", "fast")
 
@@ -102,15 +99,12 @@ class FixedStepPlant:
         h, v = float(state.height), float(state.velocity)
         if not (math.isfinite(h) and math.isfinite(v)):
             raise InvalidParameterError("state", state, "a finite height and velocity")
-        lowest = h - max(-v, 0.0) * step
-        if state.resting or lowest < self._floor:
-            if self.plant.rests(state, excitation):  # held on the surface the whole step: nothing to integrate
-                return PlantState(self.plant.rest_gap, 0.0, True)
-            return self._hand_over(state, excitation, step)
-        substeps = max(MIN_SUBSTEPS, self._substeps(step, lowest, h + max(v, 0.0) * step))
-        if substeps > MAX_SUBSTEPS:
-            return self._hand_over(state, excitation, step)
-        h, v, stayed = slow_kernels.free_flight(self.model, h, v, float(excitation), step, substeps, self._floor)
-        if not stayed:  # left free flight (near the surface, or not finite)
-            return self._hand_over(state, excitation, step)
-        return PlantState(h, v, False)
+        if not state.resting:
+            h, v, outcome = slow_kernels.free_flight_step(self.model, h, v, float(excitation), step, self._floor)
+            if outcome == slow_kernels.FLEW:
+                return PlantState(h, v, False)
+            if outcome == slow_kernels.HANDED_OVER:  # too stiff, or it left free flight (near the surface, not finite)
+                return self._hand_over(state, excitation, step)
+        if self.plant.rests(state, excitation):  # held on the surface the whole step: nothing to integrate
+            return PlantState(self.plant.rest_gap, 0.0, True)
+        return self._hand_over(state, excitation, step)

@@ -19,14 +19,14 @@ import math
 import numpy as np
 
 from . import jit, slow_kernels
-from .fixed_step_plant import MAX_SUBSTEPS, MIN_SUBSTEPS, FixedStepPlant
+from .fixed_step_plant import FixedStepPlant
 from .plausibility import MAX_EXCITATION_M
 from .rig import FREQUENCY_TOLERANCE
 
 #: The runtime's buffer slot of the time the core stepped to (fmus/base.py, NfalSlave).
 TIME_SLOT = 3
 #: The files whose kernels and constants the compiled core holds (part of its numba cache key, models/numba_cache.py).
-KERNEL_DEPENDENCIES = ("slow_kernels.py", "fixed_step_plant.py", "plausibility.py", "rig.py")
+KERNEL_DEPENDENCIES = ("slow_kernels.py", "plausibility.py", "rig.py")
 #: ``data``: slots of the buffer (excitation, drive frequency, height, velocity, resting, oscillation), then the
 #: frequency the model is built for, the floor, the contact's reach per metre of |a|, sigma h^2 over the oscillation
 #: table, the model's four numbers; then the K curve, the damping correction and the oscillation table (each with
@@ -74,20 +74,13 @@ def advance(values, d, dt):
         return 1  # a new drive frequency (the slave rebuilds its model), or resting
     if a * d[_REACH] >= h or not (math.isfinite(h) and math.isfinite(v)):
         return 1  # touchdown
-    floor = d[_FLOOR]
-    lowest = h - max(-v, 0.0) * dt
-    if lowest < floor:
-        return 1  # near the surface: the exact integrator's
     curve, o = _curve(d, _CURVE)
     kind, height, exponent = int(d[o]), d[o + 1], d[o + 2]
     correction_curve, o = _curve(d, o + 3)
     model = (d[_MODEL], d[_MODEL + 1], d[_MODEL + 2], d[_MODEL + 3], curve, (kind, height, exponent, correction_curve))
-    count = max(MIN_SUBSTEPS, slow_kernels.substeps(model, dt, lowest, h + max(v, 0.0) * dt))
-    if count > MAX_SUBSTEPS:
-        return 1
-    h, v, stayed = slow_kernels.free_flight(model, h, v, a, dt, count, floor)
-    if not stayed:
-        return 1
+    h, v, outcome = slow_kernels.free_flight_step(model, h, v, a, dt, d[_FLOOR])
+    if outcome != slow_kernels.FLEW:
+        return 1  # near the surface, too stiff a step, or it left free flight: the slave's integrators
     n = int(d[o])
     log_sigma = math.log(d[_SIGMA_SCALE] / (h * h))
     values[int(s[2])], values[int(s[3])] = h, v
