@@ -110,6 +110,11 @@ UNITS: dict[str, dict[str, int]] = {
 #: Relative tolerance of "a whole number of sample periods from the start" (contract).
 SAMPLE_TOLERANCE = 1e-9
 
+#: The runtime's value cache buffer (fmus/value_cache/nfal_value_cache.hpp, the same numbers): 1 while inputs set in
+#: the runtime wait for the slave; 1 while the outputs computed from inputs are out of date; 1 while the state's
+#: outputs and the time (CORE_TIME) that a compiled core stepped to are newer than the slave's; then the variables.
+INPUTS_WAITING, COMPUTED_STALE, CORE_STEPPED, CORE_TIME, FIRST_SLOT = range(5)
+
 _PY_TYPES = {float: Real, int: Integer, bool: Boolean, str: String}
 _COERCE = {Real: float, Integer: int, Boolean: bool, String: str}
 
@@ -419,19 +424,19 @@ class NfalSlave(Fmi2Slave):
         finally:
             if self._value_cache is not None:  # what a set changes: inputs, and the computed outputs at their read
                 self._write_inputs()
-                self._value_cache[1] = 1.0
+                self._value_cache[COMPUTED_STALE] = 1.0
 
     # --- the runtime's value cache -----------------------------------------------------------------------
     # Our runtimes (fmus/runtime/, fmus/runtime3/; the ValueCache of fmus/value_cache/) answer the gets and sets of
     # every step from a buffer of the Real and Boolean inputs and outputs that they bind at the end of initialisation,
-    # without entering Python. Slot 0 is 1 while inputs they took wait here: every call that reads them takes them
-    # first. After a step the slave writes its state's outputs. Slot 1 is 1 while the outputs computed from inputs are
-    # out of date: the runtime sends their next read here, which writes them all and clears it. A slave with a
-    # compiled core (_value_cache_core) may have the runtime step it on the buffer: slot 2 then says the state's outputs
-    # and the time (slot 3) are the buffer's, which every call takes first.
+    # without entering Python (its slots: INPUTS_WAITING ... FIRST_SLOT). Every call that reads the inputs takes those
+    # set in the runtime first. After a step the slave writes its state's outputs. While the outputs computed from
+    # inputs are out of date the runtime sends their next read here, which writes them all. A slave with a compiled
+    # core (_value_cache_core) may have the runtime step it on the buffer; every call first takes the state and the
+    # time the core stepped to.
     def _value_cache_layout(self) -> list[tuple[int, bool, int]]:
         """(value reference, is Boolean, role: 0 input, 1 output of the state, 2 output computed from inputs) of the
-        variables the runtime keeps, slot 4 onwards in this order."""
+        variables the runtime keeps, slot FIRST_SLOT onwards in this order."""
         return [(d.variable.value_reference, type(d.variable) is Boolean, role)
                 for d, role in self._cached_declarations()]
 
@@ -450,13 +455,14 @@ class NfalSlave(Fmi2Slave):
     def _bind_value_cache(self, buffer: bytearray) -> None:
         """The runtime's buffer (``_value_cache_layout``'s slots, doubles), filled with the current values; the view
         kept of it pins it (a bytearray with a view cannot be resized)."""
-        cached = list(enumerate(self._cached_declarations(), start=4))
+        cached = list(enumerate(self._cached_declarations(), start=FIRST_SLOT))
         self._cache_inputs = [(slot, d.variable.name, _COERCE[type(d.variable)]) for slot, (d, role) in cached
                               if role == 0]
         self._cache_outputs = [(slot, d.variable.getter) for slot, (d, role) in cached if role == 1]
         self._cache_state = [(slot, d.variable.name, _COERCE[type(d.variable)]) for slot, (d, role) in cached
                              if role == 1 and not d.computed]
         self._cache_computed = [(slot, d.variable.getter) for slot, (d, role) in cached if role == 2]
+        self._cache_slots = {d.variable.name: slot for slot, (d, _) in cached}
         self._computed_slots = {kind: {d.variable.value_reference: slot for slot, (d, role) in cached
                                        if role == 2 and type(d.variable) is kind} for kind in _COERCE}
         self._value_cache = memoryview(buffer).cast("d")
@@ -473,24 +479,23 @@ class NfalSlave(Fmi2Slave):
 
     def _cache_slot(self, name: str) -> int:
         """The buffer slot of the cached variable ``name``."""
-        return next(slot for slot, (d, _) in enumerate(self._cached_declarations(), start=4)
-                    if d.variable.name == name)
+        return self._cache_slots[name]
 
     def _take_from_cache(self) -> None:
         """The state the runtime's core stepped (outputs and time) and the inputs it was set, into the attributes."""
         cache = self._value_cache
-        if cache[2]:
-            cache[2] = 0.0
+        if cache[CORE_STEPPED]:
+            cache[CORE_STEPPED] = 0.0
             for slot, name, coerce in self._cache_state:
                 setattr(self, name, coerce(cache[slot]))
-            self.time = cache[3]
-        if cache[0]:
+            self.time = cache[CORE_TIME]
+        if cache[INPUTS_WAITING]:
             self._take_inputs()
 
     def _take_inputs(self) -> None:
         """The inputs the runtime was set, into their attributes (finite, as the setters check)."""
         cache = self._value_cache
-        cache[0] = 0.0
+        cache[INPUTS_WAITING] = 0.0
         for slot, name, coerce in self._cache_inputs:
             setattr(self, name, coerce(cache[slot]))
         self._settings_changed = True
@@ -518,7 +523,7 @@ class NfalSlave(Fmi2Slave):
         self._take_from_cache()
         for slot, getter in self._cache_computed:
             cache[slot] = getter()
-        cache[1] = 0.0
+        cache[COMPUTED_STALE] = 0.0
 
     def set_real(self, vrs, values) -> None:
         self._set(Real, vrs, values, "setReal", super().set_real)
@@ -582,7 +587,7 @@ class NfalSlave(Fmi2Slave):
                 with contextlib.suppress(Exception):
                     self._write_inputs()
                     self._write_state_outputs()
-                cache[1] = 1.0
+                cache[COMPUTED_STALE] = 1.0
 
     @staticmethod
     def _fmu_state_to_bytes(state: dict) -> bytes:

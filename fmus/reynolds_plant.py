@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from nfal.errors import InvalidParameterError
-from nfal.fmus.base import DefaultExperiment
+from nfal.fmus.base import CORE_TIME, DefaultExperiment
 from nfal.fmus.rig_contract import RigSlave
 from nfal.models import plant_core
 from nfal.models.excitation import largest_excursion, parse_shape
@@ -120,8 +120,8 @@ class ReynoldsPlant(RigSlave):
 
     def _pack_core(self) -> np.ndarray:
         self._core_stepper = self._film.stepper
-        slots = tuple(self._cache_slot(name) for name in ("excitation_amplitude", "drive_frequency", "height",
-                                                          "velocity", "resting", "oscillation_amplitude"))
+        slots = (*(self._cache_slot(name) for name in ("excitation_amplitude", "drive_frequency", "height", "velocity",
+                                                        "resting", "oscillation_amplitude")), CORE_TIME)
         return plant_core.pack(slots, self._film.stepper, self._film.contact.largest_excursion)
 
     # --- FMU state: the body is in the outputs (saved by the base), the rest is the solver's -----------

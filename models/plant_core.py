@@ -2,7 +2,7 @@
 ReynoldsPlant's doStep without entering Python (fmus/value_cache/, docs/cosimulation.md, "the value cache").
 
 :func:`step_address` is a numba ``cfunc`` (its signature there). ``values``
-is the runtime's buffer (its slots: :data:`TIME_SLOT` and the slave's inputs and outputs); ``data`` is
+is the runtime's buffer (the slave's inputs and outputs, and the time); ``data`` is
 :func:`pack`'s array: the slots it reads and writes, eq. (13)'s model of :class:`~nfal.models.fixed_step_plant.
 FixedStepPlant` (the same kernels, :mod:`nfal.models.slow_kernels`, so the same bits), the clearance below which the
 exact integrator takes over, the contact's reach and the oscillation's table. It does what
@@ -23,15 +23,14 @@ from .fixed_step_plant import FixedStepPlant
 from .plausibility import MAX_EXCITATION_M
 from .rig import FREQUENCY_TOLERANCE
 
-#: The runtime's buffer slot of the time the core stepped to (fmus/base.py, NfalSlave).
-TIME_SLOT = 3
 #: The files whose kernels and constants the compiled core holds (part of its numba cache key, models/numba_cache.py).
 KERNEL_DEPENDENCIES = ("slow_kernels.py", "plausibility.py", "rig.py")
-#: ``data``: slots of the buffer (excitation, drive frequency, height, velocity, resting, oscillation), then the
+#: ``data``: slots of the buffer (excitation, drive frequency, height, velocity, resting, oscillation, the time the
+#: core stepped to: fmus/base.py's CORE_TIME), then the
 #: frequency the model is built for, the floor, the contact's reach per metre of |a|, sigma h^2 over the oscillation
 #: table, the model's four numbers; then the K curve, the damping correction and the oscillation table (each with
 #: its sizes first).
-_SLOTS, _FREQUENCY, _FLOOR, _REACH, _SIGMA_SCALE, _MODEL = 0, 6, 7, 8, 9, 10
+_SLOTS, _FREQUENCY, _FLOOR, _REACH, _SIGMA_SCALE, _MODEL = 0, 7, 8, 9, 10, 11
 _CURVE = _MODEL + 4
 
 
@@ -63,9 +62,9 @@ def _curve(d, o):
 
 
 @jit.kernel
-def advance(values, d, dt):
-    """The step over ``dt`` on the buffer ``values``: 0 done, 1 left to the slave."""
-    s = d[_SLOTS:_SLOTS + 6]
+def advance(values, d, t, dt):
+    """The step from ``t`` over ``dt`` on the buffer ``values``: 0 done, 1 left to the slave."""
+    s = d[_SLOTS:_SLOTS + 7]
     a, f = values[int(s[0])], values[int(s[1])]
     h, v = values[int(s[2])], values[int(s[3])]
     if not (a >= 0.0 and a <= MAX_EXCITATION_M and f > 0.0 and math.isfinite(f) and dt > 0.0 and math.isfinite(dt)):
@@ -85,6 +84,7 @@ def advance(values, d, dt):
     log_sigma = math.log(d[_SIGMA_SCALE] / (h * h))
     values[int(s[2])], values[int(s[3])] = h, v
     values[int(s[5])] = np.interp(log_sigma, d[o + 1:o + 1 + n], d[o + 1 + n:o + 1 + 2 * n]) * a
+    values[int(s[6])] = t + dt
     return 0
 
 
@@ -100,11 +100,7 @@ def _compile() -> None:
 
     @numba.cfunc(types.int32(buffer, types.intp, buffer, types.intp, types.float64, types.float64), cache=True)
     def step(values, n_values, data, n_data, t, dt):
-        held = numba.carray(values, n_values)
-        if advance(held, numba.carray(data, n_data), dt) != 0:
-            return 1
-        held[TIME_SLOT] = t + dt
-        return 0
+        return advance(numba.carray(values, n_values), numba.carray(data, n_data), t, dt)
 
     _STEP = step
 

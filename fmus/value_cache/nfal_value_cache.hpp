@@ -92,7 +92,7 @@ public:
         if (!active_ || core_ == nullptr || core_(values_, size_, coreValues_, coreSize_, t, dt) != 0) {
             return false;
         }
-        values_[2] = 1.0; // the state's outputs and the time are the buffer's
+        values_[kCoreStepped] = 1.0; // the state's outputs and the time are the buffer's
         stepped();
         return true;
     }
@@ -107,7 +107,7 @@ public:
         const auto& slots = boolean ? booleans_ : reals_;
         for (std::size_t i = 0; i < nvr; i++) {
             const auto slot = slots.find(vr[i]);
-            if (slot == slots.end() || (slot->second.role == computed && values_[1] != 0.0)) {
+            if (slot == slots.end() || (slot->second.role == computed && values_[kComputedStale] != 0.0)) {
                 return false;
             }
             values[i] = static_cast<T>(values_[slot->second.index]);
@@ -132,7 +132,7 @@ public:
         for (std::size_t i = 0; i < nvr; i++) {
             values_[slots.find(vr[i])->second.index] = boolean ? (values[i] ? 1.0 : 0.0) : static_cast<double>(values[i]);
         }
-        values_[0] = 1.0; // inputs waiting for the slave
+        values_[kInputsWaiting] = 1.0;
         stepped();
         return true;
     }
@@ -141,7 +141,7 @@ public:
     void stepped()
     {
         if (active_ && hasComputed_) {
-            values_[1] = 1.0;
+            values_[kComputedStale] = 1.0;
         }
     }
 
@@ -177,9 +177,10 @@ private:
         std::size_t index;
         Role role;
     };
-    // The buffer's doubles: [0] 1 while inputs wait for the slave; [1] 1 while the computed outputs are out of date;
-    // [2] 1 while the state's outputs and the time [3] are newer than the slave's (its core stepped); then one value
-    // per variable of the layout.
+    // The buffer's doubles (fmus/base.py names them alike): 1 while inputs wait for the slave; 1 while the computed
+    // outputs are out of date; 1 while the state's outputs and the time (the next slot) are newer than the slave's
+    // (its core stepped); then one value per variable of the layout.
+    static constexpr std::size_t kInputsWaiting = 0, kComputedStale = 1, kCoreStepped = 2;
     static constexpr Py_ssize_t kFirstSlot = 4;
     bool active_ = false;
     bool hasComputed_ = false;
