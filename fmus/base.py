@@ -71,6 +71,7 @@ import copy
 import json
 import logging
 import math
+import os
 from typing import Any, Callable, Iterable
 from xml.etree.ElementTree import Element, SubElement
 
@@ -114,6 +115,9 @@ SAMPLE_TOLERANCE = 1e-9
 #: the runtime wait for the slave; 1 while the outputs computed from inputs are out of date; 1 while the state's
 #: outputs and the time (CORE_TIME) that a compiled core stepped to are newer than the slave's; then the variables.
 INPUTS_WAITING, COMPUTED_STALE, CORE_STEPPED, CORE_TIME, FIRST_SLOT = range(5)
+#: ``NFAL_VALUE_CACHE=off`` in the environment: every call goes to the slave's Python (the cache's own baseline, and a
+#: way to rule it out).
+VALUE_CACHE_ENV = "NFAL_VALUE_CACHE"
 
 _PY_TYPES = {float: Real, int: Integer, bool: Boolean, str: String}
 _COERCE = {Real: float, Integer: int, Boolean: bool, String: str}
@@ -434,9 +438,11 @@ class NfalSlave(Fmi2Slave):
     # inputs are out of date the runtime sends their next read here, which writes them all. A slave with a compiled
     # core (_value_cache_core) may have the runtime step it on the buffer; every call first takes the state and the
     # time the core stepped to.
-    def _value_cache_layout(self) -> list[tuple[int, bool, int]]:
+    def _value_cache_layout(self) -> list[tuple[int, bool, int]] | None:
         """(value reference, is Boolean, role: 0 input, 1 output of the state, 2 output computed from inputs) of the
-        variables the runtime keeps, slot FIRST_SLOT onwards in this order."""
+        variables the runtime keeps, slot FIRST_SLOT onwards in this order; None: no cache (VALUE_CACHE_ENV)."""
+        if os.environ.get(VALUE_CACHE_ENV, "").lower() == "off":
+            return None
         return [(d.variable.value_reference, type(d.variable) is Boolean, role)
                 for d, role in self._cached_declarations()]
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
+from nfal.fmus.base import VALUE_CACHE_ENV
 from nfal.apps.fig7 import (DEFAULT_STAIRCASES, PURE_LOOP_PARAMETERS, SIMULATED, loop_metrics, matched_design,
                             pure_python_loop, reference_staircase, reynolds_law)
 from nfal.models.reference import Staircase
@@ -52,6 +53,19 @@ def test_jacobi_adds_delay_but_still_tracks(fig7_archives, tmp_path):
 
 SHORT_REYNOLDS = Staircase((60e-6, 100e-6, 60e-6), hold_s=0.4, lead_s=0.1)
 MEASURED_SHAPE = str(Path(__file__).resolve().parents[1] / "examples" / "shapes" / "vibrometer_scan.csv")
+
+
+def test_the_reynolds_loop_is_the_same_to_the_bit_without_the_value_cache(fig7_archives, tmp_path, monkeypatch):
+    """fmus/value_cache/ and the ReynoldsPlant's compiled core change where the loop's work is done, not one bit of
+    what it computes: the whole loop's results.csv, its FMUs stepped and read by the runtime, and with
+    NFAL_VALUE_CACHE=off every call through the slaves' Python."""
+    runs = {}
+    for cache in ("on", "off"):
+        monkeypatch.setenv(VALUE_CACHE_ENV, cache)
+        runs[cache] = run_fig7(fig7_archives["fig7_reynolds"], tmp_path / cache)
+    timing = {cache: run.summary["timing"]["Plant"]["do_step_mean_us"] for cache, run in runs.items()}
+    assert (tmp_path / "on" / "results.csv").read_bytes() == (tmp_path / "off" / "results.csv").read_bytes(), timing
+    assert runs["on"].summary["steps_completed"] == 1400
 
 
 def hold_ends(table, reference: Staircase, window_s: float = 0.02) -> np.ndarray:

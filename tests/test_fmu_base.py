@@ -23,7 +23,7 @@ from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract, runtime
 
 from nfal.errors import InvalidParameterError
 from nfal.fmus import build
-from nfal.fmus.base import UNITS, NfalSlave, SampleClock
+from nfal.fmus.base import UNITS, VALUE_CACHE_ENV, NfalSlave, SampleClock
 
 
 # --- the test slave -----------------------------------------------------------------------------------
@@ -374,6 +374,22 @@ def test_the_runtime_answers_the_gets_and_sets_of_a_step_from_its_value_cache(sc
         instance.step(1e-3)
         instance.get("y")
         assert calls == ["get_real", "get_real"]  # and after a step
+    finally:
+        instance.free()
+
+
+def test_nfal_value_cache_off_sends_every_call_to_the_slave(scale_fmu, monkeypatch):
+    """VALUE_CACHE_ENV=off: the runtime binds no cache, so a step's sets and reads reach the slave's Python."""
+    monkeypatch.setenv(VALUE_CACHE_ENV, "off")
+    instance = Instance(*scale_fmu, name="uncached")
+    try:
+        instance.initialize(u=0.25)
+        gc.collect()
+        (slave,) = [o for o in gc.get_objects() if type(o).__name__ == "Scale" and o.instance_name == "uncached"]
+        assert slave._value_cache is None
+        instance.set(u=0.5)
+        instance.step(1e-3)
+        assert instance.get("u", "y", "total") == (0.5, 1.0, pytest.approx(1e-3))
     finally:
         instance.free()
 
