@@ -64,8 +64,9 @@ def loop_wall_time(archive: Path, solver: str, stop: float, out: Path) -> tuple[
 
 
 def master_floor(folder: Path, stop: float) -> float:
-    """Loop wall time [s] (the median of 3) of the master over a chain of five compiled Feedthrough FMUs (FMI Reference FMUs), the
-    first driven by an external input, each output recorded: fig7_reynolds' steps with slaves that cost nothing."""
+    """Loop wall time [s] (the median of 3) of the master over a chain of five compiled Feedthrough FMUs (FMI
+    Reference FMUs), the first driven by an external input, each output recorded: fig7_reynolds' steps with slaves
+    that cost nothing."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from reference_fmus.build import build_reference_fmu
 
