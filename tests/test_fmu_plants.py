@@ -407,6 +407,25 @@ def test_the_reynolds_plants_compiled_core_steps_as_its_python(reynolds):
     reynolds.fmu.freeFMUstate(saved)
 
 
+@pytest.mark.parametrize("name, value, reason", [
+    ("excitation_amplitude", 1e-2, "excitation_amplitude = 0.01 is invalid: must be at most"),
+    ("excitation_amplitude", -1e-6, "excitation_amplitude = -1e-06 is invalid"),
+    ("drive_frequency", 0.0, "drive_frequency = 0.0 is invalid")])
+def test_the_compiled_core_leaves_a_refused_input_to_the_slave(reynolds, name, value, reason):
+    """A finite input the slave refuses reaches the runtime's cache (only non-finite ones are refused at the set):
+    the core declines the step, and the slave's Python says why, one logged error, the state kept."""
+    reynolds.initialize(initial_height=80e-6, excitation_amplitude=5e-6)
+    for _ in range(5):
+        reynolds.step(STEP)  # the core's
+    before = reynolds.get("height", "velocity")
+    reynolds.set(**{name: value})
+    with pytest.raises(FMICallException) as raised:
+        reynolds.step(STEP)
+    assert (raised.value.function, raised.value.status) == ("fmi2DoStep", FMI_ERROR)
+    (error,) = reynolds.errors()
+    assert reason in error and reynolds.get("height", "velocity") == before
+
+
 def test_reynolds_plant_state_round_trip(reynolds):
     reynolds.initialize(excitation_amplitude=7e-6)
     reynolds.step(STEP)
