@@ -79,9 +79,6 @@ class FixedStepPlant:
         """Eq. (13) in SI [m/s^2], as the integrators evaluate it."""
         return slow_kernels.acceleration(self.model, h, v, a)
 
-    def _substeps(self, step: float, lowest: float, highest: float) -> int:
-        return slow_kernels.substeps(self.model, step, lowest, highest)
-
     def _exponential_advance(self, state: PlantState, excitation: float, step: float) -> PlantState:
         """Near the surface, fast: see the module docstring (``near_surface="fast"``)."""
         rest = self.plant.rest_gap

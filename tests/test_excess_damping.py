@@ -16,6 +16,7 @@ from nfal.models.fixed_step_plant import FixedStepPlant
 from nfal.models.plant import (RIG_LIKE_EXCESS_EXPONENT, RIG_LIKE_EXCESS_HEIGHT, ExcessDamping, PlantState,
                                SimplifiedPlant)
 from nfal.models.rig import RigParameters
+from nfal.models.slow_kernels import substeps
 
 RIG = RigParameters()
 K = paper_calibration()
@@ -122,11 +123,11 @@ def test_fixed_step_matches_advance_with_the_correction(height, velocity, excita
 
 def test_fixed_step_counts_sub_steps_from_the_corrected_rate():
     """At 260 um moving up the corrected rate (x ~40) sets the sub-steps; eq. (6) alone would give the minimum."""
-    plain, corrected = FixedStepPlant(PLAIN), FAST
-    assert plain._substeps(STEP, 260e-6, 262.5e-6) < 4 < corrected._substeps(STEP, 260e-6, 262.5e-6)
+    plain, corrected = FixedStepPlant(PLAIN).model, FAST.model
+    assert substeps(plain, STEP, 260e-6, 262.5e-6) < 4 < substeps(corrected, STEP, 260e-6, 262.5e-6)
     h = 262.5e-6
     rate = RIG.squeeze_film_damping(h) * RIG_LIKE.factor(h) / RIG.mass
-    assert corrected._substeps(STEP, 260e-6, h) == math.ceil(STEP * rate / 0.25)
+    assert substeps(corrected, STEP, 260e-6, h) == math.ceil(STEP * rate / 0.25)
 
 
 # --- Fig. 6: rise time at 190 um and at 60 um ---------------------------------------------------------
