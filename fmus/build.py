@@ -10,7 +10,7 @@ everything the slave imports from nfal, under the same import names as in the in
         slavemodule.txt         "nfal_<script>" (pythonfmu's loader reads it)
         pythonfmu/              pythonfmu's Python side (added by pythonfmu)
         nfal/__init__.py        a minimal package: docstring and __version__ only (no CLI)
-        nfal/errors.py, csvdata.py, realtime.py  the foundation modules every layer may import
+        nfal/errors.py, csvdata.py, realtime.py, cache_folder.py  the foundation modules every layer may import
         nfal/models/            every .py of models/ and data/ (the excitation-form CSV)
         nfal/fmus/__init__.py   base.py (the NfalSlave framework), rig_contract.py (RigSlave) and the slave script
         nfal/hil/               the rig protocol and link, for the HardwareProxy only (HIL_MODULES)
@@ -74,7 +74,8 @@ from nfal.fmus.export_runtime import (LOADER_WINDOWS_HEADER, PYTHON_CONFIG, PYTH
                                       windows_runtime_library)
 from nfal.fmus.windows_python import windows_settings
 from nfal.fmus.fmi3 import fmi3_script
-from nfal.models.disk_cache import cache_root, digest, write_in_one_step
+from nfal.cache_folder import cache_root, write_in_one_step
+from nfal.models.disk_cache import digest
 
 logger = logging.getLogger(__name__)
 
@@ -105,7 +106,7 @@ HIL_MODULES: dict[str, tuple[str, ...]] = {"HardwareProxy": ("__init__.py", "pro
 FMUS_DIR = Path(__file__).resolve().parent
 #: The package root's foundation modules (importable by every layer, docs/architecture.md): every FMU carries them.
 FOUNDATION_MODULES = tuple(Path(nfal.__file__).resolve().parent / name
-                           for name in ("errors.py", "csvdata.py", "realtime.py"))
+                           for name in ("errors.py", "csvdata.py", "realtime.py", "cache_folder.py"))
 
 
 def _models_dir() -> Path:

@@ -54,7 +54,7 @@ import cmake
 from nfal.errors import RuntimeBuildError
 from nfal.fmus.runtime_upstream import tree_files
 from nfal.fmus.windows_python import check_windows_python
-from nfal.models.disk_cache import build_once, cache_root
+from nfal.cache_folder import build_once, cache_root
 
 logger = logging.getLogger(__name__)
 
@@ -117,7 +117,7 @@ BUILD_TIMEOUT_S = 600
 #: CMakeLists.txt builds on Python's stable ABI only with CMake 3.26 or newer (Debian 12's 3.25 built it on the
 #: full API, and the cache kept whichever came first).
 CMAKE = str(Path(cmake.CMAKE_BIN_DIR) / "cmake")
-#: The lock file beside each cached build: one process builds it, the others wait (disk_cache.exclusive).
+#: The lock file beside each cached build: one process builds it, the others wait (cache_folder.exclusive).
 BUILD_LOCK = ".build.lock"
 
 #: Prints a Python's settings as ``key=value`` lines: the build runs it in the Python that builds the

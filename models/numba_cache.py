@@ -17,7 +17,7 @@ from pathlib import Path
 
 from numba.core import caching
 
-from .disk_cache import cache_root
+from nfal.cache_folder import cache_root
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 #: numba's locator beside the source (public from numba 0.61 on, ``_InTreeCacheLocator`` before).

@@ -16,7 +16,7 @@ import pytest
 import nfal
 from nfal.apps import host_check
 from nfal.fmus import build, export_runtime, windows_python
-from nfal.models.disk_cache import exclusive, write_in_one_step
+from nfal.cache_folder import exclusive, write_in_one_step
 
 
 def _at_once(function, count=3):

@@ -27,7 +27,8 @@ from nfal.errors import DataFormatError, HostUnavailableError
 from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import RUNTIMES, mingw_tool
 from nfal.fmus.windows_python import wine_path
-from nfal.models.disk_cache import build_once, cache_root, digest, write_in_one_step
+from nfal.cache_folder import build_once, cache_root, write_in_one_step
+from nfal.models.disk_cache import digest
 
 #: The C hosts' sources, per FMI version.
 C_HOST_SOURCES = {version: FMUS_DIR / "hosts" / f"fmi{version}_host.c" for version in (2, 3)}
@@ -76,7 +77,7 @@ def compile_c_host(out_dir: Path, fmi_version: int = 2, *, windows: bool = False
     """Compile ``fmus/hosts/fmi<fmi_version>_host.c`` into ``out_dir`` (made if missing); return the executable
     (``windows``: a win64 ``.exe``, with mingw-w64, run under wine by :mod:`nfal.apps.wine`). Compiled once per
     source (the headers beside it included), compiler and command line into the nfal cache
-    (:func:`~nfal.models.disk_cache.cache_root`), and copied from there; where the cache cannot be written, into
+    (:func:`~nfal.cache_folder.cache_root`), and copied from there; where the cache cannot be written, into
     ``out_dir`` directly."""
     source = C_HOST_SOURCES[fmi_version]
     if windows:

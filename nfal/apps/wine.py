@@ -41,7 +41,7 @@ from nfal.fmus.build import FMUS_DIR
 from nfal.fmus.export_runtime import dll_exports, mingw_tool
 from nfal.fmus.windows_python import wine_path
 from nfal.apps.host_check import HostRuns
-from nfal.models.disk_cache import cache_root, exclusive, write_in_one_step
+from nfal.cache_folder import cache_root, exclusive, write_in_one_step
 
 #: wine's own PE build of ucrtbase (Debian's wine64 8.0).
 WINE_WINDOWS_DLLS = Path("/usr/lib/x86_64-linux-gnu/wine/x86_64-windows")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from nfal.models.disk_cache import build_once
+from nfal.cache_folder import build_once
 
 
 def shared_build(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], object]) -> Path:
