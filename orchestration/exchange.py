@@ -11,6 +11,7 @@ import logging
 
 from nfal.errors import AlgebraicLoopError
 
+from .compiled_exchange import GET, LOAD, LOAD_AND_SET, SET
 from .schedule import Action, causal_sweep
 
 logger = logging.getLogger(__name__)
@@ -42,6 +43,10 @@ class CausalExchange:
         master.run(master.sweep)
 
     refresh = exchange
+
+    def programs(self, master) -> tuple[list, list]:
+        """What :meth:`before_steps` and :meth:`exchange` do, as the compiled step's transfers and kinds."""
+        return [], [(t, GET if t.kind == "get" else LOAD_AND_SET) for t in master.sweep]
 
 
 class JacobiExchange:
@@ -83,6 +88,10 @@ class JacobiExchange:
     def refresh(self, master) -> None:
         """An external input changed without time passing: load it for the next step's sets."""
         master.load_sets()
+
+    def programs(self, master) -> tuple[list, list]:
+        """What :meth:`before_steps` and :meth:`exchange` do, as the compiled step's transfers and kinds."""
+        return [(t, SET) for t in master.sets], [*((t, GET) for t in master.gets), *((t, LOAD) for t in master.sets)]
 
 
 #: Algorithm name -> its exchange.

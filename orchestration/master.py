@@ -68,6 +68,7 @@ from nfal.errors import (CausalityError, FmuCallError, FmuLoadError, InvalidPara
                          TypeMismatchError, UnknownConnectorError, UnsupportedFeatureError, require_positive, shown)
 
 from . import fmu_folders
+from .compiled_exchange import compiled_step
 from .resolve import TRANSPORT, Element, ResolvedSystem, variable_unit
 from .results import Column
 from .exchange import EXCHANGES
@@ -387,6 +388,8 @@ class Master:
         self.start_time, self.step_index = 0.0, 0
         self.elements = {e.name: e for e in system.elements}
         self._slaves: dict[str, _Slave] = {}
+        self.slaves: list[_Slave] = []  # in the order they step
+        self._compiled = None  # the compiled step, once the FMUs are instantiated (if the kernel carries them)
         self._folders: list[str] = []
         self.ended: HorizonEnd | None = None
         self._plan_columns(dict(inputs or {}))
@@ -481,6 +484,11 @@ class Master:
 
     # -- running -----------------------------------------------------------------------------------
     @property
+    def engine(self) -> str:
+        """Who makes the step's calls: ``"C"``, the compiled kernel (:mod:`.compiled_exchange`), or ``"Python"``."""
+        return "C" if self._compiled is not None else "Python"
+
+    @property
     def time(self) -> float:
         """The current communication point [s]."""
         return self.start_time + self.step_index * self.step_size
@@ -538,6 +546,9 @@ class Master:
         self.sets = [t for t in self.sweep if t.kind == "set"]
         self.gets = [t for t in self.sweep if t.kind == "get"]
         self.slaves = list(self._slaves.values())
+        integer_columns = tuple(c for c, column in enumerate(self.columns) if column.type != "Real")
+        self._signal_columns = (0, *(column for column, _, _ in self.signals))  # what the step writes from Python
+        self._compiled = compiled_step(self.slaves, *self.exchange.programs(self), len(self.columns), integer_columns)
 
     def _update_signals(self) -> None:
         t, row = self.time, self.row
@@ -580,6 +591,8 @@ class Master:
         self._call_all("exitInitializationMode")
         self._set_running()
         self.exchange.exchange(self)
+        if self._compiled is not None:
+            self._compiled.load_row(self.row)
         logger.info("initialised %d FMUs at t = %g s (%s)", len(self.slaves), self.start_time, self.algorithm)
 
     def load_sets(self) -> None:
@@ -598,29 +611,65 @@ class Master:
         An FMU that ends its own horizon (fmi2Discard from doStep, then fmi2Terminated true) sets
         :attr:`ended`; if its last successful time is short of the step's end, the step is not taken
         and ``row`` keeps the values at the current ``time``.
+
+        The step's calls are made by the compiled kernel where there is one (:mod:`.compiled_exchange`), else
+        from Python; either way the same calls with the same values, and the same handling of their outcome.
         """
         t, dt = self.time, self.step_size
-        self.exchange.before_steps(self)
-        slave = None
+        compiled = self._compiled
+        if compiled is None:
+            self.exchange.before_steps(self)
+        else:
+            self._run_compiled(compiled.before)
+        first = 0
+        while first < len(self.slaves):
+            index, failure, terminated_at = self._do_steps(first, t, dt)
+            if index < 0:
+                break
+            slave = self.slaves[index]
+            self.ended = (self._horizon_end(slave, failure, t + dt) if failure is not None
+                          else self._terminated(slave, terminated_at, t + dt))
+            if not self.ended.step_completed:
+                return
+            first = index + 1
+        self.step_index += 1
+        self._update_signals()
+        if compiled is None:
+            self.exchange.exchange(self)
+            return
+        for column in self._signal_columns:
+            compiled.row[column] = self.row[column]
+        self._run_compiled(compiled.after)
+        compiled.store_row(self.row)
+
+    def _do_steps(self, first: int, t: float, dt: float) -> tuple[int, FMICallException | None, float | None]:
+        """doStep every slave from index ``first``: (-1, None, None), or the index of the first that did not step
+        cleanly, with its failure, or (FMI 3.0) the last successful time of its terminateSimulation."""
+        if self._compiled is not None:
+            index, status, last = self._compiled.do_steps(first, t, dt)
+            if index < 0 or status <= fmi2Warning:
+                return index, None, last
+            return index, FMICallException(function=f"fmi{self.slaves[index].fmi}DoStep", status=status), None
         clock = time.perf_counter
-        for slave in self.slaves:
+        for index in range(first, len(self.slaves)):
+            slave = self.slaves[index]
             started = clock()
             try:
                 terminated_at = slave.do_step(t, dt)
             except FMICallException as exc:
-                self.ended = self._horizon_end(slave, exc, t + dt)
-                if not self.ended.step_completed:
-                    return
-            else:
-                if terminated_at is not None:  # FMI 3.0: terminateSimulation
-                    self.ended = self._terminated(slave, terminated_at, t + dt)
-                    if not self.ended.step_completed:
-                        return
+                return index, exc, None
             finally:
                 slave.step_time += clock() - started
-        self.step_index += 1
-        self._update_signals()
-        self.exchange.exchange(self)
+            if terminated_at is not None:
+                return index, None, terminated_at
+        return -1, None, None
+
+    def _run_compiled(self, program) -> None:
+        """Carry out a compiled program; its failed call raised as :meth:`run` raises it."""
+        transfer, status = self._compiled.run(program)
+        if transfer is not None:
+            raise self._failure(transfer.slave, FMICallException(function=transfer.name, status=status),
+                                f"for {', '.join(transfer.names)}")
 
     def _horizon_end(self, slave: _Slave, exc: FMICallException, step_end: float) -> "HorizonEnd":
         """A discarded doStep is the end of the FMU's horizon if it says it has terminated (FMI 2.0,
@@ -656,6 +705,8 @@ class Master:
         changed without time passing, e.g. a command from hardware); ``row`` then holds the new values."""
         self._update_signals()
         self.exchange.refresh(self)
+        if self._compiled is not None:
+            self._compiled.load_row(self.row)
 
     def _failure(self, slave: _Slave, exc: FMICallException, context: str = "") -> FmuCallError:
         slave.state = "fatal" if exc.status >= 4 else "error"
@@ -665,8 +716,11 @@ class Master:
     def timing(self) -> dict[str, dict]:
         """Per element: its FMU file and the wall time spent in its doStep calls [s]."""
         steps = max(self.step_index, 1)
-        return {name: {"fmu": slave.element.source.name, "do_step_total_s": slave.step_time,
-                       "do_step_mean_us": slave.step_time / steps * 1e6} for name, slave in self._slaves.items()}
+        compiled = self._compiled
+        seconds = {slave.name: slave.step_time + (compiled.seconds(index) if compiled is not None else 0.0)
+                   for index, slave in enumerate(self.slaves)}
+        return {name: {"fmu": slave.element.source.name, "do_step_total_s": seconds.get(name, 0.0),
+                       "do_step_mean_us": seconds.get(name, 0.0) / steps * 1e6} for name, slave in self._slaves.items()}
 
     def close(self) -> None:
         """Terminate and free every instance that FMI allows to, then remove the extracted FMUs."""

@@ -395,7 +395,7 @@ def _closing_summary(loop: _LoopOutcome, master: Master, writer: CsvWriter, star
     do_step_total = sum(t["do_step_total_s"] for t in loop.timing.values())
     entries = {
         **loop_summary(error, completed, start, step, writer.rows, loop.wall_time_s, loop.init_time_s, loop_time),
-        "do_step_wall_time_s": do_step_total,
+        "do_step_wall_time_s": do_step_total, "exchange_engine": master.engine,
         "exchange_and_record_us_per_step": (loop_time - do_step_total) / completed * 1e6 if completed else None,
         "timing": loop.timing,
         "realtime": None if pacer is None else {**pacer.report(),

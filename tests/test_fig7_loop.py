@@ -10,7 +10,7 @@ from nfal.fmus.base import VALUE_CACHE_ENV
 from nfal.apps.fig7 import (DEFAULT_STAIRCASES, PURE_LOOP_PARAMETERS, SIMULATED, loop_metrics, matched_design,
                             pure_python_loop, reference_staircase, reynolds_law)
 from nfal.models.reference import Staircase
-from nfal.orchestration import run_structure
+from nfal.orchestration import compiled_exchange, run_structure
 
 pytestmark = pytest.mark.slow  # closed loops of FMUs
 
@@ -56,16 +56,21 @@ MEASURED_SHAPE = str(Path(__file__).resolve().parents[1] / "examples" / "shapes"
 
 
 def test_the_reynolds_loop_is_the_same_to_the_bit_without_the_value_cache(fig7_archives, tmp_path, monkeypatch):
-    """fmus/value_cache/ and the ReynoldsPlant's compiled core change where the loop's work is done, not one bit of
-    what it computes: the whole loop's results.csv, its FMUs stepped and read by the runtime, and with
-    NFAL_VALUE_CACHE=off every call through the slaves' Python."""
+    """fmus/value_cache/, the ReynoldsPlant's compiled core and the master's compiled step change where the loop's
+    work is done, not one bit of what it computes: the whole loop's results.csv, its FMUs stepped and read by the
+    runtime and the master's kernel, and with NFAL_VALUE_CACHE=off and NFAL_COMPILED_EXCHANGE=off every call made
+    from the master's Python through the slaves' Python."""
     runs = {}
-    for cache in ("on", "off"):
-        monkeypatch.setenv(VALUE_CACHE_ENV, cache)
-        runs[cache] = run_fig7(fig7_archives["fig7_reynolds"], tmp_path / cache)
-    timing = {cache: run.summary["timing"]["Plant"]["do_step_mean_us"] for cache, run in runs.items()}
+    for switch in ("on", "off"):
+        monkeypatch.setenv(VALUE_CACHE_ENV, switch)
+        monkeypatch.setenv(compiled_exchange.SWITCH, switch)
+        compiled_exchange.library.cache_clear()
+        runs[switch] = run_fig7(fig7_archives["fig7_reynolds"], tmp_path / switch)
+    compiled_exchange.library.cache_clear()
+    timing = {switch: run.summary["timing"]["Plant"]["do_step_mean_us"] for switch, run in runs.items()}
     assert (tmp_path / "on" / "results.csv").read_bytes() == (tmp_path / "off" / "results.csv").read_bytes(), timing
     assert runs["on"].summary["steps_completed"] == 1400
+    assert [run.summary["exchange_engine"] for run in runs.values()] == ["C", "Python"]
 
 
 def hold_ends(table, reference: Staircase, window_s: float = 0.02) -> np.ndarray:

@@ -19,8 +19,10 @@ import pytest
 from fmpy import extract, instantiate_fmu, read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
+from nfal.apps.build import build_all
 from nfal.cli import main
 from nfal.fmus.build import FMU_SCRIPTS, build_fmus
+from nfal.orchestration import compiled_exchange, run_structure
 
 from helpers.fmu_instance import runtime_slave
 from helpers.probe_fmus import build_probe
@@ -272,3 +274,18 @@ def test_nfal_build_fmi3_builds_the_fmus_and_packs_the_structures(capsys, tmp_pa
     with zipfile.ZipFile(archives["fig7_slow"]) as packed:
         with packed.open("resources/SlowPlant.fmu") as fmu, zipfile.ZipFile(fmu) as inner:
             assert b'fmiVersion="3.0"' in inner.read("modelDescription.xml")
+
+
+def test_the_master_steps_fmi3_fmus_in_c_as_in_python(tmp_path, monkeypatch):
+    """fig7_slow of FMI 3.0 FMUs (fmi3DoStep's flags, fmi3GetFloat64 and fmi3GetBoolean's nValues): the master's
+    compiled step gives results.csv byte for byte as its Python does."""
+    archive = build_all(tmp_path / "build", fmi_version=3, structures=("fig7_slow",))["fig7_slow"]
+    runs = {}
+    for switch in ("on", "off"):
+        monkeypatch.setenv(compiled_exchange.SWITCH, switch)
+        compiled_exchange.library.cache_clear()
+        runs[switch] = run_structure(archive, stop_time=0.1, step_size=STEP, out_dir=tmp_path / switch, plot=False,
+                                     progress=False)
+    compiled_exchange.library.cache_clear()
+    assert [run.summary["exchange_engine"] for run in runs.values()] == ["C", "Python"]
+    assert (tmp_path / "on" / "results.csv").read_bytes() == (tmp_path / "off" / "results.csv").read_bytes()
