@@ -142,14 +142,19 @@ class SampleClock:
     def __init__(self, period_s: float, start_time_s: float = 0.0) -> None:
         self.period_s = require_positive("sample period", period_s)
         self.start_time_s = float(start_time_s)
+        self._last: tuple[float, int | None] = (math.nan, None)  # (time, its index): a step asks about one time often
+        self._checked_step = math.nan  # the step size check_step last accepted
 
     def index(self, time_s: float) -> int | None:
         """k if ``time_s`` is the sample instant t0 + k T (k >= 0), else None."""
+        if time_s == self._last[0]:
+            return self._last[1]
         elapsed = float(time_s) - self.start_time_s
         k = round(elapsed / self.period_s)
-        if k < 0 or abs(elapsed - k * self.period_s) > SAMPLE_TOLERANCE * max(self.period_s, abs(elapsed)):
-            return None
-        return int(k)
+        index = None if k < 0 or abs(elapsed - k * self.period_s) > SAMPLE_TOLERANCE * max(self.period_s,
+                                                                                         abs(elapsed)) else int(k)
+        self._last = (time_s, index)
+        return index
 
     def is_sample(self, time_s: float) -> bool:
         """Whether ``time_s`` [s] is a sample instant."""
@@ -161,11 +166,14 @@ class SampleClock:
         A longer step would skip samples; one that does not divide the period would meet the sample
         instants only at common multiples and silently lower the sample rate (0.3 ms on 0.5 ms: 667 Hz).
         """
+        if step_size_s == self._checked_step:
+            return
         ratio = self.period_s / step_size_s
         if abs(ratio - round(ratio)) > SAMPLE_TOLERANCE * ratio or round(ratio) < 1:
             raise InvalidParameterError("communication step size", step_size_s,
                                         f"the sample period {self.period_s:.6g} s divided by a whole number "
                                         f"(e.g. {self.period_s:.6g} s or {self.period_s / 2:.6g} s)")
+        self._checked_step = step_size_s
 
 
 class _Declaration:
@@ -400,9 +408,9 @@ class NfalSlave(Fmi2Slave):
     # Every step's gets and sets go through _get and _set: the declared getters and setters by value reference, no
     # closure, no type test per value (0.2-0.6 us less a call than pythonfmu's loop behind _guard). What they cannot
     # answer (a value reference of another type, a setter or getter that raises, initialisation's provisional set-up)
-    # goes the checked way, pythonfmu's ``checked``, which raises saying why: getters have no side effects, and a set
+    # goes the checked way, pythonfmu's (``_checked``), which raises saying why: getters have no side effects, and a set
     # repeated from the first value sets the same values again.
-    def _get(self, kind: type, vrs, what: str, checked: Callable) -> list:
+    def _get(self, kind: type, vrs, what: str) -> list:
         if not self._in_initialization:
             try:
                 getters, convert = self._getters[kind], _COERCE[kind]
@@ -414,9 +422,9 @@ class NfalSlave(Fmi2Slave):
                 return [convert(getters[vr]()) for vr in vrs]
             except Exception:  # noqa: BLE001 - answered by the checked path
                 pass
-        return self._read(what, checked, vrs)
+        return self._read(what, self._checked(what), vrs)
 
-    def _set(self, kind: type, vrs, values, what: str, checked: Callable) -> None:
+    def _set(self, kind: type, vrs, values, what: str) -> None:
         if self._value_cache is not None:
             self._take_from_cache()  # inputs set before these, by the runtime; the state its core stepped
         try:
@@ -424,11 +432,15 @@ class NfalSlave(Fmi2Slave):
             for vr, value in zip(vrs, values):
                 setters[vr](value)
         except Exception:  # noqa: BLE001 - answered by the checked path
-            self._guard(what, checked, vrs, values)
+            self._guard(what, self._checked(what), vrs, values)
         finally:
             if self._value_cache is not None:  # what a set changes: inputs, and the computed outputs at their read
                 self._write_inputs()
                 self._value_cache[COMPUTED_STALE] = 1.0
+
+    def _checked(self, what: str) -> Callable:
+        """pythonfmu's own ``getReal`` ... ``setString`` (the checked way), looked up only when it is needed."""
+        return getattr(super(), f"{what[:3]}_{what[3:].lower()}")
 
     # --- the runtime's value cache -----------------------------------------------------------------------
     # Our runtimes (fmus/runtime/, fmus/runtime3/; the ValueCache of fmus/value_cache/) answer the gets and sets of
@@ -532,28 +544,28 @@ class NfalSlave(Fmi2Slave):
         cache[COMPUTED_STALE] = 0.0
 
     def set_real(self, vrs, values) -> None:
-        self._set(Real, vrs, values, "setReal", super().set_real)
+        self._set(Real, vrs, values, "setReal")
 
     def set_integer(self, vrs, values) -> None:
-        self._set(Integer, vrs, values, "setInteger", super().set_integer)
+        self._set(Integer, vrs, values, "setInteger")
 
     def set_boolean(self, vrs, values) -> None:
-        self._set(Boolean, vrs, values, "setBoolean", super().set_boolean)
+        self._set(Boolean, vrs, values, "setBoolean")
 
     def set_string(self, vrs, values) -> None:
-        self._set(String, vrs, values, "setString", super().set_string)
+        self._set(String, vrs, values, "setString")
 
     def get_real(self, vrs):
-        return self._get(Real, vrs, "getReal", super().get_real)
+        return self._get(Real, vrs, "getReal")
 
     def get_integer(self, vrs):
-        return self._get(Integer, vrs, "getInteger", super().get_integer)
+        return self._get(Integer, vrs, "getInteger")
 
     def get_boolean(self, vrs):
-        return self._get(Boolean, vrs, "getBoolean", super().get_boolean)
+        return self._get(Boolean, vrs, "getBoolean")
 
     def get_string(self, vrs):
-        return self._get(String, vrs, "getString", super().get_string)
+        return self._get(String, vrs, "getString")
 
     # --- FMU state ---------------------------------------------------------------------------------
     def _get_fmu_state(self) -> dict:

@@ -284,6 +284,7 @@ class ResonanceTracker:
         if not isinstance(pll, PhaseLockedLoop):
             raise InvalidParameterError("pll", type(pll).__name__, "a PhaseLockedLoop")
         self.transducer, self.pll, self.dynamics = transducer, pll, bool(dynamics)
+        self._last_sample: tuple | None = None  # (state, inputs, the PLL's next state): outputs(), then advance()
 
     def initial_state(self, voltage_v: float = 0.0, resonance_shift_hz: float = 0.0) -> TrackerState:
         """Steady state (T3) at the centre frequency for the initial inputs (a bumpless start)."""
@@ -295,9 +296,14 @@ class ResonanceTracker:
             raise InvalidParameterError("state", type(state).__name__, "a TrackerState")
         if not at_sample:
             return state.pll
+        last = self._last_sample
+        if last is not None and last[0] is state and last[1] == voltage_v and last[2] == resonance_shift_hz:
+            return last[3]  # the states are immutable: the sample outputs() took is the one advance() commits
         measured = state.envelope_m if self.dynamics else \
             self.transducer.steady_state(voltage_v, state.pll.drive_frequency_hz, resonance_shift_hz)
-        return self.pll.step(state.pll, measured)
+        pll = self.pll.step(state.pll, measured)
+        self._last_sample = (state, voltage_v, resonance_shift_hz, pll)
+        return pll
 
     def _envelope(self, state: TrackerState, pll: PllState, voltage_v: float, resonance_shift_hz: float) -> complex:
         if self.dynamics:
