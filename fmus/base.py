@@ -467,8 +467,15 @@ class NfalSlave(Fmi2Slave):
             if variable.causality == Fmi2Causality.input:
                 cached.append((declaration, 0))
             elif variable.causality == Fmi2Causality.output:
-                cached.append((declaration, 2 if declaration.depends_on else 1))
+                computed = declaration.depends_on and variable.name not in self._outputs_of_the_state()
+                cached.append((declaration, 2 if computed else 1))
         return cached
+
+    def _outputs_of_the_state(self) -> frozenset[str]:
+        """The outputs declared with ``depends_on`` whose getters, as the slave is set up now, read only the state and
+        the time (the SensorChain's measurement behind its analog filter): the runtime serves them from the buffer,
+        written when a step ends, as any output of the state. Asked at the end of initialisation. Default: none."""
+        return frozenset()
 
     def _bind_value_cache(self, buffer: bytearray) -> None:
         """The runtime's buffer (``_value_cache_layout``'s slots, doubles), filled with the current values; the view

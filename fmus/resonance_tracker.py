@@ -100,6 +100,12 @@ class ResonanceTracker(NfalSlave):
             raise InvalidParameterError("resonance_shift", self.resonance_shift,
                                         f"within +-{limit:g} Hz (half the resonance frequency)")
 
+    def _outputs_of_the_state(self) -> frozenset[str]:
+        """With the transducer's dynamics the PLL measures the envelope, a state: every output is the state's."""
+        if self._tracker is None or not self._tracker.dynamics:
+            return frozenset()
+        return frozenset({"excitation_amplitude", "drive_frequency", "locked", "phase_error"})
+
     def _outputs(self) -> pll_model.TrackerOutputs:
         if self._state is None:  # before initialisation ends: the start values
             return pll_model.TrackerOutputs(0.0, float(self.resonance_frequency), False, 0.0)

@@ -58,6 +58,10 @@ class SensorChain(NfalSlave):
         self._build()
         self._state = self._chain.initial_state(self.true_height)
 
+    def _outputs_of_the_state(self) -> frozenset[str]:
+        """Behind the analog filter the measurement is the filter's sampled state, whatever true_height is now."""
+        return frozenset({"measured_height"}) if self._chain is not None and self._chain.filtered else frozenset()
+
     def _measured(self) -> float:
         if self._state is None:  # before initialisation ends
             return float(self.true_height)

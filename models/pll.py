@@ -296,13 +296,14 @@ class ResonanceTracker:
             raise InvalidParameterError("state", type(state).__name__, "a TrackerState")
         if not at_sample:
             return state.pll
+        inputs = None if self.dynamics else (voltage_v, resonance_shift_hz)  # what the sample measures besides state
         last = self._last_sample
-        if last is not None and last[0] is state and last[1] == voltage_v and last[2] == resonance_shift_hz:
-            return last[3]  # the states are immutable: the sample outputs() took is the one advance() commits
+        if last is not None and last[0] is state and last[1] == inputs:
+            return last[2]  # the states are immutable: the sample outputs() took is the one advance() commits
         measured = state.envelope_m if self.dynamics else \
             self.transducer.steady_state(voltage_v, state.pll.drive_frequency_hz, resonance_shift_hz)
         pll = self.pll.step(state.pll, measured)
-        self._last_sample = (state, voltage_v, resonance_shift_hz, pll)
+        self._last_sample = (state, inputs, pll)
         return pll
 
     def _envelope(self, state: TrackerState, pll: PllState, voltage_v: float, resonance_shift_hz: float) -> complex:

@@ -225,7 +225,7 @@ def test_fmi3_bad_parameter_is_one_logged_error_not_a_crash(builds):
     assert 0 < float(lines[-1]) < 1e-3  # the same process still runs the FMU
 
 
-def _sensor_readings(fmu: Path, folder: Path, heights) -> tuple[list[float], list[str]]:
+def _sensor_readings(fmu: Path, folder: Path, heights, analog_cutoff: float) -> tuple[list[float], list[str]]:
     """A SensorChain run in this process: each step sets true_height, steps, reads measured_height twice; the
     readings, and the calls that reached the slave's Python getters and setters of Reals (the value cache's)."""
     description = read_model_description(str(fmu))
@@ -234,6 +234,7 @@ def _sensor_readings(fmu: Path, folder: Path, heights) -> tuple[list[float], lis
     fmi3 = description.fmiVersion.startswith("3")
     get, set_ = (instance.getFloat64, instance.setFloat64) if fmi3 else (instance.getReal, instance.setReal)
     try:
+        set_([refs["analog_cutoff"]], [analog_cutoff])
         if fmi3:
             instance.enterInitializationMode(startTime=0.0)
         else:
@@ -256,14 +257,17 @@ def _sensor_readings(fmu: Path, folder: Path, heights) -> tuple[list[float], lis
         instance.freeInstance()
 
 
-def test_both_runtimes_answer_from_the_value_cache_alike(builds, tmp_path):
-    """fmus/value_cache/ in both runtimes: the set of an input never reaches the slave; the computed measurement is
-    computed once after each step (its first read), and both builds read the same values."""
+@pytest.mark.parametrize("analog_cutoff, calls", [(0.0, ["get_real"]), (2000.0, [])])
+def test_both_runtimes_answer_from_the_value_cache_alike(builds, tmp_path, analog_cutoff, calls):
+    """fmus/value_cache/ in both runtimes: the set of an input never reaches the slave; without the analog filter
+    the measurement is computed from true_height once after each step (its first read); behind the filter it is the
+    state's, written as the step ends, and no read reaches the slave. Both builds read the same values."""
     heights = [80e-6 + 1e-7 * k for k in range(40)]
     (readings2, calls2), (readings3, calls3) = (
-        _sensor_readings(builds[version]["SensorChain"], tmp_path / f"fmi{version}", heights) for version in (2, 3))
+        _sensor_readings(builds[version]["SensorChain"], tmp_path / f"fmi{version}", heights, analog_cutoff)
+        for version in (2, 3))
     assert readings3 == readings2 and len(set(readings2)) > 2
-    assert calls2 == calls3 == ["get_real"] * len(heights)
+    assert calls2 == calls3 == calls * len(heights)
 
 
 def test_nfal_build_fmi3_builds_the_fmus_and_packs_the_structures(capsys, tmp_path):
