@@ -502,6 +502,10 @@ class NfalSlave(Fmi2Slave):
         (its address, its data's address, the data's size in doubles, the data's owner), or None (the default)."""
         return None
 
+    def _take_core_state(self) -> None:
+        """What the compiled core stepped besides the outputs (the state it keeps in its data), into the slave's
+        state. Default: nothing (the ReynoldsPlant's state is its outputs)."""
+
     def _cache_slot(self, name: str) -> int:
         """The buffer slot of the cached variable ``name``."""
         return self._cache_slots[name]
@@ -514,6 +518,7 @@ class NfalSlave(Fmi2Slave):
             for slot, name, coerce in self._cache_state:
                 setattr(self, name, coerce(cache[slot]))
             self.time = cache[CORE_TIME]
+            self._take_core_state()
         if cache[INPUTS_WAITING]:
             self._take_inputs()
 

@@ -16,10 +16,14 @@ in slow time, eqs. T1-T4; models/pll.py: the PLL, eqs. P1-P2). Variables per doc
 from __future__ import annotations
 
 import dataclasses
+import sys
+
+import numpy as np
 
 from nfal.errors import InvalidParameterError, require_finite
-from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
+from nfal.fmus.base import CORE_TIME, SAMPLE_TOLERANCE, DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import pll as pll_model
+from nfal.models import tracker_core
 from nfal.models.transducer import METRES_PER_VOLT, QUALITY_FACTOR, RESONANCE_FREQUENCY_HZ, Transducer
 
 INPUTS = ("drive_voltage", "resonance_shift")
@@ -69,6 +73,7 @@ class ResonanceTracker(NfalSlave):
         self._clock: SampleClock | None = None
         self._state: pll_model.TrackerState | None = None
         self._last_outputs: tuple | None = None  # ((state, inputs, time), outputs)
+        self._core_data: np.ndarray | None = None  # the compiled core's (models/tracker_core.py)
 
     # --- model ------------------------------------------------------------------------------------------
     def _build(self) -> None:
@@ -123,6 +128,29 @@ class ResonanceTracker(NfalSlave):
         self._check_inputs()
         self._state = self._tracker.advance(self._state, self.drive_voltage, self.resonance_shift, step_size,
                                             at_sample=self._clock.is_sample(current_time))
+        self._store_core_state()
+
+    # --- the compiled core: the runtime steps the tracker without Python (models/tracker_core.py) ------------
+    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+        if not self._outputs_of_the_state() or "numba" not in sys.modules:
+            return None  # the quasi-static transducer's outputs are computed; numba's start would cost more
+        address = tracker_core.step_address()  # compiled, or loaded from numba's cache, on first use
+        slots = (*(self._cache_slot(name) for name in ("drive_voltage", "resonance_shift", "excitation_amplitude",
+                                                        "drive_frequency", "locked", "phase_error")), CORE_TIME)
+        self._core_data = tracker_core.pack(slots, self._tracker, MAX_DRIVE_VOLTAGE_V, SAMPLE_TOLERANCE,
+                                            self._clock.start_time_s, self._state)
+        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _take_core_state(self) -> None:
+        x = self._core_data[tracker_core.STATE:tracker_core.STATE + tracker_core.STATE_SIZE].tolist()
+        self._state = pll_model.TrackerState(complex(x[0], x[1]),
+                                             pll_model.PllState(x[2], x[3], x[4], int(x[5]), bool(x[6])))
+
+    def _store_core_state(self) -> None:
+        """The state the slave's Python stepped or restored, into the core's data."""
+        if self._core_data is not None and self._state is not None:
+            self._core_data[tracker_core.STATE:tracker_core.STATE + tracker_core.STATE_SIZE] = \
+                tracker_core.state_values(self._state)
 
     # --- FMU state ----------------------------------------------------------------------------------------
     def get_internal_state(self) -> dict:
@@ -143,3 +171,4 @@ class ResonanceTracker(NfalSlave):
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidParameterError("FMU state", type(state).__name__,
                                         f"a ResonanceTracker state ({exc})") from None
+        self._store_core_state()

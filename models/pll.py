@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import cmath
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -51,6 +52,7 @@ import numpy as np
 
 from nfal.errors import InvalidParameterError, require_positive
 
+from . import tracker_kernels
 from .table2 import SAMPLING_RATE_HZ
 from .transducer import Transducer
 
@@ -78,7 +80,8 @@ def wrap_phase(angle_rad: float) -> float:
 
 def phase_error(envelope_m: complex) -> float:
     """The phase detector: arg A + pi/2, wrapped [rad]; 0 at resonance, > 0 below it, < 0 above it."""
-    return wrap_phase(cmath.phase(envelope_m) + math.pi / 2.0)
+    envelope = complex(envelope_m)
+    return tracker_kernels.phase_error(envelope.real, envelope.imag)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -230,17 +233,18 @@ class PhaseLockedLoop:
         envelope = complex(envelope_m)
         if not cmath.isfinite(envelope):
             raise InvalidParameterError("envelope_m", envelope_m, "a finite complex amplitude [m]")
-        if abs(envelope) < self.min_amplitude_m:
-            return dataclasses.replace(state, phase_error_rad=0.0, lock_count=0, locked=False)
-        error = phase_error(envelope)
-        if not self.enabled:
-            return PllState(self.centre_frequency_hz, 0.0, error, 0, False)
-        integrator = state.integrator_hz + self.gains.integral_hz_per_rad_s * self.period_s * error
-        offset = self.gains.proportional_hz_per_rad * error + integrator
-        clamped = min(max(offset, -self.pull_range_hz), self.pull_range_hz)
-        integrator += clamped - offset  # back-calculation: the integral holds at the pull-range limit
-        count = min(state.lock_count + 1, self.lock_samples) if abs(error) < self.lock_threshold_rad else 0
-        return PllState(self.centre_frequency_hz + clamped, float(integrator), error, count, count >= self.lock_samples)
+        frequency, integrator, error, count, locked = tracker_kernels.pll_sample(
+            envelope.real, envelope.imag, state.drive_frequency_hz, state.integrator_hz, state.lock_count,
+            state.locked, *self.constants)
+        return PllState(float(frequency), float(integrator), float(error), int(count), bool(locked))
+
+    @functools.cached_property
+    def constants(self) -> tuple:
+        """What :func:`~nfal.models.tracker_kernels.pll_sample` takes after the state: centre frequency, gains,
+        period, pull range, lock threshold and samples, least amplitude, enabled."""
+        return (self.centre_frequency_hz, self.gains.proportional_hz_per_rad, self.gains.integral_hz_per_rad_s,
+                self.period_s, self.pull_range_hz, self.lock_threshold_rad, self.lock_samples, self.min_amplitude_m,
+                bool(self.enabled))
 
 
 @dataclasses.dataclass(frozen=True)

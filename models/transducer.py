@@ -50,6 +50,7 @@ import math
 
 from nfal.errors import InvalidParameterError, require_finite, require_non_negative, require_positive
 
+from . import tracker_kernels
 from .rig import RigParameters
 from .plausibility import FREQUENCY_RANGE_HZ, MAX_METRES_PER_VOLT, require_plausible
 
@@ -109,12 +110,17 @@ class Transducer:
         """d(phase error)/d(f_r - f) at resonance = 2 Q / f_r [rad/Hz] (= 2 pi tau)."""
         return 2.0 * self.quality_factor / self.resonance_frequency_hz
 
+    def _checked(self, voltage_v: float, drive_frequency_hz: float, resonance_shift_hz: float
+                 ) -> tuple[float, float, float]:
+        """(voltage [V], drive frequency [Hz], the current resonance [Hz]), each checked."""
+        return (require_non_negative("voltage_v", voltage_v, "a finite amplitude >= 0 V"),
+                require_positive("drive_frequency_hz", drive_frequency_hz), self.resonance_hz(resonance_shift_hz))
+
     def _coefficients(self, voltage_v: float, drive_frequency_hz: float, resonance_shift_hz: float
                       ) -> tuple[complex, complex]:
         """(lambda [1/s], b V [m/s]) of (T2) at the given inputs (checked)."""
-        voltage = require_non_negative("voltage_v", voltage_v, "a finite amplitude >= 0 V")
-        drive = require_positive("drive_frequency_hz", drive_frequency_hz)
-        omega_r = 2.0 * math.pi * self.resonance_hz(resonance_shift_hz)
+        voltage, drive, resonance = self._checked(voltage_v, drive_frequency_hz, resonance_shift_hz)
+        omega_r = 2.0 * math.pi * resonance
         omega = 2.0 * math.pi * drive
         rate = complex(-omega_r / (2.0 * self.quality_factor), (omega_r ** 2 - omega ** 2) / (2.0 * omega))
         forcing = (self.metres_per_volt / self.quality_factor) * omega_r ** 2 * voltage / (2j * omega)
@@ -136,9 +142,9 @@ class Transducer:
         if not cmath.isfinite(envelope):
             raise InvalidParameterError("envelope_m", envelope_m, "a finite complex amplitude [m]")
         dt = require_positive("dt_s", dt_s)
-        rate, forcing = self._coefficients(voltage_v, drive_frequency_hz, resonance_shift_hz)
-        growth = _expm1(rate * dt)
-        return envelope + growth * (envelope + forcing / rate)
+        voltage, drive, resonance = self._checked(voltage_v, drive_frequency_hz, resonance_shift_hz)
+        return complex(*tracker_kernels.envelope_step(envelope.real, envelope.imag, voltage, drive, resonance,
+                                                      self.quality_factor, self.metres_per_volt, dt))
 
     @staticmethod
     def amplitude(envelope_m: complex) -> float:
@@ -149,9 +155,3 @@ class Transducer:
     def phase(envelope_m: complex) -> float:
         """Phase of the displacement relative to the drive, arg A [rad] in (-pi, pi] (-pi/2 at resonance)."""
         return cmath.phase(envelope_m)
-
-
-def _expm1(z: complex) -> complex:
-    """e^z - 1 for complex z, accurate for small |z|: expm1(x) cos y + i e^x sin y - 2 sin^2(y/2)."""
-    x, y = z.real, z.imag
-    return complex(math.expm1(x) * math.cos(y) - 2.0 * math.sin(y / 2.0) ** 2, math.exp(x) * math.sin(y))

@@ -303,3 +303,84 @@ def test_fmu_tracker_feedthrough_at_the_communication_point(fmus, tmp_path):
     fmu.terminate()
     fmu.freeInstance()
     shutil.rmtree(folder, ignore_errors=True)
+
+
+# --- the ResonanceTracker's compiled core (models/tracker_core.py) ----------------------------------------------
+#: (drive voltage [V], resonance shift [Hz]) per step: locking, a drift, no drive (below the PLL's least amplitude),
+#: a drive again.
+TRACKER_SCENARIO = [(100.0, RAMP(k * DT)) for k in range(300)] + [(0.0, 40.0)] * 20 + [(60.0, 40.0)] * 80
+
+
+@pytest.fixture
+def tracker(fmus, tmp_path):
+    import numba  # noqa: F401 - the slave offers its core only where numba runs already (a plant's)
+    from helpers.fmu_instance import Instance
+
+    instance = Instance(fmus["ResonanceTracker"], extract(str(fmus["ResonanceTracker"]), str(tmp_path / "rt")))
+    yield instance
+    instance.free()
+
+
+@pytest.mark.parametrize("pll_rate", [2000.0, 500.0], ids=["every-step", "every-4th-step"])
+def test_the_trackers_compiled_core_steps_as_its_python(tracker, pll_rate):
+    """The runtime steps the FMU with the compiled core (the slave's Python do_step is not called), and every output
+    is the Python slave's to the bit: locking, a drift, no drive, a drive again, with the PLL sampled at every step
+    and at every fourth; and across an FMU state saved and restored."""
+    from helpers.fmu_instance import runtime_slave
+
+    python = Driver(ResonanceTracker, pll_rate=pll_rate).start()
+    tracker.initialize(pll_rate=pll_rate)
+    slave = runtime_slave("ResonanceTracker")
+    calls = []
+    original = slave.do_step
+    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    names = ("excitation_amplitude", "drive_frequency", "locked", "phase_error")
+    saved, locked = None, []
+    for k, (voltage, shift) in enumerate(TRACKER_SCENARIO):
+        tracker.set(drive_voltage=voltage, resonance_shift=shift)
+        python.set(drive_voltage=voltage, resonance_shift=shift)
+        tracker.step(DT)
+        python.slave.do_step(k * DT, DT)
+        assert tracker.get(*names) == tuple(python.get(name) for name in names), k
+        locked.append(python.get("locked"))
+        if k == 150:
+            saved, state, at = tracker.fmu.getFMUstate(), python.slave._get_fmu_state(), tracker.time
+    assert calls == [] and any(locked) and not all(locked)
+    tracker.fmu.setFMUstate(saved)
+    python.slave._set_fmu_state(state)
+    tracker.time = at
+    for k in range(40):
+        tracker.set(drive_voltage=90.0, resonance_shift=10.0)
+        python.set(drive_voltage=90.0, resonance_shift=10.0)
+        tracker.step(DT)
+        python.slave.do_step(at + k * DT, DT)
+        assert tracker.get(*names) == tuple(python.get(name) for name in names), k
+    tracker.fmu.freeFMUstate(saved)
+
+
+@pytest.mark.parametrize("inputs, reason", [
+    ({"drive_voltage": 2000.0}, "drive_voltage = 2000.0 is invalid"),
+    ({"drive_voltage": -1.0}, "drive_voltage = -1.0 is invalid"),
+    ({"resonance_shift": 20000.0}, "resonance_shift = 20000.0 is invalid")])
+def test_the_trackers_core_leaves_a_refused_input_to_the_slave(tracker, inputs, reason):
+    """A finite input the slave refuses: the core declines the step, the slave's Python says why (one logged error,
+    fmi2Error from doStep) and keeps the state the core stepped to."""
+    tracker.initialize(drive_voltage=100.0)
+    for _ in range(5):
+        tracker.step(DT)  # the core's
+    before = tracker.get("excitation_amplitude", "drive_frequency")
+    tracker.set(**inputs)
+    with pytest.raises(FMICallException) as raised:
+        tracker.step(DT)
+    assert (raised.value.function, raised.value.status) == ("fmi2DoStep", 3)
+    (error,) = tracker.errors()
+    assert reason in error and tracker.get("excitation_amplitude", "drive_frequency") == before
+
+
+def test_the_trackers_core_leaves_a_step_that_misses_the_pll_samples_to_the_slave(tracker):
+    tracker.initialize(drive_voltage=100.0)
+    tracker.step(DT)
+    with pytest.raises(FMICallException):
+        tracker.step(0.3e-3)
+    (error,) = tracker.errors()
+    assert "communication step size" in error
