@@ -12,9 +12,15 @@ the ``true_height`` set before initialisation ends.
 
 from __future__ import annotations
 
+import sys
+
+import numpy as np
+
 from nfal.errors import InvalidParameterError
-from nfal.fmus.base import DefaultExperiment, NfalSlave, SampleClock
+from nfal.fmus.base import CORE_TIME, SAMPLE_TOLERANCE, DefaultExperiment, NfalSlave, SampleClock
 from nfal.models import sensor_chain as sensor_model
+from nfal.models import sensor_core
+from nfal.models.plausibility import MAX_CLEARANCE_M
 from nfal.models.table2 import (ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ,
                                 STAIRCASE_LEVELS_M)
 
@@ -44,6 +50,8 @@ class SensorChain(NfalSlave):
         self._chain: sensor_model.SensorChain | None = None
         self._clock: SampleClock | None = None
         self._state: sensor_model.SensorState | None = None
+        self._core_data: np.ndarray | None = None  # the compiled core's (models/sensor_core.py)
+        self._core_block: np.ndarray | None = None  # the noise block in it
 
     def _build(self) -> None:
         if self.seed < 0:
@@ -71,6 +79,35 @@ class SensorChain(NfalSlave):
         self._clock.check_step(step_size)
         self._state = self._chain.advance(self._state, self.true_height, step_size,
                                           at_sample=self._clock.is_sample(current_time))
+        self._store_core_state()
+
+    # --- the compiled core: the runtime steps the chain without Python (models/sensor_core.py) ---------------
+    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+        if not self._outputs_of_the_state() or self._chain.resolution_m != 0 or "numba" not in sys.modules:
+            return None  # a measurement fed through or quantised is the slave's; numba's start would cost more
+        address = sensor_core.step_address()  # compiled, or loaded from numba's cache, on first use
+        slots = (self._cache_slot("true_height"), self._cache_slot("measured_height"), CORE_TIME)
+        self._core_data = sensor_core.pack(slots, MAX_CLEARANCE_M, SAMPLE_TOLERANCE, self._clock.start_time_s,
+                                           self._clock.period_s, sensor_model.STEP_TOLERANCE,
+                                           self._chain.noise.peak_m > 0)
+        self._core_block = None
+        self._store_core_state()
+        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _take_core_state(self) -> None:
+        y, rate, noise, measured, position, _ = self._core_data[sensor_core.STATE:sensor_core.BLOCK_START].tolist()
+        self._state = sensor_model.SensorState((y, rate), noise, measured)
+        self._chain.noise.read_to(int(position))
+
+    def _store_core_state(self) -> None:
+        """The state the slave's Python stepped or restored into the core's data, with the noise block and the
+        filter's discretisation it uses now."""
+        if self._core_data is None or self._state is None:
+            return
+        block, position = self._chain.noise.block
+        sensor_core.store(self._core_data, self._state, position, None if block is self._core_block else block,
+                          self._chain.discretisation)
+        self._core_block = block
 
     def get_internal_state(self) -> dict:
         return {} if self._state is None else self._chain.get_state(self._state)
@@ -82,3 +119,5 @@ class SensorChain(NfalSlave):
         if self._chain is None:
             self._build()
         self._state = self._chain.set_state(state)
+        self._core_block = None  # the restored noise's
+        self._store_core_state()

@@ -148,9 +148,21 @@ class ColouredNoise:
 
     def next_sample(self) -> float:
         """The next value [m] of the stream."""
+        if self.peak_m == 0:
+            return 0.0  # no block, no position in it: a state taken now can be restored
         value = self.peek()
         self._position += 1
         return value
+
+    @property
+    def block(self) -> tuple[np.ndarray, int]:
+        """The block of values being read and the position of the next in it (for a compiled reader:
+        :mod:`~nfal.models.sensor_core`); an empty block before the first value."""
+        return self._buffer, self._position
+
+    def read_to(self, position: int) -> None:
+        """A compiled reader took the block's values before ``position``."""
+        self._position = int(position)
 
     def take(self, n: int) -> np.ndarray:
         """The next ``n`` values [m] of the stream (n >= 0), identical to ``n`` calls of :meth:`next_sample`."""

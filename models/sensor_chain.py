@@ -30,6 +30,7 @@ import scipy
 
 from nfal.errors import InvalidParameterError, require_finite, require_positive
 
+from . import sensor_core
 from .measurement_noise import ColouredNoise
 from .plausibility import MAX_CLEARANCE_M, require_plausible
 from .table2 import ANALOG_FILTER_CUTOFF_HZ, NOISE_CUTOFF_HZ, NOISE_PEAK_M, SAMPLING_RATE_HZ
@@ -131,6 +132,11 @@ class SensorChain:
             self._cache = (dt_s, tuple(float(v) for v in (*exact[:2, :2].ravel(), *exact[:2, 2])))
         return self._cache[1]
 
+    @property
+    def discretisation(self) -> tuple[float, tuple[float, ...]] | None:
+        """(step size [s], the filter's discretisation for it) last used, or None."""
+        return self._cache
+
     # --- the model ------------------------------------------------------------------------------------
     def initial_state(self, true_height_m: float) -> SensorState:
         """The filter in steady state at ``true_height_m``; nothing sampled yet (the held value is the height)."""
@@ -160,9 +166,7 @@ class SensorChain:
         noise = self.noise.next_sample() if at_sample else state.noise_m
         filt = state.filter_m
         if self.filtered:
-            p00, p01, p10, p11, g0, g1 = self._transition(dt)
-            y, rate, u = filt[0], filt[1], height + noise  # scalars: numpy's 2x2 product costs 8 us a step
-            filt = (p00 * y + p01 * rate + g0 * u, p10 * y + p11 * rate + g1 * u)
+            filt = sensor_core.filter_step(filt[0], filt[1], height + noise, *self._transition(dt))
         return SensorState(filt, noise, measured)
 
     def get_state(self, state: SensorState) -> dict:

@@ -384,3 +384,67 @@ def test_the_trackers_core_leaves_a_step_that_misses_the_pll_samples_to_the_slav
         tracker.step(0.3e-3)
     (error,) = tracker.errors()
     assert "communication step size" in error
+
+
+# --- the SensorChain's compiled core (models/sensor_core.py) --------------------------------------------------
+@pytest.fixture
+def sensor(fmus, tmp_path):
+    import numba  # noqa: F401 - the slave offers its core only where numba runs already (a plant's)
+    from helpers.fmu_instance import Instance
+
+    instance = Instance(fmus["SensorChain"], extract(str(fmus["SensorChain"]), str(tmp_path / "sc")))
+    yield instance
+    instance.free()
+
+
+@pytest.mark.parametrize("parameters", [{"seed": 4}, {"noise_peak": 0.0},
+                                        {"sample_rate": 1000.0, "noise_cutoff": 200.0, "seed": 1}],
+                         ids=["noise", "no-noise", "every-2nd-step"])
+def test_the_sensors_compiled_core_steps_as_its_python(sensor, parameters):
+    """Behind the analog filter the runtime steps the FMU with the compiled core: the slave's Python steps only where
+    the core has no noise left (a new block of 256 every 256 samples) or no discretisation for the step size (the
+    first step, and a step of another size), and every reading is the Python slave's to the bit; across an FMU state
+    saved and restored too."""
+    from helpers.fmu_instance import runtime_slave
+
+    python = Driver(SensorChain, **parameters).start()
+    sensor.initialize(**parameters)
+    slave = runtime_slave("SensorChain")
+    calls = []
+    original = slave.do_step
+    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    heights = 80e-6 + 20e-6 * np.sin(np.arange(700) / 40.0)
+    sizes = [DT] * 600 + [DT / 2] * 100  # a new step size: a new discretisation
+    saved, time = None, 0.0
+    for k, (height, size) in enumerate(zip(heights, sizes)):
+        sensor.set(true_height=height)
+        python.set(true_height=height)
+        sensor.step(size)
+        python.slave.do_step(time, size)
+        time += size
+        assert sensor.get("measured_height") == python.get("measured_height"), k
+        if k == 300:
+            saved, state, at = sensor.fmu.getFMUstate(), python.slave._get_fmu_state(), sensor.time
+    assert 0 < len(calls) <= 8, len(calls)  # the first step, the blocks' ends (600 samples or 150), the new size
+    sensor.fmu.setFMUstate(saved)
+    python.slave._set_fmu_state(state)
+    sensor.time = at
+    for k in range(300):
+        sensor.set(true_height=90e-6)
+        python.set(true_height=90e-6)
+        sensor.step(DT)
+        python.slave.do_step(at + k * DT, DT)
+        assert sensor.get("measured_height") == python.get("measured_height"), k
+    sensor.fmu.freeFMUstate(saved)
+
+
+def test_the_sensors_core_leaves_a_refused_height_to_the_slave(sensor):
+    sensor.initialize(true_height=80e-6)
+    for _ in range(5):
+        sensor.step(DT)
+    before = sensor.get("measured_height")
+    sensor.set(true_height=1.0)  # a metre: a unit slip
+    with pytest.raises(FMICallException):
+        sensor.step(DT)
+    (error,) = sensor.errors()
+    assert "true_height = 1.0 is invalid" in error and sensor.get("measured_height") == before

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nfal.errors import InvalidParameterError
-from nfal.models.measurement_noise import coloured_noise
+from nfal.models.measurement_noise import ColouredNoise, coloured_noise
 from nfal.models.sensor_chain import SensorChain
 
 
@@ -128,3 +128,13 @@ def test_an_impossible_true_height_is_refused_by_the_model_itself(height):
                  lambda: chain.advance(state, height, 5e-4, at_sample=True)):
         with pytest.raises(InvalidParameterError, match="true_height"):
             call()
+
+
+def test_a_noiseless_streams_state_restores_after_samples():
+    """peak 0: no block and no position in it, so a state taken after samples restores (it was refused: position 300
+    beyond an empty block, which failed a SensorChain FMU's fmi2SetFMUstate with its noise off)."""
+    stream = ColouredNoise(peak_m=0.0)
+    assert [stream.next_sample() for _ in range(300)] == [0.0] * 300
+    copy = ColouredNoise(peak_m=0.0)
+    copy.set_state(stream.get_state())
+    assert copy.next_sample() == 0.0
