@@ -6,12 +6,13 @@
    included) with ``Plant.film_solver`` = harmonic_balance (the default; the median of 3 runs) and = time_marching
    (the solver before issue 16: 41 x 64 BDF2, envelope following; one run), and harmonic balance again with
    ``NFAL_VALUE_CACHE=off`` and ``NFAL_COMPILED_EXCHANGE=off`` (every call made from the master's Python through the
-   FMUs' Python: the baseline of the runtime's value cache, the plant's compiled core and the master's compiled step;
+   FMUs' Python: the baseline of the runtime's value cache, the slaves' compiled cores and the master's compiled step;
    the median of 3), one after the other in this process, each after a warm-up run (imports,
    numba caches); reported as wall time / simulated time and their ratio, with the
    time in every FMU's doStep summed (the master's own timing): the floor a faster master could not go below.
    And the other floor: the master over as many compiled FMUs (five FMI Reference FMU Feedthroughs in a chain,
-   compiled from tests/reference_fmus/), the same steps: what the loop would take if its slaves cost nothing.
+   compiled from tests/reference_fmus/), the same steps: what the loop would take if its slaves cost nothing; and
+   the same with ``NFAL_COMPILED_EXCHANGE=off``, the master's calls made from Python (the C step's baseline).
 2. Accuracy of the plant: the averaged harmonic-balance plant (``AveragedFilmPlant``, the FMU's default
    table: 41 radial nodes Richardson-extrapolated with 81, 6 harmonics, 40 squeeze numbers, the free object)
    against the time-marched coupled model converged by Richardson extrapolation of 81 x 128 and 161 x 256,
@@ -169,8 +170,14 @@ def main() -> None:
             os.environ.pop(switch)
         compiled_exchange.library.cache_clear()
         floor = master_floor(Path(folder) / "floor", stop)
-        print("the master over five compiled FMUs:", floor, flush=True)
+        os.environ[compiled_exchange.SWITCH] = "off"  # its baseline: the master's calls from Python
+        compiled_exchange.library.cache_clear()
+        python_floor = master_floor(Path(folder) / "floor-python", stop)
+        os.environ.pop(compiled_exchange.SWITCH)
+        compiled_exchange.library.cache_clear()
+        print("the master over five compiled FMUs:", floor, "from Python:", python_floor, flush=True)
     result = {"simulated_s": stop, "accuracy_run_s": duration, "loops": loops, "master_floor_loop_s": floor,
+              "master_floor_python_loop_s": python_floor,
               "errors": accuracy(duration)}
     print(record.save("reynolds", result))
     record.show(tables(result), findings(result))
@@ -196,7 +203,10 @@ def tables(result: dict) -> list[record.Table]:
                           for solver, loop in result["loops"].items()]
                          + ([["none: five compiled Feedthrough FMUs (the master's floor)", "", "", "",
                               f"{result['master_floor_loop_s']:.2f}", "", ""]] if "master_floor_loop_s" in result
-                            else [])),
+                            else [])
+                         + ([["the same, NFAL_COMPILED_EXCHANGE=off (the master's calls from Python)", "", "", "",
+                              f"{result['master_floor_python_loop_s']:.2f}", "", ""]]
+                            if "master_floor_python_loop_s" in result else [])),
             record.Table(f"The plant's accuracy: open-loop |a| staircase, {result['accuracy_run_s']:g} s, the largest "
                          "relative height error after 30 ms against time marching converged by Richardson "
                          "extrapolation of 81 x 128 and 161 x 256 (target: 5e-4 for the default table):",
@@ -213,7 +223,8 @@ def findings(result: dict) -> list[str]:
             "FMUs' "
             f"own doSteps alone take {loops['harmonic_balance']['do_steps_s']:.2f} s of it (the master's exchange "
             "and recording come on top).",
-            *([f"The runtime's value cache, the plant's compiled core and the master's compiled step make the loop "
+            *([f"The runtime's value cache, the slaves' compiled cores (plant, tracker, sensor) and the master's "
+               "compiled step make the loop "
                f"{loops[CACHE_OFF]['loop_s'] / loop:.2f}x faster than every call made in Python "
                f"({loops[CACHE_OFF]['loop_s']:.2f} s, NFAL_VALUE_CACHE=off and NFAL_COMPILED_EXCHANGE=off, same "
                "run); the Plant's doStep "
@@ -222,7 +233,11 @@ def findings(result: dict) -> list[str]:
             *([f"The master (its compiled step) over five compiled FMUs takes {result['master_floor_loop_s']:.2f} s "
                "for the same steps "
                f"({stop / result['master_floor_loop_s']:.1f}x faster than real time), against "
-               f"{loops['harmonic_balance']['loop_s']:.2f} s for the loop: the rest is the slaves' Python."]
+               f"{loops['harmonic_balance']['loop_s']:.2f} s for the loop: the rest is the slaves' Python."
+               + (f" From Python (NFAL_COMPILED_EXCHANGE=off, same run) the master takes "
+                  f"{result['master_floor_python_loop_s']:.2f} s for them, "
+                  f"{result['master_floor_python_loop_s'] / result['master_floor_loop_s']:.1f}x as long."
+                  if "master_floor_python_loop_s" in result else "")]
               if "master_floor_loop_s" in result and "loop_s" in loops["harmonic_balance"] else []),
             f"The default table's worst error is {result['errors']['plant, default table']:.2e} (target 5e-4)."]
 
