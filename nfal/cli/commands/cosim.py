@@ -66,7 +66,9 @@ def _register_run(commands) -> None:
         "terminateSimulation) ends the run there, with a note. A Fig. 7 run is checked: an object that never leaves "
         "the surface or reaches no level of its reference fails the run (exit 2, the reason, every row kept); a level "
         "never reached, or a long saturation of the drive, is a warning (status ok; docs/cosimulation.md, \"A run's "
-        "status and its step metrics\").",
+        "status and its step metrics\"). The master makes each step's FMI calls from C, built with the system's C "
+        "compiler on first use (summary.json's exchange_engine says C or Python; NFAL_COMPILED_EXCHANGE=off: from "
+        "Python, the same results).",
         epilog="Examples: nfal run; nfal run fig7_reynolds --stop-time 0.7; "
         "nfal run build/fig7_slow.ssp --param Controller.design=fixed --param Controller.design_height=120e-6; "
         "nfal run --reference my_reference.csv --realtime; "
