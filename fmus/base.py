@@ -83,6 +83,7 @@ from pythonfmu.variables import Boolean, Integer, Real, ScalarVariable, String
 from nfal import __version__
 from nfal.errors import (FmuStateError, InvalidParameterError, SlaveCallError, require_finite,
                          require_positive)
+from nfal.models import clock_kernels
 
 logger = logging.getLogger(__name__)
 
@@ -149,10 +150,8 @@ class SampleClock:
         """k if ``time_s`` is the sample instant t0 + k T (k >= 0), else None."""
         if time_s == self._last[0]:
             return self._last[1]
-        elapsed = float(time_s) - self.start_time_s
-        k = round(elapsed / self.period_s)
-        index = None if k < 0 or abs(elapsed - k * self.period_s) > SAMPLE_TOLERANCE * max(self.period_s,
-                                                                                         abs(elapsed)) else int(k)
+        k = clock_kernels.sample_index(float(time_s), self.start_time_s, self.period_s, SAMPLE_TOLERANCE)
+        index = None if k < 0 else k
         self._last = (time_s, index)
         return index
 
@@ -168,8 +167,7 @@ class SampleClock:
         """
         if step_size_s == self._checked_step:
             return
-        ratio = self.period_s / step_size_s
-        if abs(ratio - round(ratio)) > SAMPLE_TOLERANCE * ratio or round(ratio) < 1:
+        if not clock_kernels.divides(self.period_s, step_size_s, SAMPLE_TOLERANCE):
             raise InvalidParameterError("communication step size", step_size_s,
                                         f"the sample period {self.period_s:.6g} s divided by a whole number "
                                         f"(e.g. {self.period_s:.6g} s or {self.period_s / 2:.6g} s)")

@@ -16,8 +16,11 @@ import math
 
 import numpy as np
 
-from . import jit
+from . import clock_kernels, jit
 from .measurement_noise import BLOCK
+
+#: The files whose kernels the compiled core holds (part of its numba cache key, models/numba_cache.py).
+KERNEL_DEPENDENCIES = ("clock_kernels.py",)
 
 #: ``data``: the buffer's slots (true height, measured height, the time the core stepped to), the largest clearance,
 #: the sample clock's tolerance, start and period, the step size the discretisation is for and its tolerance, the
@@ -60,10 +63,7 @@ def store(data: np.ndarray, state, position: int, block: np.ndarray | None,
 
 @jit.kernel
 def _at_sample(t, d):
-    """Whether ``t`` is a sample instant of the clock in ``d`` (``fmus.base.SampleClock.index``)."""
-    elapsed = t - d[_START]
-    k = math.floor(elapsed / d[_PERIOD] + 0.5)  # a tie is a half period away: not a sample however it rounds
-    return k >= 0 and abs(elapsed - k * d[_PERIOD]) <= d[_TOLERANCE] * max(d[_PERIOD], abs(elapsed))
+    return clock_kernels.sample_index(t, d[_START], d[_PERIOD], d[_TOLERANCE]) >= 0
 
 
 @jit.kernel
@@ -74,9 +74,7 @@ def advance(values, d, t, dt):
         return 1  # the slave refuses it, saying why
     if not (dt > 0.0 and math.isfinite(dt) and abs(d[_STEP] - dt) <= d[_STEP_TOLERANCE] * dt):
         return 1  # refused, or a step size the discretisation was not made for (or none yet)
-    ratio = d[_PERIOD] / dt
-    whole = math.floor(ratio + 0.5)
-    if abs(ratio - whole) > d[_TOLERANCE] * ratio or whole < 1:
+    if not clock_kernels.divides(d[_PERIOD], dt, d[_TOLERANCE]):
         return 1  # a step that does not divide the sample period
     x = d[STATE:STATE + STATE_SIZE]
     y, rate, noise, measured, position, size = x[0], x[1], x[2], x[3], int(x[4]), int(x[5])

@@ -16,10 +16,10 @@ import math
 
 import numpy as np
 
-from . import jit, tracker_kernels
+from . import clock_kernels, jit, tracker_kernels
 
 #: The files whose kernels the compiled core holds (part of its numba cache key, models/numba_cache.py).
-KERNEL_DEPENDENCIES = ("tracker_kernels.py",)
+KERNEL_DEPENDENCIES = ("tracker_kernels.py", "clock_kernels.py")
 #: ``data``: the buffer's slots (drive voltage, resonance shift, excitation amplitude, drive frequency, locked, phase
 #: error, the time the core stepped to), the largest drive voltage, the sample clock's tolerance, start and period,
 #: the transducer (resonance, Q, metres per volt), the PLL's constants (``PhaseLockedLoop.constants``), the state.
@@ -47,18 +47,15 @@ def pack(slots: tuple[int, ...], tracker, max_voltage: float, tolerance: float, 
 
 
 @jit.kernel
-def _at_sample(t, d):
-    """Whether ``t`` is a sample instant of the clock in ``d`` (``fmus.base.SampleClock.index``)."""
-    elapsed = t - d[_START]
-    k = math.floor(elapsed / d[_PERIOD] + 0.5)  # a tie is a half period away: not a sample however it rounds
-    return k >= 0 and abs(elapsed - k * d[_PERIOD]) <= d[_TOLERANCE] * max(d[_PERIOD], abs(elapsed))
-
-
-@jit.kernel
 def _sample(d, re, im, frequency, integrator, error, count, locked):
     p = d[_PLL:_PLL + 9]
     return tracker_kernels.pll_sample(re, im, frequency, integrator, count, locked, p[0], p[1], p[2], p[3], p[4],
                                       p[5], int(p[6]), p[7], p[8] != 0.0)
+
+
+@jit.kernel
+def _at_sample(t, d):
+    return clock_kernels.sample_index(t, d[_START], d[_PERIOD], d[_TOLERANCE]) >= 0
 
 
 @jit.kernel
@@ -71,9 +68,7 @@ def advance(values, d, t, dt):
         return 1  # the slave refuses it, saying why (NaN fails every comparison)
     if not (dt > 0.0 and math.isfinite(dt)):
         return 1
-    ratio = d[_PERIOD] / dt
-    whole = math.floor(ratio + 0.5)
-    if abs(ratio - whole) > d[_TOLERANCE] * ratio or whole < 1:
+    if not clock_kernels.divides(d[_PERIOD], dt, d[_TOLERANCE]):
         return 1  # a step that does not divide the PLL's period
     x = d[STATE:STATE + STATE_SIZE]
     re, im, frequency, integrator, error, count, locked = x[0], x[1], x[2], x[3], x[4], int(x[5]), x[6] != 0.0
