@@ -392,6 +392,7 @@ class NfalSlave(Fmi2Slave):
             self.time = float(current_time) + float(step_size)
             if cache is not None:  # the state's outputs; the computed ones wait for a read (the runtime knows)
                 self._write_state_outputs()
+                self._store_core_state()
             return True
         except Exception as exc:  # noqa: BLE001 - every error must reach the master as a logged FMI status
             if cache is not None:  # what the failed step left, as far as it reads: the error is the step's
@@ -499,6 +500,11 @@ class NfalSlave(Fmi2Slave):
         """A compiled core for the runtime to step this slave on the buffer (:mod:`nfal.models.plant_core`):
         (its address, its data's address, the data's size in doubles, the data's owner), or None (the default)."""
         return None
+
+    def _store_core_state(self) -> None:
+        """The slave's state, as its Python stepped or restored it, into its compiled core's data; where the slave is
+        not initialised (a state restored from before initialisation ended) the core must leave every step to it.
+        Called after a step in Python and a restore. Default: nothing (no core)."""
 
     def _take_core_state(self) -> None:
         """What the compiled core stepped besides the outputs (the state it keeps in its data), into the slave's
@@ -612,6 +618,7 @@ class NfalSlave(Fmi2Slave):
             self._guard("setFMUstate", run)
         finally:
             if cache is not None:  # what the restore left, as far as it reads (the error is the restore's)
+                self._store_core_state()
                 with contextlib.suppress(Exception):
                     self._write_inputs()
                     self._write_state_outputs()

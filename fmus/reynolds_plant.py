@@ -107,8 +107,6 @@ class ReynoldsPlant(RigSlave):
         body = Body(self.height, self.velocity, self.resting, self.oscillation_amplitude)
         self._publish(self._film.advance(body, self.checked_excitation(), self.checked_frequency(), current_time,
                                          step_size))
-        if self._core_data is not None and self._film.stepper is not self._core_stepper:  # rebuilt for a frequency
-            self._core_data[:] = self._pack_core()
 
     # --- the compiled core: the runtime steps free flight without Python (models/plant_core.py) ----------------
     def _value_cache_core(self) -> tuple[int, int, int, object] | None:
@@ -117,6 +115,17 @@ class ReynoldsPlant(RigSlave):
         address = plant_core.step_address()  # compiled, or loaded from numba's cache, on first use
         self._core_data = self._pack_core()
         return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _store_core_state(self) -> None:
+        """The state is the outputs, in the buffer; the core's data changes with a model rebuilt for a frequency, and
+        holds every step for the slave while it is not initialised."""
+        if self._core_data is None:
+            return
+        if not self.initialized:
+            plant_core.hold(self._core_data)
+            self._core_stepper = None  # repacked when it is again
+        elif self._film.stepper is not self._core_stepper:
+            self._core_data[:] = self._pack_core()
 
     def _pack_core(self) -> np.ndarray:
         self._core_stepper = self._film.stepper

@@ -57,7 +57,8 @@ def curve_value(log_axis, breaks, pieces, low, high, delta_max, x, delta):
         x = math.log(x)
     interval = min(max(np.searchsorted(breaks, x, side="right") - 1, 0), breaks.shape[0] - 2)
     t = x - breaks[interval]
-    squared = min(abs(delta), delta_max) ** 2
+    reach = min(abs(delta), delta_max)
+    squared = reach * reach  # not ** 2: CPython's pow() and numba's x * x differ in the last bit now and then
     value = 0.0
     for power in range(pieces.shape[1] - 1, -1, -1):  # Horner in delta^2 over polynomials in t
         piece = 0.0

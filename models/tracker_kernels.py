@@ -2,7 +2,8 @@
 :meth:`Transducer.step <nfal.models.transducer.Transducer.step>` and :meth:`PhaseLockedLoop.step
 <nfal.models.pll.PhaseLockedLoop.step>` compute, and the ResonanceTracker's compiled core (``tracker_core.py``) with
 them. The complex arithmetic is spelled out as CPython does it (``_Py_c_prod``, ``_Py_c_quot`` in
-Objects/complexobject.c; a float operand enters as ``x + 0j``), so that Python and numba give the same bits.
+Objects/complexobject.c; a float operand enters as ``x + 0j``) and a square as a product, so that Python and numba
+give the same bits.
 """
 
 from __future__ import annotations
@@ -36,12 +37,14 @@ def envelope_step(envelope_re, envelope_im, voltage, drive_hz, resonance_hz, qua
     at the current resonance ``resonance_hz`` (shift included)."""
     omega_r = TWO_PI * resonance_hz
     omega = TWO_PI * drive_hz
-    rate_re, rate_im = -omega_r / (2.0 * quality_factor), (omega_r ** 2 - omega ** 2) / (2.0 * omega)
+    omega_r2 = omega_r * omega_r  # squares as products: CPython's ** 2 is pow(), numba's x * x, not always equal
+    rate_re, rate_im = -omega_r / (2.0 * quality_factor), (omega_r2 - omega * omega) / (2.0 * omega)
     drive_re, drive_im = _product(0.0, 2.0, omega, 0.0)  # 2j * omega
-    forcing_re, forcing_im = _quotient((metres_per_volt / quality_factor) * omega_r ** 2 * voltage, 0.0,
+    forcing_re, forcing_im = _quotient((metres_per_volt / quality_factor) * omega_r2 * voltage, 0.0,
                                        drive_re, drive_im)
     x, y = _product(rate_re, rate_im, dt, 0.0)  # lambda dt
-    growth_re, growth_im = math.expm1(x) * math.cos(y) - 2.0 * math.sin(y / 2.0) ** 2, math.exp(x) * math.sin(y)
+    half = math.sin(y / 2.0)
+    growth_re, growth_im = math.expm1(x) * math.cos(y) - 2.0 * (half * half), math.exp(x) * math.sin(y)
     ratio_re, ratio_im = _quotient(forcing_re, forcing_im, rate_re, rate_im)
     change_re, change_im = _product(growth_re, growth_im, envelope_re + ratio_re, envelope_im + ratio_im)
     return envelope_re + change_re, envelope_im + change_im
