@@ -9,7 +9,8 @@ are the ones the master would move, to the bit (``tests/test_compiled_exchange.p
 
 The library is built from source with the system's C compiler (``$CC``, else ``cc``) on first use, once per source
 into the user-wide cache. Without a compiler, where ``NFAL_COMPILED_EXCHANGE=off``, or for FMUs exchanging a type a
-double does not hold exactly (64-bit integers), the master runs its own exchange in Python, as before.
+double does not hold exactly (64-bit integers, an Integer external input), the master runs its own exchange in
+Python, as before.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ GET, LOAD_AND_SET, SET, LOAD = range(4)
 TYPE_CODES = {ctypes.c_double: 0, ctypes.c_float: 1, ctypes.c_int8: 2, ctypes.c_uint8: 3, ctypes.c_int16: 4,
               ctypes.c_uint16: 5, ctypes.c_int32: 6, ctypes.c_uint32: 7, ctypes.c_bool: 8}
 _FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
+_LIBRARIES = ("-lm",)
 
 
 class _TransferC(ctypes.Structure):
@@ -54,7 +56,8 @@ class _SlaveC(ctypes.Structure):
 def _build(target: Path) -> None:
     compiler = os.environ.get("CC") or "cc"
     write_in_one_step(target, lambda partial: subprocess.run(
-        [compiler, *_FLAGS, "-o", str(partial), str(SOURCE)], check=True, capture_output=True, text=True))
+        [compiler, *_FLAGS, "-o", str(partial), str(SOURCE), *_LIBRARIES], check=True, capture_output=True,
+        text=True))
 
 
 @functools.cache
@@ -63,7 +66,8 @@ def library() -> ctypes.CDLL | None:
     cannot be built (said once, at INFO: the master then exchanges in Python)."""
     if os.environ.get(SWITCH, "").lower() == "off":
         return None
-    key = hashlib.sha256(SOURCE.read_bytes() + " ".join((*_FLAGS, platform.machine())).encode()).hexdigest()[:16]
+    command = " ".join((*_FLAGS, *_LIBRARIES, platform.machine()))
+    key = hashlib.sha256(SOURCE.read_bytes() + command.encode()).hexdigest()[:16]
     target = cache_root() / "exchange-kernel" / key / "libnfal_exchange.so"
     try:
         build_once(target.is_file, target.parent / "build.lock", lambda: _build(target))

@@ -3,9 +3,11 @@
  * through ctypes. It decides nothing: the plan, the row's columns and every error are the Python master's.
  *
  * The row is the master's row as doubles; a value of any other type crosses as the Python master copies it
- * (compiled_exchange.py admits only the types a double holds exactly). Built with -ffp-contract=off: a
+ * (compiled_exchange.py admits only the types a double holds exactly, and no Integer external input: a Python int
+ * may not fit a double). An integer target takes a value wrapped modulo 2^bits, as a ctypes integer does. Built with -ffp-contract=off: a
  * connection's factor * value + offset is rounded as Python rounds it.
  */
+#include <math.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -45,6 +47,12 @@ static double now(void) {
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* value modulo 2^bits, in [0, 2^bits): an integer target takes it as ctypes takes a Python int, wrapped */
+static double wrapped(double value, double modulus) {
+    double rest = fmod(value, modulus);
+    return rest < 0.0 ? rest + modulus : rest;
+}
+
 static double value_at(const void *buffer, int32_t type, size_t j) {
     switch (type) {
     case F64: return ((const double *)buffer)[j];
@@ -55,7 +63,7 @@ static double value_at(const void *buffer, int32_t type, size_t j) {
     case U16: return ((const uint16_t *)buffer)[j];
     case I32: return ((const int32_t *)buffer)[j];
     case U32: return ((const uint32_t *)buffer)[j];
-    default: return ((const bool *)buffer)[j];
+    default: return ((const uint8_t *)buffer)[j] != 0;  /* as ctypes reads a c_bool, whatever byte the FMU wrote */
     }
 }
 
@@ -63,12 +71,12 @@ static void put(void *buffer, int32_t type, size_t j, double value) {
     switch (type) {
     case F64: ((double *)buffer)[j] = value; break;
     case F32: ((float *)buffer)[j] = (float)value; break;
-    case I8: ((int8_t *)buffer)[j] = (int8_t)value; break;
-    case U8: ((uint8_t *)buffer)[j] = (uint8_t)value; break;
-    case I16: ((int16_t *)buffer)[j] = (int16_t)value; break;
-    case U16: ((uint16_t *)buffer)[j] = (uint16_t)value; break;
-    case I32: ((int32_t *)buffer)[j] = (int32_t)value; break;
-    case U32: ((uint32_t *)buffer)[j] = (uint32_t)value; break;
+    case I8: ((int8_t *)buffer)[j] = (int8_t)(uint8_t)wrapped(value, 256.0); break;
+    case U8: ((uint8_t *)buffer)[j] = (uint8_t)wrapped(value, 256.0); break;
+    case I16: ((int16_t *)buffer)[j] = (int16_t)(uint16_t)wrapped(value, 65536.0); break;
+    case U16: ((uint16_t *)buffer)[j] = (uint16_t)wrapped(value, 65536.0); break;
+    case I32: ((int32_t *)buffer)[j] = (int32_t)(uint32_t)wrapped(value, 4294967296.0); break;
+    case U32: ((uint32_t *)buffer)[j] = (uint32_t)wrapped(value, 4294967296.0); break;
     default: ((bool *)buffer)[j] = value != 0.0; break;
     }
 }

@@ -246,6 +246,7 @@ class _Slave3(_Slave):
 
     def do_step(self, t: float, dt: float) -> float | None:
         """One fmi3DoStep; None, or the last successful time when the FMU asks to terminate the simulation."""
+        self._terminate.value = False  # what an FMU that does not write it says (the compiled step's too)
         _checked("fmi3DoStep", self._do_step(self.component, t, dt, fmi3True, *self._step_flags))
         return self._last.value if self._terminate.value else None
 
@@ -548,7 +549,13 @@ class Master:
         self.slaves = list(self._slaves.values())
         integer_columns = tuple(c for c, column in enumerate(self.columns) if column.type != "Real")
         self._signal_columns = (0, *(column for column, _, _ in self.signals))  # what the step writes from Python
-        self._compiled = compiled_step(self.slaves, *self.exchange.programs(self), len(self.columns), integer_columns)
+        integer_inputs = [self.columns[c].name for c, _, _ in self.signals if self.columns[c].type == "Integer"]
+        if integer_inputs:  # a Python int may not fit a double: the Python exchange keeps it exact
+            logger.debug("the master exchanges in Python: Integer external inputs %s", ", ".join(integer_inputs))
+            self._compiled = None
+        else:
+            self._compiled = compiled_step(self.slaves, *self.exchange.programs(self), len(self.columns),
+                                           integer_columns)
 
     def _update_signals(self) -> None:
         t, row = self.time, self.row
@@ -639,8 +646,10 @@ class Master:
             return
         for column in self._signal_columns:
             compiled.row[column] = self.row[column]
-        self._run_compiled(compiled.after)
-        compiled.store_row(self.row)
+        try:
+            self._run_compiled(compiled.after)
+        finally:  # a call that fails leaves what was read before it, as the Python exchange does
+            compiled.store_row(self.row)
 
     def _do_steps(self, first: int, t: float, dt: float) -> tuple[int, FMICallException | None, float | None]:
         """doStep every slave from index ``first``: (-1, None, None), or the index of the first that did not step

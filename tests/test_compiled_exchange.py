@@ -4,6 +4,7 @@ no kernel, the Python exchange and one line saying why."""
 
 from __future__ import annotations
 
+import ctypes
 import logging
 from pathlib import Path
 
@@ -76,3 +77,55 @@ def test_without_a_compiler_the_master_exchanges_in_python(reference, tmp_path, 
     assert result.summary["exchange_engine"] == "Python" and result.summary["steps_completed"] > 0
     said = [r.message for r in caplog.records if "its C kernel could not be built" in r.message]
     assert len(said) == 1, said
+
+
+def test_an_integer_external_input_keeps_the_exchange_in_python(reference, tmp_path):
+    """A Python int may not fit a double: an Integer external input (Feedthrough's Int32_input, 2^40 + 1, wrapped
+    into 32 bits by the set as ctypes wraps it) is exchanged from Python, exactly."""
+    result = run_structure(reference / "stair_feedthrough.ssd", out_dir=tmp_path, plot=False, progress=False,
+                           stop_time=0.4, inputs={"Feedthrough.Int32_input": 2 ** 40 + 1})
+    assert result.summary["exchange_engine"] == "Python"
+    assert set(result["Feedthrough.Int32_output"]) == {1}
+
+
+def _loaded(values, type_, kind=compiled_exchange.LOAD, function=None, fmi=2):
+    """One transfer of ``values`` through the kernel on a row holding them: (the buffer, the row) afterwards."""
+    n = len(values)
+    buffer = (type_ * n)()
+    row = (ctypes.c_double * n)(*values)
+    columns = (ctypes.c_int32 * n)(*range(n))
+    vr = (ctypes.c_uint32 * n)(*range(n))
+    entry = compiled_exchange._TransferC(function=function, component=None, vr=ctypes.addressof(vr), n=n, fmi=fmi,
+                                         kind=kind, type=compiled_exchange.TYPE_CODES[type_],
+                                         buffer=ctypes.addressof(buffer),
+                                         columns=ctypes.cast(columns, ctypes.POINTER(ctypes.c_int32)))
+    status = ctypes.c_int32()
+    assert compiled_exchange.library().nfal_transfers(ctypes.byref(entry), 1, row, ctypes.byref(status)) == -1
+    return list(buffer), list(row)
+
+
+@pytest.mark.parametrize("type_", [ctypes.c_int8, ctypes.c_uint8, ctypes.c_int16, ctypes.c_uint16, ctypes.c_int32,
+                                   ctypes.c_uint32, ctypes.c_bool])
+def test_an_integer_target_takes_a_value_as_ctypes_does(type_):
+    """Out of its range a value wraps modulo 2^bits, as a Python int set into a ctypes integer (a UInt32 output of
+    3e9 into an Int32 input); a C cast would be undefined there."""
+    values = [0.0, 1.0, -1.0, 127.0, 128.0, 255.0, 256.0, -129.0, 40000.0, -40000.0, 3e9, -3e9, 2.0 ** 40 + 5]
+    expected = (type_ * len(values))()
+    for j, value in enumerate(values):
+        expected[j] = int(value)
+    assert _loaded(values, type_)[0] == list(expected)
+
+
+def test_a_boolean_read_is_0_or_1_whatever_byte_the_fmu_wrote():
+    """An FMI 3.0 Boolean whose byte is 2 (a non-conforming FMU) is read as 1, as ctypes reads a c_bool."""
+    signature = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
+                                 ctypes.c_size_t)
+
+    def get_boolean(_instance, _vr, n, values, _n_values):
+        ctypes.memmove(values, bytes([2, 0, 1][:n]), n)
+        return 0
+
+    function = signature(get_boolean)
+    _, row = _loaded([0.0, 0.0, 0.0], ctypes.c_bool, compiled_exchange.GET, ctypes.cast(function, ctypes.c_void_p),
+                     fmi=3)
+    assert row == [1.0, 0.0, 1.0]
