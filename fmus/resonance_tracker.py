@@ -118,7 +118,8 @@ class ResonanceTracker(NfalSlave):
         cached = self._last_outputs
         if cached is None or cached[0][0] is not key[0] or cached[0][1:] != key[1:]:
             # once per (state, inputs, time): a master reads the four outputs one by one
-            self._check_inputs()
+            if not self._tracker.dynamics:  # the quasi-static transducer's outputs read the inputs: checked
+                self._check_inputs()
             cached = self._last_outputs = (key, self._tracker.outputs(
                 self._state, self.drive_voltage, self.resonance_shift, at_sample=self._clock.is_sample(self.time)))
         return cached[1]
@@ -128,18 +129,21 @@ class ResonanceTracker(NfalSlave):
         self._check_inputs()
         self._state = self._tracker.advance(self._state, self.drive_voltage, self.resonance_shift, step_size,
                                             at_sample=self._clock.is_sample(current_time))
-        self._store_core_state()
 
     # --- the compiled core: the runtime steps the tracker without Python (models/tracker_core.py) ------------
     def _value_cache_core(self) -> tuple[int, int, int, object] | None:
         if not self._outputs_of_the_state() or "numba" not in sys.modules:
             return None  # the quasi-static transducer's outputs are computed; numba's start would cost more
         address = tracker_core.step_address()  # compiled, or loaded from numba's cache, on first use
+        self._core_data = self._packed_core()
+        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _packed_core(self) -> np.ndarray:
+        """The core's data for the slave as it is now (its clock, its tracker, its state or, not initialised, none)."""
         slots = (*(self._cache_slot(name) for name in ("drive_voltage", "resonance_shift", "excitation_amplitude",
                                                         "drive_frequency", "locked", "phase_error")), CORE_TIME)
-        self._core_data = tracker_core.pack(slots, self._tracker, MAX_DRIVE_VOLTAGE_V, SAMPLE_TOLERANCE,
-                                            self._clock.start_time_s, self._state)
-        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+        return tracker_core.pack(slots, self._tracker, MAX_DRIVE_VOLTAGE_V, SAMPLE_TOLERANCE, self._clock.start_time_s,
+                                 self._state if self.initialized else None)
 
     def _take_core_state(self) -> None:
         x = self._core_data[tracker_core.STATE:tracker_core.STATE + tracker_core.STATE_SIZE].tolist()
@@ -147,10 +151,8 @@ class ResonanceTracker(NfalSlave):
                                              pll_model.PllState(x[2], x[3], x[4], int(x[5]), bool(x[6])))
 
     def _store_core_state(self) -> None:
-        """The state the slave's Python stepped or restored, into the core's data."""
-        if self._core_data is not None and self._state is not None:
-            self._core_data[tracker_core.STATE:tracker_core.STATE + tracker_core.STATE_SIZE] = \
-                tracker_core.state_values(self._state)
+        if self._core_data is not None:
+            self._core_data[:] = self._packed_core()
 
     # --- FMU state ----------------------------------------------------------------------------------------
     def get_internal_state(self) -> dict:
@@ -171,4 +173,3 @@ class ResonanceTracker(NfalSlave):
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidParameterError("FMU state", type(state).__name__,
                                         f"a ResonanceTracker state ({exc})") from None
-        self._store_core_state()

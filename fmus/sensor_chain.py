@@ -51,7 +51,6 @@ class SensorChain(NfalSlave):
         self._clock: SampleClock | None = None
         self._state: sensor_model.SensorState | None = None
         self._core_data: np.ndarray | None = None  # the compiled core's (models/sensor_core.py)
-        self._core_block: np.ndarray | None = None  # the noise block in it
 
     def _build(self) -> None:
         if self.seed < 0:
@@ -73,26 +72,34 @@ class SensorChain(NfalSlave):
     def _measured(self) -> float:
         if self._state is None:  # before initialisation ends
             return float(self.true_height)
-        return self._chain.output(self._state, self.true_height, at_sample=self._clock.is_sample(self.time))
+        at_sample = self._clock.is_sample(self.time)
+        if self._chain.filtered:  # an output of the state: the height is checked where it is read, by the step
+            return self._chain.filtered_output(self._state, at_sample=at_sample)
+        return self._chain.output(self._state, self.true_height, at_sample=at_sample)
 
     def step(self, current_time: float, step_size: float) -> None:
         self._clock.check_step(step_size)
         self._state = self._chain.advance(self._state, self.true_height, step_size,
                                           at_sample=self._clock.is_sample(current_time))
-        self._store_core_state()
 
     # --- the compiled core: the runtime steps the chain without Python (models/sensor_core.py) ---------------
     def _value_cache_core(self) -> tuple[int, int, int, object] | None:
         if not self._outputs_of_the_state() or self._chain.resolution_m != 0 or "numba" not in sys.modules:
             return None  # a measurement fed through or quantised is the slave's; numba's start would cost more
         address = sensor_core.step_address()  # compiled, or loaded from numba's cache, on first use
-        slots = (self._cache_slot("true_height"), self._cache_slot("measured_height"), CORE_TIME)
-        self._core_data = sensor_core.pack(slots, MAX_CLEARANCE_M, SAMPLE_TOLERANCE, self._clock.start_time_s,
-                                           self._clock.period_s, sensor_model.STEP_TOLERANCE,
-                                           self._chain.noise.peak_m > 0)
-        self._core_block = None
-        self._store_core_state()
+        self._core_data = self._packed_core()
         return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _packed_core(self) -> np.ndarray:
+        """The core's data for the slave as it is now: its clock, its state, its noise block and the filter's
+        discretisation; not initialised, none (the core leaves every step to the slave)."""
+        slots = (self._cache_slot("true_height"), self._cache_slot("measured_height"), CORE_TIME)
+        data = sensor_core.pack(slots, MAX_CLEARANCE_M, SAMPLE_TOLERANCE, self._clock.start_time_s,
+                                self._clock.period_s, sensor_model.STEP_TOLERANCE, self._chain.noise.peak_m > 0)
+        if self.initialized and self._state is not None:
+            block, position = self._chain.noise.block
+            sensor_core.store(data, self._state, position, block, self._chain.discretisation)
+        return data
 
     def _take_core_state(self) -> None:
         y, rate, noise, measured, position, _ = self._core_data[sensor_core.STATE:sensor_core.BLOCK_START].tolist()
@@ -100,14 +107,8 @@ class SensorChain(NfalSlave):
         self._chain.noise.read_to(int(position))
 
     def _store_core_state(self) -> None:
-        """The state the slave's Python stepped or restored into the core's data, with the noise block and the
-        filter's discretisation it uses now."""
-        if self._core_data is None or self._state is None:
-            return
-        block, position = self._chain.noise.block
-        sensor_core.store(self._core_data, self._state, position, None if block is self._core_block else block,
-                          self._chain.discretisation)
-        self._core_block = block
+        if self._core_data is not None:  # a Python step every 256 samples, where the block is used up: 5 us
+            self._core_data[:] = self._packed_core()
 
     def get_internal_state(self) -> dict:
         return {} if self._state is None else self._chain.get_state(self._state)
@@ -119,5 +120,3 @@ class SensorChain(NfalSlave):
         if self._chain is None:
             self._build()
         self._state = self._chain.set_state(state)
-        self._core_block = None  # the restored noise's
-        self._store_core_state()

@@ -149,6 +149,15 @@ class SensorChain:
             raise InvalidParameterError("state", type(state).__name__, "a SensorState")
         return self._output(state, self._height(true_height_m), at_sample)
 
+    def filtered_output(self, state: SensorState, *, at_sample: bool) -> float:
+        """The measurement [m] behind the analog filter, which reads the state only: :meth:`output` without a height
+        to check (the FMU's read of an output of the state, fmus/sensor_chain.py)."""
+        if not self.filtered:
+            raise InvalidParameterError("analog_cutoff_hz", self.analog_cutoff_hz, "> 0 for a measurement of the state")
+        if not isinstance(state, SensorState):
+            raise InvalidParameterError("state", type(state).__name__, "a SensorState")
+        return self._output(state, math.nan, at_sample)
+
     def _output(self, state: SensorState, height: float, at_sample: bool) -> float:
         if not at_sample:
             return state.measured_m

@@ -46,19 +46,18 @@ def pack(slots: tuple[int, ...], max_height: float, tolerance: float, start: flo
     return np.concatenate([np.array(head, dtype=float), np.zeros(STATE_SIZE + BLOCK)])
 
 
-def store(data: np.ndarray, state, position: int, block: np.ndarray | None,
+def store(data: np.ndarray, state, position: int, block: np.ndarray,
           discretisation: tuple[float, tuple[float, ...]] | None) -> None:
-    """The slave's state (a :class:`~nfal.models.sensor_chain.SensorState`), its noise's position and the filter's
-    discretisation (step size, phi and gamma; None: none yet, the core declines) into ``data``, and the noise block
-    if given (one longer than the core holds: none, the slave draws until its next block)."""
+    """The slave's state (a :class:`~nfal.models.sensor_chain.SensorState`), its noise block and position in it (a
+    block longer than the core holds: none, the slave draws until its next) and the filter's discretisation (step
+    size, phi and gamma; None: none yet, the core declines) into ``data``."""
     data[STATE:STATE + 5] = (*state.filter_m, state.noise_m, state.measured_m, float(position))
     if discretisation is not None:
         data[_STEP], data[_PHI:_PHI + 6] = discretisation[0], discretisation[1]
-    if block is not None:
-        fits = block.size <= BLOCK
-        data[STATE + 5] = block.size if fits else 0.0
-        if fits:
-            data[BLOCK_START:BLOCK_START + block.size] = block
+    fits = block.size <= BLOCK
+    data[STATE + 5] = block.size if fits else 0.0
+    if fits:
+        data[BLOCK_START:BLOCK_START + block.size] = block
 
 
 @jit.kernel

@@ -448,3 +448,35 @@ def test_the_sensors_core_leaves_a_refused_height_to_the_slave(sensor):
         sensor.step(DT)
     (error,) = sensor.errors()
     assert "true_height = 1.0 is invalid" in error and sensor.get("measured_height") == before
+
+
+@pytest.mark.parametrize("cls, inputs, output", [(SensorChain, {"true_height": 1.0}, "measured_height"),
+                                                 (ResonanceTracker, {"drive_voltage": 2000.0}, "excitation_amplitude")])
+def test_an_output_of_the_state_reads_no_input_and_the_step_refuses_it(cls, inputs, output):
+    """Behind the analog filter, or with the transducer's dynamics, the output is the state's (what the runtime serves
+    from its buffer): a read after an input the slave refuses gives the state's value, and the step refuses it."""
+    driver = Driver(cls).start()
+    driver.slave.do_step(0.0, DT)
+    before = driver.get(output)
+    driver.set(**inputs)
+    assert driver.get(output) == before
+    with pytest.raises(InvalidParameterError):
+        driver.slave.do_step(DT, DT)
+
+
+@pytest.mark.parametrize("name", ["tracker", "sensor"])
+def test_a_core_leaves_the_steps_of_a_state_from_before_initialisation_to_the_slave(request, name):
+    """An FMU state taken before initialisation ended, restored after the core stepped: the slave's doStep refuses the
+    step (as its Python does), where the core would have stepped its old state."""
+    instance = request.getfixturevalue(name)
+    instance.fmu.setupExperiment(startTime=0.0)
+    instance.fmu.enterInitializationMode()
+    early = instance.fmu.getFMUstate()
+    instance.fmu.exitInitializationMode()
+    for _ in range(3):
+        instance.step(DT)  # the core's
+    instance.fmu.setFMUstate(early)
+    with pytest.raises(FMICallException):
+        instance.step(DT)
+    assert any("initialisation" in error for error in instance.errors()), instance.errors()
+    instance.fmu.freeFMUstate(early)
