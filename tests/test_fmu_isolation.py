@@ -56,9 +56,8 @@ AT_ONCE = HIDE_EDITABLE_INSTALL + textwrap.dedent('''
     from fmpy.fmi2 import FMU2Slave
     barrier, failures = threading.Barrier(len(sys.argv) - 1), []
 
-    def instantiate(fmu):
-        md = fmpy.read_model_description(fmu)
-        slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(fmu), instanceName="x",
+    def instantiate(fmu, md, folder):
+        slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, instanceName="x",
                           modelIdentifier=md.coSimulation.modelIdentifier)
         barrier.wait()
         try:
@@ -67,7 +66,10 @@ AT_ONCE = HIDE_EDITABLE_INSTALL + textwrap.dedent('''
         except Exception as exc:
             failures.append(f"{fmu}: {exc}")
 
-    threads = [threading.Thread(target=instantiate, args=(fmu,)) for fmu in sys.argv[1:]]
+    # read and extracted first, in this thread: lxml parsing in five threads at once once spun for minutes
+    # (2026-11-29, in read_model_description), and what is tested here is the instantiation
+    loaded = [(fmu, fmpy.read_model_description(fmu), fmpy.extract(fmu)) for fmu in sys.argv[1:]]
+    threads = [threading.Thread(target=instantiate, args=args) for args in loaded]
     for thread in threads:
         thread.start()
     for thread in threads:
