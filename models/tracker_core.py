@@ -6,8 +6,9 @@ are then its state's).
 buffer; ``data`` is :func:`pack`'s array: the buffer's slots, the checks the slave makes, the sample clock, the
 transducer, the PLL's constants and the state (envelope, PLL), which the core keeps. It does what
 :meth:`ResonanceTracker.advance <nfal.models.pll.ResonanceTracker.advance>` and the outputs' read after it do, with the
-same kernels (:mod:`~nfal.models.tracker_kernels`), and answers 0; an input or a step size the slave refuses, or a
-state that is not finite, it leaves untouched and answers 1: the slave's Python steps, and says why if it fails.
+same kernels (:mod:`~nfal.models.tracker_kernels`), and answers 0; an input or a step size the slave refuses, a
+state that is not finite or a drive frequency the transducer refuses (a state restored with one), it leaves untouched
+and answers 1: the slave's Python steps, and says why if it fails.
 """
 
 from __future__ import annotations
@@ -76,6 +77,8 @@ def advance(values, d, t, dt):
         return 1
     if _at_sample(t, d):
         frequency, integrator, error, count, locked = _sample(d, re, im, frequency, integrator, error, count, locked)
+    if not (frequency > 0.0 and math.isfinite(frequency)):
+        return 1  # a drive frequency the transducer refuses (a state restored with one)
     re, im = tracker_kernels.envelope_step(re, im, voltage, frequency, resonance + shift, d[_TRANSDUCER + 1],
                                            d[_TRANSDUCER + 2], dt)
     x[0], x[1], x[2], x[3], x[4], x[5], x[6] = re, im, frequency, integrator, error, count, 1.0 if locked else 0.0
