@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from helpers.fmu_instance import FMI_ERROR, Instance, build_and_extract, runtime_slave
+from helpers.fmu_instance import (FMI_ERROR, Instance, build_and_extract, refuses_a_state_from_before_initialisation,
+                                  runtime_slave)
 
 from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.reynolds_plant import ReynoldsPlant
@@ -477,18 +478,7 @@ def test_reynolds_plant_simulates_with_fmpy(fmus):
 
 
 def test_the_plants_core_leaves_the_steps_of_a_state_from_before_initialisation_to_the_slave(reynolds):
-    """An FMU state taken before initialisation ended, restored after the core stepped free flight: the slave's doStep
-    refuses the step (as its Python does), where the core would have stepped on."""
-    reynolds.fmu.setupExperiment(startTime=0.0)
-    reynolds.fmu.enterInitializationMode()
-    reynolds.set(initial_height=80e-6, excitation_amplitude=5e-6)
-    assert reynolds.get("height") == 80e-6  # the provisional set-up's: a state the core could step
-    early = reynolds.fmu.getFMUstate()
-    reynolds.fmu.exitInitializationMode()
-    for _ in range(3):
-        reynolds.step(STEP)  # the core's
-    reynolds.fmu.setFMUstate(early)
-    with pytest.raises(FMICallException):
-        reynolds.step(STEP)
-    assert any("initialisation" in error for error in reynolds.errors()), reynolds.errors()
-    reynolds.fmu.freeFMUstate(early)
+    """An FMU state taken before initialisation ended (its provisional set-up read: a state the core could step),
+    restored after the core stepped free flight: the slave's doStep refuses the step, as its Python does."""
+    assert refuses_a_state_from_before_initialisation(reynolds, STEP, "height", initial_height=80e-6,
+                                                      excitation_amplitude=5e-6)

@@ -468,15 +468,6 @@ def test_an_output_of_the_state_reads_no_input_and_the_step_refuses_it(cls, inpu
 def test_a_core_leaves_the_steps_of_a_state_from_before_initialisation_to_the_slave(request, name):
     """An FMU state taken before initialisation ended, restored after the core stepped: the slave's doStep refuses the
     step (as its Python does), where the core would have stepped its old state."""
-    instance = request.getfixturevalue(name)
-    instance.fmu.setupExperiment(startTime=0.0)
-    instance.fmu.enterInitializationMode()
-    early = instance.fmu.getFMUstate()
-    instance.fmu.exitInitializationMode()
-    for _ in range(3):
-        instance.step(DT)  # the core's
-    instance.fmu.setFMUstate(early)
-    with pytest.raises(FMICallException):
-        instance.step(DT)
-    assert any("initialisation" in error for error in instance.errors()), instance.errors()
-    instance.fmu.freeFMUstate(early)
+    from helpers.fmu_instance import refuses_a_state_from_before_initialisation
+
+    assert refuses_a_state_from_before_initialisation(request.getfixturevalue(name), DT)

@@ -87,3 +87,29 @@ def runtime_slave(class_name: str, instance_name: str | None = None):
                 getattr(o, "_value_cache", None) is not None and
                 instance_name in (None, getattr(o, "instance_name", None))]
     return slave
+
+
+def refuses_a_state_from_before_initialisation(instance: Instance, step_size: float, read: str | None = None,
+                                               **values) -> bool:
+    """Set ``values`` in initialisation mode (and read the output ``read`` there: the provisional set-up's state), save
+    the FMU state, leave initialisation, step three times (a compiled core's steps), restore the saved state: whether
+    the next doStep then fails saying the instance is not initialised, as the slave's Python says."""
+    from fmpy.fmi1 import FMICallException
+
+    instance.fmu.setupExperiment(startTime=0.0)
+    instance.fmu.enterInitializationMode()
+    instance.set(**values)
+    if read is not None:
+        instance.get(read)
+    early = instance.fmu.getFMUstate()
+    instance.fmu.exitInitializationMode()
+    for _ in range(3):
+        instance.step(step_size)
+    instance.fmu.setFMUstate(early)
+    try:
+        instance.step(step_size)
+    except FMICallException:
+        return any("initialisation" in error for error in instance.errors())
+    finally:
+        instance.fmu.freeFMUstate(early)
+    return False
