@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
-from helpers.fmu_instance import (FMI_ERROR, Instance, build_and_extract, refuses_a_state_from_before_initialisation,
-                                  runtime_slave)
+from helpers.fmu_instance import (FMI_ERROR, Instance, build_and_extract, python_do_steps,
+                                  refuses_a_state_from_before_initialisation)
 
 from nfal.errors import GapClosedError, InvalidParameterError
 from nfal.fmus.reynolds_plant import ReynoldsPlant
@@ -379,10 +379,7 @@ def test_the_reynolds_plants_compiled_core_steps_as_its_python(reynolds):
     python.setup_experiment(0.0)
     python.exit_initialization_mode()
     reynolds.initialize(initial_height=80e-6)
-    slave = runtime_slave("ReynoldsPlant")
-    calls = []
-    original = slave.do_step
-    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    calls = python_do_steps("ReynoldsPlant")
     names = ("height", "velocity", "resting", "oscillation_amplitude")
     saved, rested = None, []
     for k, (level, factor) in enumerate(CORE_SCENARIO):

@@ -326,14 +326,11 @@ def test_the_trackers_compiled_core_steps_as_its_python(tracker, pll_rate):
     """The runtime steps the FMU with the compiled core (the slave's Python do_step is not called), and every output
     is the Python slave's to the bit: locking, a drift, no drive, a drive again, with the PLL sampled at every step
     and at every fourth; and across an FMU state saved and restored."""
-    from helpers.fmu_instance import runtime_slave
+    from helpers.fmu_instance import python_do_steps
 
     python = Driver(ResonanceTracker, pll_rate=pll_rate).start()
     tracker.initialize(pll_rate=pll_rate)
-    slave = runtime_slave("ResonanceTracker")
-    calls = []
-    original = slave.do_step
-    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    calls = python_do_steps("ResonanceTracker")
     names = ("excitation_amplitude", "drive_frequency", "locked", "phase_error")
     saved, locked = None, []
     for k, (voltage, shift) in enumerate(TRACKER_SCENARIO):
@@ -405,14 +402,11 @@ def test_the_sensors_compiled_core_steps_as_its_python(sensor, parameters):
     the core has no noise left (a new block of 256 every 256 samples) or no discretisation for the step size (the
     first step, and a step of another size), and every reading is the Python slave's to the bit; across an FMU state
     saved and restored too."""
-    from helpers.fmu_instance import runtime_slave
+    from helpers.fmu_instance import python_do_steps
 
     python = Driver(SensorChain, **parameters).start()
     sensor.initialize(**parameters)
-    slave = runtime_slave("SensorChain")
-    calls = []
-    original = slave.do_step
-    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    calls = python_do_steps("SensorChain")
     heights = 80e-6 + 20e-6 * np.sin(np.arange(700) / 40.0)
     sizes = [DT] * 600 + [DT / 2] * 100  # a new step size: a new discretisation
     saved, time = None, 0.0

@@ -113,3 +113,12 @@ def refuses_a_state_from_before_initialisation(instance: Instance, step_size: fl
     finally:
         instance.fmu.freeFMUstate(early)
     return False
+
+
+def python_do_steps(class_name: str) -> list:
+    """The calls our runtime makes from now on to the Python ``do_step`` of the live slave of ``class_name``
+    (:func:`runtime_slave`): a step its compiled core takes makes none."""
+    slave, calls = runtime_slave(class_name), []
+    original = slave.do_step
+    slave.do_step = lambda *args: (calls.append(args), original(*args))[1]
+    return calls
