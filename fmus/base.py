@@ -114,8 +114,9 @@ SAMPLE_TOLERANCE = 1e-9
 
 #: The runtime's value cache buffer (fmus/value_cache/nfal_value_cache.hpp, the same numbers): 1 while inputs set in
 #: the runtime wait for the slave; 1 while the outputs computed from inputs are out of date; 1 while the state's
-#: outputs and the time (CORE_TIME) that a compiled core stepped to are newer than the slave's; then the variables.
-INPUTS_WAITING, COMPUTED_STALE, CORE_STEPPED, CORE_TIME, FIRST_SLOT = range(5)
+#: outputs and the time (CORE_TIME) that a compiled core stepped to are newer than the slave's; 1 while the slave holds
+#: every step for its Python (not initialised), whatever its core; then the variables.
+INPUTS_WAITING, COMPUTED_STALE, CORE_STEPPED, CORE_TIME, CORE_HELD, FIRST_SLOT = range(6)
 #: ``NFAL_VALUE_CACHE=off`` in the environment: every call goes to the slave's Python (the cache's own baseline, and a
 #: way to rule it out).
 VALUE_CACHE_ENV = "NFAL_VALUE_CACHE"
@@ -226,6 +227,7 @@ class NfalSlave(Fmi2Slave):
         self._setters: dict[type, dict[int, Callable[[Any], None]]] = {kind: {} for kind in _COERCE}
         #: the runtime's value cache (:meth:`_bind_value_cache`): its buffer, None until bound or outside the runtime
         self._value_cache = None
+        self._core_data = None  # a compiled core's data (_value_cache_core), which the slave keeps alive
 
     # --- declarations -------------------------------------------------------------------------------
     def add_parameter(self, name: str, start: float | int | bool | str, *, unit: str | None = None,
@@ -392,7 +394,7 @@ class NfalSlave(Fmi2Slave):
             self.time = float(current_time) + float(step_size)
             if cache is not None:  # the state's outputs; the computed ones wait for a read (the runtime knows)
                 self._write_state_outputs()
-                self._store_core_state()
+                self._sync_core()
             return True
         except Exception as exc:  # noqa: BLE001 - every error must reach the master as a logged FMI status
             if cache is not None:  # what the failed step left, as far as it reads: the error is the step's
@@ -498,13 +500,34 @@ class NfalSlave(Fmi2Slave):
 
     def _value_cache_core(self) -> tuple[int, int, int, object] | None:
         """A compiled core for the runtime to step this slave on the buffer (:mod:`nfal.models.plant_core`):
-        (its address, its data's address, the data's size in doubles, the data's owner), or None (the default)."""
+        (its address, its data's address, the data's size in doubles, the data's owner), or None: none."""
+        address = self._core_address()
+        if address is None:
+            return None
+        self._core_data = self._packed_core()
+        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+
+    def _core_address(self) -> int | None:
+        """The address of the slave's compiled core as it is set up now (its core module's ``step_address()``), or
+        None: none (the default). A slave with one gives its data too (:meth:`_packed_core`)."""
         return None
 
+    def _packed_core(self):
+        """The core's data for the slave as it is now: a float64 numpy array (its module's ``pack``)."""
+        raise NotImplementedError
+
+    def _sync_core(self) -> None:
+        """After a step in Python and a restore: the runtime holds every step for the slave's Python while it is not
+        initialised (a state restored from before initialisation ended); else its core gets the state."""
+        self._value_cache[CORE_HELD] = 0.0 if self.initialized else 1.0
+        if self.initialized:
+            self._store_core_state()
+
     def _store_core_state(self) -> None:
-        """The slave's state, as its Python stepped or restored it, into its compiled core's data; where the slave is
-        not initialised (a state restored from before initialisation ended) the core must leave every step to it.
-        Called after a step in Python and a restore. Default: nothing (no core)."""
+        """The slave's state, as its Python stepped or restored it (initialised), into its compiled core's data: by
+        default its data packed again, in place (the runtime holds its address)."""
+        if self._core_data is not None:
+            self._core_data[:] = self._packed_core()
 
     def _take_core_state(self) -> None:
         """What the compiled core stepped besides the outputs (the state it keeps in its data), into the slave's
@@ -618,7 +641,7 @@ class NfalSlave(Fmi2Slave):
             self._guard("setFMUstate", run)
         finally:
             if cache is not None:  # what the restore left, as far as it reads (the error is the restore's)
-                self._store_core_state()
+                self._sync_core()
                 with contextlib.suppress(Exception):
                     self._write_inputs()
                     self._write_state_outputs()

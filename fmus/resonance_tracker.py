@@ -73,7 +73,6 @@ class ResonanceTracker(NfalSlave):
         self._clock: SampleClock | None = None
         self._state: pll_model.TrackerState | None = None
         self._last_outputs: tuple | None = None  # ((state, inputs, time), outputs)
-        self._core_data: np.ndarray | None = None  # the compiled core's (models/tracker_core.py)
 
     # --- model ------------------------------------------------------------------------------------------
     def _build(self) -> None:
@@ -131,28 +130,21 @@ class ResonanceTracker(NfalSlave):
                                             at_sample=self._clock.is_sample(current_time))
 
     # --- the compiled core: the runtime steps the tracker without Python (models/tracker_core.py) ------------
-    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+    def _core_address(self) -> int | None:
         if not self._outputs_of_the_state() or "numba" not in sys.modules:
             return None  # the quasi-static transducer's outputs are computed; numba's start would cost more
-        address = tracker_core.step_address()  # compiled, or loaded from numba's cache, on first use
-        self._core_data = self._packed_core()
-        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+        return tracker_core.step_address()  # compiled, or loaded from numba's cache, on first use
 
     def _packed_core(self) -> np.ndarray:
-        """The core's data for the slave as it is now (its clock, its tracker, its state or, not initialised, none)."""
         slots = (*(self._cache_slot(name) for name in ("drive_voltage", "resonance_shift", "excitation_amplitude",
                                                         "drive_frequency", "locked", "phase_error")), CORE_TIME)
         return tracker_core.pack(slots, self._tracker, MAX_DRIVE_VOLTAGE_V, SAMPLE_TOLERANCE, self._clock.start_time_s,
-                                 self._state if self.initialized else None)
+                                 self._state)
 
     def _take_core_state(self) -> None:
         x = self._core_data[tracker_core.STATE:tracker_core.STATE + tracker_core.STATE_SIZE].tolist()
         self._state = pll_model.TrackerState(complex(x[0], x[1]),
                                              pll_model.PllState(x[2], x[3], x[4], int(x[5]), bool(x[6])))
-
-    def _store_core_state(self) -> None:
-        if self._core_data is not None:
-            self._core_data[:] = self._packed_core()
 
     # --- FMU state ----------------------------------------------------------------------------------------
     def get_internal_state(self) -> dict:

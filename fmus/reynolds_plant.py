@@ -70,8 +70,7 @@ class ReynoldsPlant(RigSlave):
         self.add_parameter("shape", "paper", description="excitation form: 'paper' (Fig. 3 stand-in), 'piston', "
                            "'plate:N' or the path of a CSV of (R, eps)")
         self._film: FilmBackend | None = None
-        self._core_data: np.ndarray | None = None  # the compiled core's (models/plant_core.py), and its stepper
-        self._core_stepper = None
+        self._core_stepper = None  # the stepper the compiled core's data was packed from (models/plant_core.py)
 
     # --- initialisation ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -109,25 +108,18 @@ class ReynoldsPlant(RigSlave):
                                          step_size))
 
     # --- the compiled core: the runtime steps free flight without Python (models/plant_core.py) ----------------
-    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+    def _core_address(self) -> int | None:
         if not isinstance(self._film, HarmonicBalanceFilm):
             return None
-        address = plant_core.step_address()  # compiled, or loaded from numba's cache, on first use
-        self._core_data = self._pack_core()
-        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+        return plant_core.step_address()  # compiled, or loaded from numba's cache, on first use
 
     def _store_core_state(self) -> None:
-        """The state is the outputs, in the buffer; the core's data changes with a model rebuilt for a frequency, and
-        holds every step for the slave while it is not initialised."""
-        if self._core_data is None:
-            return
-        if not self.initialized:
-            plant_core.hold(self._core_data)
-            self._core_stepper = None  # repacked when it is again
-        elif self._film.stepper is not self._core_stepper:
-            self._core_data[:] = self._pack_core()
+        """The state is the outputs, in the buffer: the core's data changes only with a model rebuilt for a
+        frequency."""
+        if self._core_data is not None and self._film.stepper is not self._core_stepper:
+            super()._store_core_state()
 
-    def _pack_core(self) -> np.ndarray:
+    def _packed_core(self) -> np.ndarray:
         self._core_stepper = self._film.stepper
         slots = (*(self._cache_slot(name) for name in ("excitation_amplitude", "drive_frequency", "height", "velocity",
                                                         "resting", "oscillation_amplitude")), CORE_TIME)

@@ -50,7 +50,6 @@ class SensorChain(NfalSlave):
         self._chain: sensor_model.SensorChain | None = None
         self._clock: SampleClock | None = None
         self._state: sensor_model.SensorState | None = None
-        self._core_data: np.ndarray | None = None  # the compiled core's (models/sensor_core.py)
 
     def _build(self) -> None:
         if self.seed < 0:
@@ -83,32 +82,24 @@ class SensorChain(NfalSlave):
                                           at_sample=self._clock.is_sample(current_time))
 
     # --- the compiled core: the runtime steps the chain without Python (models/sensor_core.py) ---------------
-    def _value_cache_core(self) -> tuple[int, int, int, object] | None:
+    def _core_address(self) -> int | None:
         if not self._outputs_of_the_state() or self._chain.resolution_m != 0 or "numba" not in sys.modules:
             return None  # a measurement fed through or quantised is the slave's; numba's start would cost more
-        address = sensor_core.step_address()  # compiled, or loaded from numba's cache, on first use
-        self._core_data = self._packed_core()
-        return address, self._core_data.ctypes.data, self._core_data.size, self._core_data
+        return sensor_core.step_address()  # compiled, or loaded from numba's cache, on first use
 
     def _packed_core(self) -> np.ndarray:
-        """The core's data for the slave as it is now: its clock, its state, its noise block and the filter's
-        discretisation; not initialised, none (the core leaves every step to the slave)."""
+        """Its clock, its state, its noise block (packed again where the slave's Python stepped: every 256 samples,
+        where the block is used up) and the filter's discretisation."""
         slots = (self._cache_slot("true_height"), self._cache_slot("measured_height"), CORE_TIME)
-        data = sensor_core.pack(slots, MAX_CLEARANCE_M, SAMPLE_TOLERANCE, self._clock.start_time_s,
-                                self._clock.period_s, sensor_model.STEP_TOLERANCE, self._chain.noise.peak_m > 0)
-        if self.initialized and self._state is not None:
-            block, position = self._chain.noise.block
-            sensor_core.store(data, self._state, position, block, self._chain.discretisation)
-        return data
+        block, position = self._chain.noise.block
+        return sensor_core.pack(slots, MAX_CLEARANCE_M, SAMPLE_TOLERANCE, self._clock.start_time_s,
+                                self._clock.period_s, sensor_model.STEP_TOLERANCE, self._chain.discretisation,
+                                self._chain.noise.peak_m > 0, self._state, position, block)
 
     def _take_core_state(self) -> None:
         y, rate, noise, measured, position, _ = self._core_data[sensor_core.STATE:sensor_core.BLOCK_START].tolist()
         self._state = sensor_model.SensorState((y, rate), noise, measured)
         self._chain.noise.read_to(int(position))
-
-    def _store_core_state(self) -> None:
-        if self._core_data is not None:  # a Python step every 256 samples, where the block is used up: 5 us
-            self._core_data[:] = self._packed_core()
 
     def get_internal_state(self) -> dict:
         return {} if self._state is None else self._chain.get_state(self._state)

@@ -51,11 +51,6 @@ def pack(slots: tuple[int, ...], stepper: FixedStepPlant, reach: float) -> np.nd
     return np.ascontiguousarray(np.concatenate([np.asarray(p, dtype=float) for p in parts]))
 
 
-def hold(data: np.ndarray) -> None:
-    """Leave every step to the slave until ``data`` is packed again (the slave not initialised)."""
-    data[_FREQUENCY] = math.nan
-
-
 @jit.kernel
 def _curve(d, o):
     """The curve at ``d[o:]`` and the offset after it."""
@@ -74,8 +69,8 @@ def advance(values, d, t, dt):
     h, v = values[int(s[2])], values[int(s[3])]
     if not (a >= 0.0 and a <= MAX_EXCITATION_M and f > 0.0 and math.isfinite(f) and dt > 0.0 and math.isfinite(dt)):
         return 1  # the slave refuses it, saying why
-    if not abs(f - d[_FREQUENCY]) <= FREQUENCY_TOLERANCE * d[_FREQUENCY] or values[int(s[4])] != 0.0:
-        return 1  # a new drive frequency (the slave rebuilds its model), held (NaN: hold), or resting
+    if abs(f - d[_FREQUENCY]) > FREQUENCY_TOLERANCE * d[_FREQUENCY] or values[int(s[4])] != 0.0:
+        return 1  # a new drive frequency (the slave rebuilds its model), or resting
     if a * d[_REACH] >= h or not (math.isfinite(h) and math.isfinite(v)):
         return 1  # touchdown
     curve, o = _curve(d, _CURVE)

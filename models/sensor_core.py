@@ -40,24 +40,21 @@ def filter_step(height, rate, u, p00, p01, p10, p11, g0, g1):
 
 
 def pack(slots: tuple[int, ...], max_height: float, tolerance: float, start: float, period: float,
-         step_tolerance: float, noisy: bool) -> np.ndarray:
-    """``data`` for the core: no discretisation, state or block yet (:func:`store` gives them)."""
-    head = [*slots, max_height, tolerance, start, period, math.nan, step_tolerance, *[math.nan] * 6, float(noisy)]
-    return np.concatenate([np.array(head, dtype=float), np.zeros(STATE_SIZE + BLOCK)])
-
-
-def store(data: np.ndarray, state, position: int, block: np.ndarray,
-          discretisation: tuple[float, tuple[float, ...]] | None) -> None:
-    """The slave's state (a :class:`~nfal.models.sensor_chain.SensorState`), its noise block and position in it (a
-    block longer than the core holds: none, the slave draws until its next) and the filter's discretisation (step
-    size, phi and gamma; None: none yet, the core declines) into ``data``."""
-    data[STATE:STATE + 5] = (*state.filter_m, state.noise_m, state.measured_m, float(position))
-    if discretisation is not None:
-        data[_STEP], data[_PHI:_PHI + 6] = discretisation[0], discretisation[1]
+         step_tolerance: float, discretisation: tuple[float, tuple[float, ...]] | None, noisy: bool, state,
+         position: int, block: np.ndarray) -> np.ndarray:
+    """``data`` for the core: the buffer's ``slots`` (as above), the slave's largest clearance and sample clock, the
+    filter's discretisation (step size, phi and gamma; None: none yet, and the core declines), whether there is noise,
+    the slave's state (a :class:`~nfal.models.sensor_chain.SensorState`) and its noise block with the position in it
+    (one longer than the core holds counts as used up: the slave draws until its next)."""
+    step, transition = discretisation if discretisation is not None else (math.nan, (math.nan,) * 6)
     fits = block.size <= BLOCK
-    data[STATE + 5] = block.size if fits else 0.0
+    head = [*slots, max_height, tolerance, start, period, step, step_tolerance, *transition, float(noisy),
+            *state.filter_m, state.noise_m, state.measured_m, float(position), float(block.size if fits else 0)]
+    data = np.zeros(len(head) + BLOCK)
+    data[:len(head)] = head
     if fits:
         data[BLOCK_START:BLOCK_START + block.size] = block
+    return data
 
 
 @jit.kernel

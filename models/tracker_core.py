@@ -40,11 +40,11 @@ def state_values(state) -> list[float]:
 def pack(slots: tuple[int, ...], tracker, max_voltage: float, tolerance: float, start: float, state) -> np.ndarray:
     """``data`` for the core: the buffer's ``slots`` (as above), the slave's largest drive voltage, its sample clock
     (``tolerance``, ``start``; the PLL's period) and ``tracker`` (a :class:`~nfal.models.pll.ResonanceTracker`) in
-    ``state``; None: no state (the slave not initialised), and the core leaves every step to the slave."""
+    ``state``."""
     transducer, pll = tracker.transducer, tracker.pll
     head = [*slots, max_voltage, tolerance, start, pll.period_s, transducer.resonance_frequency_hz,
             transducer.quality_factor, transducer.metres_per_volt, *(float(c) for c in pll.constants)]
-    return np.array([*head, *(state_values(state) if state is not None else [math.nan] * STATE_SIZE)], dtype=float)
+    return np.array([*head, *state_values(state)], dtype=float)
 
 
 @jit.kernel

@@ -22,7 +22,8 @@ namespace nfal
 // layout does not name, or any other call goes to Python as before, so every error is the slave's own. A slave may
 // also have a compiled core (NfalSlave._value_cache_core): a C function that takes a doStep on the buffer and says
 // whether it did (slot 2 then says the state's outputs and the time, slot 3, are newer than the slave's, which takes
-// them at its next call); a step it declines goes to Python, which does it all.
+// them at its next call); a step it declines goes to Python, which does it all. Slot 4 is 1 while the slave holds
+// every step for its Python (not initialised: a state restored from before initialisation ended), whatever its core.
 template<typename ValueReference>
 class ValueCache
 {
@@ -89,7 +90,8 @@ public:
     // A doStep by the slave's compiled core, if it has one and takes this step; false: the slave's Python steps.
     bool step(double t, double dt)
     {
-        if (!active_ || core_ == nullptr || core_(values_, size_, coreValues_, coreSize_, t, dt) != 0) {
+        if (!active_ || core_ == nullptr || values_[kCoreHeld] != 0.0 ||
+            core_(values_, size_, coreValues_, coreSize_, t, dt) != 0) {
             return false;
         }
         values_[kCoreStepped] = 1.0; // the state's outputs and the time are the buffer's
@@ -179,9 +181,10 @@ private:
     };
     // The buffer's doubles (fmus/base.py names them alike): 1 while inputs wait for the slave; 1 while the computed
     // outputs are out of date; 1 while the state's outputs and the time (the next slot) are newer than the slave's
-    // (its core stepped); then one value per variable of the layout.
-    static constexpr std::size_t kInputsWaiting = 0, kComputedStale = 1, kCoreStepped = 2;
-    static constexpr Py_ssize_t kFirstSlot = 4;
+    // (its core stepped); the time; 1 while the slave holds its steps from its core; then one value per variable of
+    // the layout.
+    static constexpr std::size_t kInputsWaiting = 0, kComputedStale = 1, kCoreStepped = 2, kCoreHeld = 4;
+    static constexpr Py_ssize_t kFirstSlot = 5;
     bool active_ = false;
     bool hasComputed_ = false;
     PyObject* buffer_ = nullptr; // the bytearray
