@@ -417,7 +417,9 @@ class NfalSlave(Fmi2Slave):
                 getters, convert = self._getters[kind], _COERCE[kind]
                 cache = self._value_cache
                 if cache is not None:  # the runtime asks: computed outputs out of date, or not its variables
-                    self._write_computed()  # (what waits for the slave taken first), each computed once
+                    self._take_from_cache()  # what waits for the slave
+                    if cache[COMPUTED_STALE]:  # each computed once, not again for a read of another variable
+                        self._write_computed()
                     slots = self._computed_slots[kind]
                     return [convert(cache[slots[vr]]) if vr in slots else convert(getters[vr]()) for vr in vrs]
                 return [convert(getters[vr]()) for vr in vrs]

@@ -378,6 +378,26 @@ def test_the_runtime_answers_the_gets_and_sets_of_a_step_from_its_value_cache(sc
         instance.free()
 
 
+def test_a_read_of_another_variable_does_not_compute_the_outputs_again(scale_fmu):
+    """A host that reads a variable the cache does not hold (a parameter) enters the slave's Python; the computed
+    outputs, up to date, are not computed again for it (they were, for every such read)."""
+    instance = Instance(*scale_fmu, name="recounted")
+    try:
+        instance.initialize(u=0.25)
+        slave = runtime_slave("Scale", "recounted")
+        computed = []
+        slave._cache_computed = [(slot, lambda _g=getter: (computed.append(1), _g())[1])
+                                 for slot, getter in slave._cache_computed]
+        instance.set(u=0.5)
+        assert instance.get("y") == 1.0 and len(computed) == 1
+        assert [instance.get("k") for _ in range(3)] == [2.0] * 3
+        assert instance.get("y") == 1.0 and len(computed) == 1
+        instance.set(u=0.25)
+        assert instance.get("k") == 2.0 and instance.get("y") == 0.5 and len(computed) == 2
+    finally:
+        instance.free()
+
+
 def test_nfal_value_cache_off_sends_every_call_to_the_slave(scale_fmu, monkeypatch):
     """VALUE_CACHE_ENV=off: the runtime binds no cache, so a step's sets and reads reach the slave's Python."""
     monkeypatch.setenv(VALUE_CACHE_ENV, "off")
