@@ -161,10 +161,14 @@ class CompiledStep:
         return self.slaves[index].seconds
 
 
-def compiled_step(slaves: list, before: list, after: list, columns: int,
-                  integer_columns: tuple[int, ...]) -> CompiledStep | None:
+def compiled_step(slaves: list, before: list, after: list, columns: int, integer_columns: tuple[int, ...],
+                  integer_inputs: list[str]) -> CompiledStep | None:
     """The kernel's step for these slaves and programs, or None where the master exchanges in Python: the kernel is
-    switched off or cannot be built, or a transfer moves a type a double does not hold exactly (said at DEBUG)."""
+    switched off or cannot be built, a transfer moves a type a double does not hold exactly, or an external input is
+    an Integer (``integer_inputs``: a Python int may not fit a double; said at DEBUG)."""
+    if integer_inputs:
+        logger.debug("the master exchanges in Python: Integer external inputs %s", ", ".join(integer_inputs))
+        return None
     kernel = library()
     if kernel is None:
         return None

@@ -550,12 +550,8 @@ class Master:
         integer_columns = tuple(c for c, column in enumerate(self.columns) if column.type != "Real")
         self._signal_columns = (0, *(column for column, _, _ in self.signals))  # what the step writes from Python
         integer_inputs = [self.columns[c].name for c, _, _ in self.signals if self.columns[c].type == "Integer"]
-        if integer_inputs:  # a Python int may not fit a double: the Python exchange keeps it exact
-            logger.debug("the master exchanges in Python: Integer external inputs %s", ", ".join(integer_inputs))
-            self._compiled = None
-        else:
-            self._compiled = compiled_step(self.slaves, *self.exchange.programs(self), len(self.columns),
-                                           integer_columns)
+        self._compiled = compiled_step(self.slaves, *self.exchange.programs(self), len(self.columns), integer_columns,
+                                       integer_inputs)
 
     def _update_signals(self) -> None:
         t, row = self.time, self.row
