@@ -22,10 +22,10 @@ the film's delay in following slow motion beyond eq. (6). Touchdown and lift-off
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
+from . import slow_kernels
 from .calibration import CalibrationFunction
 from .film_force_table import FilmForceTable
 from .plant import DEFAULT_REST_GAP, SimplifiedPlant
@@ -68,8 +68,7 @@ class AveragedFilmPlant(SimplifiedPlant):
         """Amplitude chi [m] of the object's fast oscillation (eq. 1), to first order in delta:
         |zeta| hbar = |a| |zeta / delta| (:meth:`FilmForceTable.response`, interpolated linearly in log sigma
         between the table's points; 0 for a table without a rig)."""
-        log_sigma = math.log(self._sigma_scale / (height * height))
-        return float(np.interp(log_sigma, self._log_sigmas, self._response)) * excitation
+        return float(slow_kernels.oscillation(self._sigma_scale, self._log_sigmas, self._response, height, excitation))
 
 
 class _DeltaZeroView(CalibrationFunction):

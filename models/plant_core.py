@@ -81,9 +81,8 @@ def advance(values, d, t, dt):
     if outcome != slow_kernels.FLEW:
         return 1  # near the surface, too stiff a step, or it left free flight: the slave's integrators
     n = int(d[o])
-    log_sigma = math.log(d[_SIGMA_SCALE] / (h * h))
     values[int(s[2])], values[int(s[3])] = h, v
-    values[int(s[5])] = np.interp(log_sigma, d[o + 1:o + 1 + n], d[o + 1 + n:o + 1 + 2 * n]) * a
+    values[int(s[5])] = slow_kernels.oscillation(d[_SIGMA_SCALE], d[o + 1:o + 1 + n], d[o + 1 + n:o + 1 + 2 * n], h, a)
     values[int(s[6])] = t + dt
     return 0
 

@@ -140,6 +140,14 @@ def free_flight_step(model, h, v, a, step, floor):
 
 
 @kernel
+def oscillation(sigma_scale, log_sigmas, response, h, a):
+    """Amplitude [m] of the object's fast oscillation at clearance ``h`` with |a| = ``a`` (eq. 1, to first order in
+    delta): |a| |zeta / delta|, |zeta / delta| interpolated linearly in log sigma, sigma = ``sigma_scale`` / h^2,
+    between the table's points (``AveragedFilmPlant.oscillation_table``)."""
+    return np.interp(math.log(sigma_scale / (h * h)), log_sigmas, response) * a
+
+
+@kernel
 def exponential_advance(model, h, v, a, step, rest):
     """Exponential Euler over ``step`` s with the clearance frozen over sub-steps that move it by at most
     FAST_HEIGHT_FRACTION: exact for the damping term at any stiffness. Returns (h, v, landed): landed when
@@ -171,6 +179,7 @@ def _call_every_kernel() -> None:
     substeps(ANY_MODEL, 1e-6, h, h)
     acceleration(ANY_MODEL, h, 0.0, 0.0)
     curve_value(*ANY_MODEL[4], 1.0, 0.0)
+    oscillation(1.0, np.array([0.0, 1.0]), np.array([0.0, 1.0]), 1.0, 0.0)
 
 
 def load() -> None:
